@@ -1,0 +1,1 @@
+//! System identification and analyses on actuation logs.
