@@ -1,5 +1,19 @@
 //! Hardware-independent actuation firmware: everything here builds for the host and is tested there.
+//!
+//! - [`app`]: shared state ([`app::Shared`], [`app::Config`]) and the task entry points
+//!   [`app::stepper_task`], [`app::sampler_task`], [`app::command_task`].
+//! - [`motion`]: trapezoidal profiles → step instants; [`protocol`]: the characterisation cycles.
+//! - [`command`]: the serial line protocol; [`telemetry`]: frame and event lines.
+//! - [`board`]: pin map and pressure-sensor transfer function; [`hal`]: the hardware traits.
 #![cfg_attr(not(test), no_std)]
 #![forbid(unsafe_code)]
+// Channel loops index several parallel per-channel arrays at once.
+#![allow(clippy::needless_range_loop)]
 
+pub mod app;
+pub mod board;
+pub mod command;
 pub mod hal;
+pub mod motion;
+pub mod protocol;
+pub mod telemetry;

@@ -1,0 +1,769 @@
+//! The serial command protocol: one ASCII line per command, one reply line per command.
+//!
+//! Lines end with `\n` (a preceding `\r` is ignored), hold at most [`MAX_LINE`] bytes, and
+//! are split on spaces/tabs. Numbers are decimal (`12`, `-0.5`, `1.5e-3`); floats must be
+//! finite. `<axes>` is `all` or a set of channel digits (`0`, `12`, `012`). Volumes in mm³,
+//! flows in mm³/s, accelerations in mm³/s², pressures in kPa.
+//!
+//! | command | effect |
+//! | --- | --- |
+//! | `move <axes> <volume> [<flow> [<accel>]]` | move to an absolute volume (from rest) |
+//! | `run <axes> <v_low> <v_high> <cycles> <dwell_ms> <flow>…` | characterisation protocol (paper Fig. 1c): go to `v_low`, then per flow (1..=8 flows) `cycles` × (inflate to `v_high`, dwell, deflate to `v_low`, dwell) |
+//! | `stop` | stop all motion now (cancels `run`) |
+//! | `clear` | clear latched faults |
+//! | `zero` | re-take the pressure zero (syringes at rest, ~1 s) |
+//! | `status` | one-line state report |
+//! | `limit <axes> <p_max_kpa> <capacity_mm3>` | set the safety limits |
+//! | `origin <axes> [<volume>]` | declare the current volume (default 0), at rest |
+//! | `model <ch> begin <n> <m> <p> <v_off> <v_scale> <f_off> <f_scale>` | start loading a model |
+//! | `model <ch> coef <index> <b>…` | scaled coefficients `b_ij` from `index` (= i·(m+1)+j), 1..=8 per line |
+//! | `model <ch> ar <index> <b>…` | scaled AR coefficients, flattened `b_11 b_12 b_21 …`, from `index` |
+//! | `model <ch> commit` | check and install the staged model |
+//! | `model <ch> default` | reinstall the paper's SBA1 model |
+//! | `rls <ch> on [<lambda>]` / `rls <ch> off` | online RLS identification (chamber force-free!) |
+//!
+//! Replies: `ok` (possibly followed by fields) or `err <code> [<detail>]`. The parser never
+//! panics; every bad line gets an `err` reply naming the argument.
+
+use core::fmt;
+use core::str::FromStr;
+
+use heapless::Vec;
+
+use crate::hal::AXES;
+
+/// Longest accepted command line, bytes (without the terminator).
+pub const MAX_LINE: usize = 200;
+/// Most flow rates in one `run`.
+pub const MAX_FLOWS: usize = 8;
+/// Most coefficients on one `model … coef`/`ar` line.
+pub const MAX_CHUNK: usize = 8;
+
+/// A set of axes/channels.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct AxisSet(pub u8);
+
+impl AxisSet {
+    /// Every axis.
+    pub const ALL: AxisSet = AxisSet((1 << AXES) - 1);
+    /// Whether `axis` is in the set.
+    pub fn contains(self, axis: usize) -> bool {
+        self.0 & (1 << axis) != 0
+    }
+    /// The axes in the set, ascending.
+    pub fn iter(self) -> impl Iterator<Item = usize> {
+        (0..AXES).filter(move |&a| self.contains(a))
+    }
+}
+
+/// The characterisation protocol's parameters (paper Fig. 1c).
+#[derive(Clone, Debug, PartialEq)]
+pub struct ProtocolSpec {
+    /// Axes driven together.
+    pub axes: AxisSet,
+    /// Lower volume of each cycle, mm³.
+    pub v_low: f32,
+    /// Upper volume of each cycle, mm³.
+    pub v_high: f32,
+    /// Inflate/deflate cycles per flow rate.
+    pub cycles: u16,
+    /// Dwell at each end, ms.
+    pub dwell_ms: u32,
+    /// Flow rates, mm³/s, in the order run.
+    pub flows: Vec<f32, MAX_FLOWS>,
+}
+
+/// What `model <ch> …` does.
+#[derive(Clone, Debug, PartialEq)]
+pub enum ModelCmd {
+    /// Start staging a model of this shape and scaling.
+    Begin {
+        /// Degree in v.
+        n: u8,
+        /// Degree in v̇.
+        m: u8,
+        /// AR order.
+        p: u8,
+        /// `[v_offset, v_scale, f_offset, f_scale]`.
+        scaling: [f32; 4],
+    },
+    /// Scaled polynomial coefficients from `start`.
+    Coef {
+        /// Index of the first value.
+        start: u8,
+        /// Values.
+        values: Vec<f32, MAX_CHUNK>,
+    },
+    /// Flattened scaled AR coefficients from `start`.
+    Ar {
+        /// Index of the first value.
+        start: u8,
+        /// Values.
+        values: Vec<f32, MAX_CHUNK>,
+    },
+    /// Install the staged model.
+    Commit,
+    /// Install the built-in SBA1 model.
+    Default,
+}
+
+/// A parsed command.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Command {
+    /// Move to an absolute volume.
+    Move {
+        /// Axes.
+        axes: AxisSet,
+        /// Target volume, mm³.
+        volume: f32,
+        /// Flow limit, mm³/s (configured default if absent).
+        flow: Option<f32>,
+        /// Acceleration, mm³/s² (configured default if absent).
+        accel: Option<f32>,
+    },
+    /// Run the characterisation protocol.
+    Run(ProtocolSpec),
+    /// Stop all motion.
+    Stop,
+    /// Clear latched faults.
+    Clear,
+    /// Re-take the pressure zero.
+    Zero,
+    /// Report state.
+    Status,
+    /// Set safety limits.
+    Limit {
+        /// Channels.
+        axes: AxisSet,
+        /// Pressure limit, kPa.
+        p_max_kpa: f32,
+        /// Syringe capacity (volume limit), mm³.
+        capacity_mm3: f32,
+    },
+    /// Declare the current volume.
+    Origin {
+        /// Axes.
+        axes: AxisSet,
+        /// Volume, mm³.
+        volume: f32,
+    },
+    /// Model loading.
+    Model {
+        /// Channel.
+        ch: u8,
+        /// What to do.
+        cmd: ModelCmd,
+    },
+    /// Online RLS on or off.
+    Rls {
+        /// Channel.
+        ch: u8,
+        /// `Some(lambda)` to switch on (configured default if not given), `None` for off.
+        lambda: Option<Option<f32>>,
+    },
+}
+
+/// Why a line did not parse. `index` counts words from 0 (the command name).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub enum ParseError {
+    /// Nothing but white space.
+    Empty,
+    /// The line is longer than [`MAX_LINE`].
+    TooLong,
+    /// The line is not ASCII.
+    NotAscii,
+    /// The first word is not a command.
+    UnknownCommand,
+    /// A required argument is missing.
+    Missing {
+        /// Word index.
+        index: u8,
+    },
+    /// An argument is not a (finite) number or not a known keyword.
+    Invalid {
+        /// Word index.
+        index: u8,
+    },
+    /// An argument is a number outside its allowed range.
+    OutOfRange {
+        /// Word index.
+        index: u8,
+    },
+    /// More arguments than the command takes.
+    TooMany {
+        /// Word index of the first extra one.
+        index: u8,
+    },
+}
+
+impl ParseError {
+    /// Short machine-readable code used in `err` replies.
+    pub fn code(&self) -> &'static str {
+        match self {
+            Self::Empty => "empty",
+            Self::TooLong => "too-long",
+            Self::NotAscii => "not-ascii",
+            Self::UnknownCommand => "unknown-command",
+            Self::Missing { .. } => "missing-argument",
+            Self::Invalid { .. } => "invalid-argument",
+            Self::OutOfRange { .. } => "out-of-range",
+            Self::TooMany { .. } => "too-many-arguments",
+        }
+    }
+}
+
+impl fmt::Display for ParseError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.code())?;
+        match self {
+            Self::Missing { index }
+            | Self::Invalid { index }
+            | Self::OutOfRange { index }
+            | Self::TooMany { index } => write!(f, " {index}"),
+            Self::TooLong => write!(f, " {MAX_LINE}"),
+            _ => Ok(()),
+        }
+    }
+}
+
+/// Words of a line with their indices.
+struct Words<'a> {
+    it: core::str::SplitAsciiWhitespace<'a>,
+    index: u8,
+}
+
+impl<'a> Words<'a> {
+    fn next_word(&mut self) -> Option<(u8, &'a str)> {
+        let w = self.it.next()?;
+        let i = self.index;
+        self.index = self.index.saturating_add(1);
+        Some((i, w))
+    }
+    fn word(&mut self) -> Result<(u8, &'a str), ParseError> {
+        let index = self.index;
+        self.next_word().ok_or(ParseError::Missing { index })
+    }
+    fn parse<T: FromStr>(&mut self) -> Result<(u8, T), ParseError> {
+        let (i, w) = self.word()?;
+        w.parse()
+            .map(|x| (i, x))
+            .map_err(|_| ParseError::Invalid { index: i })
+    }
+    /// A finite float within `lo..=hi`.
+    fn float(&mut self, lo: f32, hi: f32) -> Result<f32, ParseError> {
+        let (i, x): (u8, f32) = self.parse()?;
+        check_float(i, x, lo, hi)
+    }
+    fn opt_float(&mut self, lo: f32, hi: f32) -> Result<Option<f32>, ParseError> {
+        match self.next_word() {
+            None => Ok(None),
+            Some((i, w)) => {
+                let x: f32 = w.parse().map_err(|_| ParseError::Invalid { index: i })?;
+                check_float(i, x, lo, hi).map(Some)
+            }
+        }
+    }
+    fn int<T: FromStr + PartialOrd>(&mut self, lo: T, hi: T) -> Result<T, ParseError> {
+        let (i, x): (u8, T) = self.parse()?;
+        if x < lo || x > hi {
+            return Err(ParseError::OutOfRange { index: i });
+        }
+        Ok(x)
+    }
+    fn axes(&mut self) -> Result<AxisSet, ParseError> {
+        let (i, w) = self.word()?;
+        parse_axes(w).ok_or(ParseError::Invalid { index: i })
+    }
+    fn channel(&mut self) -> Result<u8, ParseError> {
+        self.int(0u8, AXES as u8 - 1)
+    }
+    /// 1..=MAX_CHUNK remaining floats, each finite.
+    fn floats<const N: usize>(&mut self) -> Result<Vec<f32, N>, ParseError> {
+        let mut out = Vec::new();
+        while let Some((i, w)) = self.next_word() {
+            let x: f32 = w.parse().map_err(|_| ParseError::Invalid { index: i })?;
+            let x = check_float(i, x, f32::MIN, f32::MAX)?;
+            out.push(x).map_err(|_| ParseError::TooMany { index: i })?;
+        }
+        if out.is_empty() {
+            return Err(ParseError::Missing { index: self.index });
+        }
+        Ok(out)
+    }
+    fn end(mut self) -> Result<(), ParseError> {
+        match self.next_word() {
+            None => Ok(()),
+            Some((index, _)) => Err(ParseError::TooMany { index }),
+        }
+    }
+}
+
+fn check_float(index: u8, x: f32, lo: f32, hi: f32) -> Result<f32, ParseError> {
+    if !x.is_finite() {
+        Err(ParseError::Invalid { index })
+    } else if x < lo || x > hi {
+        Err(ParseError::OutOfRange { index })
+    } else {
+        Ok(x)
+    }
+}
+
+fn parse_axes(w: &str) -> Option<AxisSet> {
+    if w == "all" {
+        return Some(AxisSet::ALL);
+    }
+    if w.is_empty() || w.len() > AXES {
+        return None;
+    }
+    let mut mask = 0u8;
+    for b in w.bytes() {
+        let d = b.checked_sub(b'0').filter(|&d| (d as usize) < AXES)?;
+        if mask & (1 << d) != 0 {
+            return None;
+        }
+        mask |= 1 << d;
+    }
+    Some(AxisSet(mask))
+}
+
+/// Bounds that no valid command exceeds (the application checks the configured limits).
+const VOLUME_MAX: f32 = 1.0e6;
+const FLOW_MAX: f32 = 1.0e4;
+const ACCEL_MAX: f32 = 1.0e6;
+const PRESSURE_MAX: f32 = 1.0e4;
+
+/// Parse one command line (without its terminator; a trailing `\r` is allowed).
+pub fn parse(line: &[u8]) -> Result<Command, ParseError> {
+    if line.len() > MAX_LINE {
+        return Err(ParseError::TooLong);
+    }
+    let line = core::str::from_utf8(line).map_err(|_| ParseError::NotAscii)?;
+    if !line.is_ascii() {
+        return Err(ParseError::NotAscii);
+    }
+    let mut w = Words {
+        it: line.split_ascii_whitespace(),
+        index: 0,
+    };
+    let (_, name) = w.next_word().ok_or(ParseError::Empty)?;
+    let cmd = match name {
+        "move" => Command::Move {
+            axes: w.axes()?,
+            volume: w.float(-VOLUME_MAX, VOLUME_MAX)?,
+            flow: w.opt_float(f32::MIN_POSITIVE, FLOW_MAX)?,
+            accel: w.opt_float(f32::MIN_POSITIVE, ACCEL_MAX)?,
+        },
+        "run" => {
+            let axes = w.axes()?;
+            let v_low = w.float(0.0, VOLUME_MAX)?;
+            let v_high = w.float(0.0, VOLUME_MAX)?;
+            if v_high <= v_low {
+                return Err(ParseError::OutOfRange { index: 3 });
+            }
+            let cycles = w.int(1u16, u16::MAX)?;
+            let dwell_ms = w.int(0u32, 3_600_000)?;
+            let first = w.index;
+            let flows = w.floats::<MAX_FLOWS>()?;
+            for (k, &f) in flows.iter().enumerate() {
+                check_float(first + k as u8, f, f32::MIN_POSITIVE, FLOW_MAX)?;
+            }
+            Command::Run(ProtocolSpec {
+                axes,
+                v_low,
+                v_high,
+                cycles,
+                dwell_ms,
+                flows,
+            })
+        }
+        "stop" => Command::Stop,
+        "clear" => Command::Clear,
+        "zero" => Command::Zero,
+        "status" => Command::Status,
+        "limit" => Command::Limit {
+            axes: w.axes()?,
+            p_max_kpa: w.float(f32::MIN_POSITIVE, PRESSURE_MAX)?,
+            capacity_mm3: w.float(f32::MIN_POSITIVE, VOLUME_MAX)?,
+        },
+        "origin" => Command::Origin {
+            axes: w.axes()?,
+            volume: w.opt_float(-VOLUME_MAX, VOLUME_MAX)?.unwrap_or(0.0),
+        },
+        "model" => {
+            let ch = w.channel()?;
+            let (i, verb) = w.word()?;
+            let cmd = match verb {
+                "begin" => ModelCmd::Begin {
+                    n: w.int(0u8, model_core::poly::MAX_DEG as u8)?,
+                    m: w.int(0u8, model_core::poly::MAX_DEG as u8)?,
+                    p: w.int(0u8, model_core::poly::MAX_AR as u8)?,
+                    scaling: [
+                        w.float(-VOLUME_MAX, VOLUME_MAX)?,
+                        w.float(f32::MIN_POSITIVE, VOLUME_MAX)?,
+                        w.float(-FLOW_MAX, FLOW_MAX)?,
+                        w.float(f32::MIN_POSITIVE, FLOW_MAX)?,
+                    ],
+                },
+                "coef" => ModelCmd::Coef {
+                    start: w.int(0u8, model_core::poly::MAX_TERMS as u8 - 1)?,
+                    values: w.floats()?,
+                },
+                "ar" => ModelCmd::Ar {
+                    start: w.int(0u8, 2 * model_core::poly::MAX_AR as u8 - 1)?,
+                    values: w.floats()?,
+                },
+                "commit" => ModelCmd::Commit,
+                "default" => ModelCmd::Default,
+                _ => return Err(ParseError::Invalid { index: i }),
+            };
+            Command::Model { ch, cmd }
+        }
+        "rls" => {
+            let ch = w.channel()?;
+            let (i, verb) = w.word()?;
+            let lambda = match verb {
+                "on" => Some(w.opt_float(0.5, 1.0)?),
+                "off" => None,
+                _ => return Err(ParseError::Invalid { index: i }),
+            };
+            Command::Rls { ch, lambda }
+        }
+        _ => return Err(ParseError::UnknownCommand),
+    };
+    w.end()?;
+    Ok(cmd)
+}
+
+/// Assembles command lines from serial bytes: `\n` ends a line, `\r` is dropped, and an
+/// over-long line is reported once (as [`ParseError::TooLong`]) when its terminator arrives.
+#[derive(Debug, Default)]
+pub struct LineAssembler {
+    buf: Vec<u8, MAX_LINE>,
+    overflow: bool,
+}
+
+impl LineAssembler {
+    /// Empty.
+    pub const fn new() -> Self {
+        Self {
+            buf: Vec::new(),
+            overflow: false,
+        }
+    }
+
+    /// Feed one byte; returns the finished line's parse result at a `\n`.
+    pub fn push(&mut self, b: u8) -> Option<Result<Command, ParseError>> {
+        match b {
+            b'\n' => {
+                let r = if self.overflow {
+                    Err(ParseError::TooLong)
+                } else {
+                    parse(&self.buf)
+                };
+                self.buf.clear();
+                self.overflow = false;
+                Some(r)
+            }
+            b'\r' => None,
+            _ => {
+                if self.buf.push(b).is_err() {
+                    self.overflow = true;
+                }
+                None
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    fn p(s: &str) -> Result<Command, ParseError> {
+        parse(s.as_bytes())
+    }
+
+    #[test]
+    fn parses_every_command() {
+        assert_eq!(
+            p("move 0 100"),
+            Ok(Command::Move {
+                axes: AxisSet(1),
+                volume: 100.0,
+                flow: None,
+                accel: None
+            })
+        );
+        assert_eq!(
+            p(" move all 5.5 20 1e3\r"),
+            Ok(Command::Move {
+                axes: AxisSet::ALL,
+                volume: 5.5,
+                flow: Some(20.0),
+                accel: Some(1000.0)
+            })
+        );
+        let run = p("run 02 0 550 20 500 20 40 60 80 100").unwrap();
+        match run {
+            Command::Run(s) => {
+                assert_eq!(s.axes, AxisSet(0b101));
+                assert_eq!(
+                    (s.v_low, s.v_high, s.cycles, s.dwell_ms),
+                    (0.0, 550.0, 20, 500)
+                );
+                assert_eq!(&s.flows[..], &[20.0, 40.0, 60.0, 80.0, 100.0]);
+            }
+            other => panic!("{other:?}"),
+        }
+        for (s, c) in [
+            ("stop", Command::Stop),
+            ("clear", Command::Clear),
+            ("zero", Command::Zero),
+            ("status", Command::Status),
+        ] {
+            assert_eq!(p(s), Ok(c));
+        }
+        assert_eq!(
+            p("limit 1 60 450"),
+            Ok(Command::Limit {
+                axes: AxisSet(2),
+                p_max_kpa: 60.0,
+                capacity_mm3: 450.0
+            })
+        );
+        assert_eq!(
+            p("origin 12"),
+            Ok(Command::Origin {
+                axes: AxisSet(6),
+                volume: 0.0
+            })
+        );
+        assert_eq!(
+            p("model 2 begin 3 2 0 275 275 0 100"),
+            Ok(Command::Model {
+                ch: 2,
+                cmd: ModelCmd::Begin {
+                    n: 3,
+                    m: 2,
+                    p: 0,
+                    scaling: [275.0, 275.0, 0.0, 100.0]
+                }
+            })
+        );
+        match p("model 0 coef 8 1.5 -2e-3").unwrap() {
+            Command::Model {
+                ch: 0,
+                cmd: ModelCmd::Coef { start: 8, values },
+            } => assert_eq!(&values[..], &[1.5, -2e-3]),
+            other => panic!("{other:?}"),
+        }
+        assert_eq!(
+            p("rls 1 on"),
+            Ok(Command::Rls {
+                ch: 1,
+                lambda: Some(None)
+            })
+        );
+        assert_eq!(
+            p("rls 1 on 0.99"),
+            Ok(Command::Rls {
+                ch: 1,
+                lambda: Some(Some(0.99))
+            })
+        );
+        assert_eq!(
+            p("rls 1 off"),
+            Ok(Command::Rls {
+                ch: 1,
+                lambda: None
+            })
+        );
+    }
+
+    #[test]
+    fn names_the_bad_argument() {
+        assert_eq!(p(""), Err(ParseError::Empty));
+        assert_eq!(p("   "), Err(ParseError::Empty));
+        assert_eq!(p("jump 0 1"), Err(ParseError::UnknownCommand));
+        assert_eq!(p("move"), Err(ParseError::Missing { index: 1 }));
+        assert_eq!(p("move 3 10"), Err(ParseError::Invalid { index: 1 }));
+        assert_eq!(p("move 00 10"), Err(ParseError::Invalid { index: 1 }));
+        assert_eq!(p("move 0 ten"), Err(ParseError::Invalid { index: 2 }));
+        assert_eq!(p("move 0 NaN"), Err(ParseError::Invalid { index: 2 }));
+        assert_eq!(p("move 0 inf"), Err(ParseError::Invalid { index: 2 }));
+        assert_eq!(p("move 0 10 -5"), Err(ParseError::OutOfRange { index: 3 }));
+        assert_eq!(p("move 0 10 5 5 5"), Err(ParseError::TooMany { index: 5 }));
+        assert_eq!(
+            p("run 0 100 50 1 0 10"),
+            Err(ParseError::OutOfRange { index: 3 })
+        );
+        assert_eq!(
+            p("run 0 0 50 0 0 10"),
+            Err(ParseError::OutOfRange { index: 4 })
+        );
+        assert_eq!(p("run 0 0 50 1 0"), Err(ParseError::Missing { index: 6 }));
+        assert_eq!(
+            p("run 0 0 50 1 0 1 2 3 4 5 6 7 8 9"),
+            Err(ParseError::TooMany { index: 14 })
+        );
+        assert_eq!(
+            p("run 0 0 50 1 0 10 0"),
+            Err(ParseError::OutOfRange { index: 7 })
+        );
+        assert_eq!(
+            p("model 3 commit"),
+            Err(ParseError::OutOfRange { index: 1 })
+        );
+        assert_eq!(
+            p("model 0 begin 8 2 0 1 1 0 1"),
+            Err(ParseError::OutOfRange { index: 3 })
+        );
+        assert_eq!(
+            p("model 0 begin 3 2 0 1 0 0 1"),
+            Err(ParseError::OutOfRange { index: 7 })
+        );
+        assert_eq!(p("model 0 frob"), Err(ParseError::Invalid { index: 2 }));
+        assert_eq!(p("rls 0 maybe"), Err(ParseError::Invalid { index: 2 }));
+        assert_eq!(p("status now"), Err(ParseError::TooMany { index: 1 }));
+        assert_eq!(parse(&[b'm', 0xff]), Err(ParseError::NotAscii));
+        assert_eq!(parse(&[b'a'; MAX_LINE + 1]), Err(ParseError::TooLong));
+    }
+
+    #[test]
+    fn assembler_splits_lines_and_reports_overflow_once() {
+        let mut a = LineAssembler::new();
+        let mut out = std::vec::Vec::new();
+        for &b in b"stop\r\nzero\n".iter() {
+            if let Some(r) = a.push(b) {
+                out.push(r);
+            }
+        }
+        assert_eq!(out, [Ok(Command::Stop), Ok(Command::Zero)]);
+        for _ in 0..1000 {
+            assert_eq!(a.push(b'x'), None);
+        }
+        assert_eq!(a.push(b'\n'), Some(Err(ParseError::TooLong)));
+        for &b in b"status" {
+            a.push(b);
+        }
+        assert_eq!(a.push(b'\n'), Some(Ok(Command::Status)));
+    }
+
+    /// Render a command back into a line (test oracle: the documented grammar).
+    fn render(c: &Command) -> std::string::String {
+        use std::fmt::Write as _;
+        let axes = |a: AxisSet| {
+            a.iter()
+                .map(|i| char::from(b'0' + i as u8))
+                .collect::<std::string::String>()
+        };
+        let mut s = std::string::String::new();
+        match c {
+            Command::Move {
+                axes: a,
+                volume,
+                flow,
+                accel,
+            } => {
+                write!(s, "move {} {volume:?}", axes(*a)).unwrap();
+                if let Some(f) = flow {
+                    write!(s, " {f:?}").unwrap();
+                    if let Some(x) = accel {
+                        write!(s, " {x:?}").unwrap();
+                    }
+                }
+            }
+            Command::Limit {
+                axes: a,
+                p_max_kpa,
+                capacity_mm3,
+            } => write!(s, "limit {} {p_max_kpa:?} {capacity_mm3:?}", axes(*a)).unwrap(),
+            Command::Run(r) => {
+                write!(
+                    s,
+                    "run {} {:?} {:?} {} {}",
+                    axes(r.axes),
+                    r.v_low,
+                    r.v_high,
+                    r.cycles,
+                    r.dwell_ms
+                )
+                .unwrap();
+                for f in &r.flows {
+                    write!(s, " {f:?}").unwrap();
+                }
+            }
+            _ => unreachable!(),
+        }
+        s
+    }
+
+    fn axes() -> impl Strategy<Value = AxisSet> {
+        (1u8..8).prop_map(AxisSet)
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(256))]
+
+        #[test]
+        fn never_panics_on_bytes(bytes in proptest::collection::vec(any::<u8>(), 0..260)) {
+            let _ = parse(&bytes);
+            let mut a = LineAssembler::new();
+            for b in bytes { let _ = a.push(b); }
+        }
+
+        #[test]
+        fn never_panics_on_wordy_lines(
+            words in proptest::collection::vec(
+                prop_oneof![
+                    Just("move".to_string()), Just("run".to_string()), Just("model".to_string()),
+                    Just("rls".to_string()), Just("limit".to_string()), Just("all".to_string()),
+                    Just("begin".to_string()), Just("coef".to_string()), Just("on".to_string()),
+                    "-?[0-9]{1,6}(\\.[0-9]{0,4})?(e-?[0-9]{1,2})?", "[a-z]{1,5}",
+                ],
+                0..16)
+        ) {
+            let line = words.join(" ");
+            let _ = parse(line.as_bytes());
+        }
+
+        #[test]
+        fn valid_moves_round_trip(
+            a in axes(), volume in 0.0f32..1000.0, flow in 0.01f32..400.0, accel in 0.1f32..10_000.0,
+            extras in 0usize..3,
+        ) {
+            let c = Command::Move {
+                axes: a, volume,
+                flow: (extras >= 1).then_some(flow),
+                accel: (extras >= 2).then_some(accel),
+            };
+            prop_assert_eq!(p(&render(&c)), Ok(c));
+        }
+
+        #[test]
+        fn valid_runs_and_limits_round_trip(
+            a in axes(), lo in 0.0f32..200.0, span in 0.1f32..400.0, cycles in 1u16..100,
+            dwell in 0u32..10_000, flows in proptest::collection::vec(0.5f32..400.0, 1..=8),
+            pmax in 1.0f32..200.0, cap in 1.0f32..1000.0,
+        ) {
+            let spec = ProtocolSpec {
+                axes: a, v_low: lo, v_high: lo + span, cycles, dwell_ms: dwell,
+                flows: Vec::from_slice(&flows).unwrap(),
+            };
+            let c = Command::Run(spec);
+            prop_assert_eq!(p(&render(&c)), Ok(c));
+            let l = Command::Limit { axes: a, p_max_kpa: pmax, capacity_mm3: cap };
+            prop_assert_eq!(p(&render(&l)), Ok(l));
+        }
+
+        /// Any non-finite number in a numeric position is refused, naming that word.
+        #[test]
+        fn non_finite_numbers_are_refused(pos in 2usize..4, bad in prop_oneof![Just("nan"), Just("inf"), Just("-inf"), Just("1e39")]) {
+            let mut words = ["move", "0", "10", "20"];
+            words[pos] = bad;
+            prop_assert_eq!(p(&words.join(" ")), Err(ParseError::Invalid { index: pos as u8 }));
+        }
+    }
+}
