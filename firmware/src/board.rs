@@ -57,10 +57,10 @@ pub const SENSOR_V_FULL: f32 = 5.0;
 /// Sensor full scale, kPa gauge.
 pub const SENSOR_FULL_SCALE_KPA: f32 = 100.0;
 
-/// Readings at or below this count are a sensor at the low rail: the output never falls far
-/// below `V_zero` (0.5 V at the sensor is half the zero output), so a lower reading means an
-/// open or shorted wire.
-pub const RAIL_LOW_COUNTS: u16 = 388;
+/// Readings at or below this count are a sensor at the low rail: 0.2 V at the sensor, i.e.
+/// −20 kPa. Fast deflation near an empty chamber sucks to about −15 kPa (the paper's SBA1 law at
+/// −100 mm³/s), which must still read; lower means an open or shorted wire.
+pub const RAIL_LOW_COUNTS: u16 = 155;
 /// Readings at or above this count saturate the ADC: the sensor is above its range or a wire is
 /// shorted to the supply.
 pub const RAIL_HIGH_COUNTS: u16 = ADC_MAX - 8;

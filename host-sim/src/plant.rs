@@ -1,0 +1,836 @@
+//! The physical plant: three syringe pumps, their lines and the three chambers of one SBA, and the
+//! three pressure sensors.
+//!
+//! # Per chamber
+//! The motor moves the plunger in steps of `mm3_per_step` (0.04 mm³ on the paper's rig); the
+//! plunger follows the motor through the lead screw's backlash (a play operator of width b) and its
+//! periodic pitch error (ripple, amplitude A, period one screw turn Λ):
+//!
+//! ```text
+//! u = plunger + A·sin(2π·plunger/Λ)           displaced syringe volume, mm³
+//! ```
+//!
+//! Motor steps are impulses of volume; the motor's rotor, the screw, the plunger seal and the
+//! tubing deliver them as a smooth flow. The delivered volume w follows the plunger's staircase u
+//! through a critically damped second-order lag (delivery time constant τ_d, a few ms, far below
+//! the 40 ms frame period, so it smooths the 500–2500 Hz step train without visibly delaying the
+//! flow):
+//!
+//! ```text
+//! τ_d²·ẅ + 2τ_d·ẇ + w = u                      solved in closed form between steps
+//! ```
+//!
+//! The paper identified its law against the syringe volume, so tubing compliance is already inside
+//! K and C; what it did not contain is an air pocket. An isothermal bubble of V₀ mm³ at atmospheric
+//! pressure P_atm (Boyle) sits between plunger and water, and a leak loses water:
+//!
+//! ```text
+//! x(P) = V₀·P / (P_atm + P)                    volume taken up by compressing the bubble, mm³
+//! v    = w − x(P) − L                           chamber volume
+//! v̇    = ẇ − ẋ − L̇,   L̇ = G·max(P, 0)          chamber flow (laminar leak G)
+//! P    = K(v) + C(v, v̇)·v̇ + H + I·v̈ + ΔP_F(t)  the chamber law (paper Eq. 9) + effects
+//! ```
+//!
+//! H is a rate-independent hysteresis term (a Duhem model in volume, not time: dH = (s·H_a − H)
+//! |dv| / v_h with s = sign(dv), so the loop it adds does not depend on flow rate), I the fluid
+//! inertance, ΔP_F the external force's share (below). With no effects P = K(w) + C(w, ẇ)·ẇ: the
+//! paper's law at the delivered syringe volume and flow.
+//!
+//! # Integration
+//! Without a bubble, leak, inertance or sensor lag the pressure is an explicit function of the
+//! filter state, evaluated exactly at every step and sample instant. Otherwise the system is an
+//! implicit ODE in v, stiff for small bubbles (time constant τ ≈ x'(P)·∂P/∂v̇: 90 ms for 50 mm³,
+//! 18 µs for 0.01 mm³). Each chamber is then integrated with backward Euler (L-stable; ẋ and L̇ are
+//! differenced, ẇ is exact, and v is tied to w and P algebraically, so no volume drifts) on a grid
+//! holding every step instant exactly and no sub-step longer than `max_substep_s`. A step solves
+//! r(P) = P_law(P) − P = 0 for the new pressure; r falls monotonically in P (more pressure, more
+//! compression, less chamber flow, less law pressure), so Newton's method safeguarded by a sign
+//! bracket always converges.
+//!
+//! # External force
+//! A push of magnitude F(t) on the tip, with azimuth φ and tilt α from the actuator's axis, raises
+//! chamber i's pressure by F·w_i / A_i, with weights w_i ≥ 0, Σ w_i = 1:
+//!
+//! ```text
+//! w_i = (1 − sin α)/3 + sin α · max(0, cos(φ − φ_i)) / Σ_j max(0, cos(φ − φ_j)),   φ_i = 120°·i
+//! ```
+//!
+//! An axial push loads the chambers equally, a sideways one the chambers on its side. Σ ΔP_i·A_i = F
+//! exactly, which is the premise of the paper's estimator (Sec. IV-C): the plant makes it true and
+//! the firmware's model error is what the estimate has to overcome.
+//!
+//! # Sensors
+//! Each sensor reads P through a first-order lag (τ_s), adds its offset, a slow thermal drift of
+//! the offset D·(1 − e^(−t/τ_D)) and white Gaussian noise, and the ADC turns that into counts with
+//! the firmware's own transfer function ([`firmware::board::kpa_to_counts`]), rounded and clamped
+//! to 12 bits. An unplugged sensor reads 0 counts (the divider's bottom resistor pulls the pin low).
+
+// Transcendentals come from `libm` (pure Rust), not the platform's C library, so a seed gives the
+// same log on every machine.
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, Normal};
+use serde::{Deserialize, Serialize};
+
+use crate::law::{ChamberLaw, Design};
+
+/// Number of chambers (one actuator).
+pub const CHAMBERS: usize = firmware::hal::AXES;
+
+/// Atmospheric pressure, kPa absolute.
+pub const ATMOSPHERE_KPA: f64 = 101.325;
+
+/// Rate-independent hysteresis of the chamber wall (module docs).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Hysteresis {
+    /// Half-height H_a of the loop it adds, kPa.
+    pub amplitude_kpa: f64,
+    /// Volume v_h over which the term switches after a reversal (63 %), mm³.
+    pub transition_mm3: f64,
+}
+
+/// Slow drift of the sensor offset after the firmware's zero (warm-up).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ThermalDrift {
+    /// Final change of the offset D, kPa.
+    pub offset_change_kpa: f64,
+    /// Time constant τ_D, s.
+    pub time_constant_s: f64,
+}
+
+/// Periodic pitch error of the lead screw.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Ripple {
+    /// Amplitude A of the displaced-volume error, mm³.
+    pub amplitude_mm3: f64,
+    /// Period Λ: displaced volume per screw turn, mm³.
+    pub period_mm3: f64,
+}
+
+/// Optional effects, each off by default and set in physical units.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct Effects {
+    /// Air pocket in each syringe, mm³ at atmospheric pressure (0: none).
+    pub air_pocket_mm3: [f64; CHAMBERS],
+    /// Rate-independent hysteresis of the chamber wall.
+    pub hysteresis: Option<Hysteresis>,
+    /// First-order lag of the pressure sensor, s (0: none).
+    pub sensor_lag_s: f64,
+    /// Fluid inertance of the line, kPa·s²/mm³ (a 1 m, 2 mm tube of water: about 3e-4).
+    pub inertance_kpa_s2_per_mm3: f64,
+    /// Thermal drift of the sensor offset.
+    pub thermal_drift: Option<ThermalDrift>,
+    /// Lead-screw backlash, mm³ of plunger travel.
+    pub backlash_mm3: f64,
+    /// Periodic pump ripple (lead-screw pitch error).
+    pub ripple: Option<Ripple>,
+    /// Laminar leak conductance, mm³/s per kPa (0: none).
+    pub leak_mm3_per_s_per_kpa: f64,
+}
+
+/// Names of the single-effect presets ([`Effects::preset`]).
+pub const EFFECT_PRESETS: [&str; 8] = [
+    "air",
+    "hysteresis",
+    "sensor-lag",
+    "inertance",
+    "thermal-drift",
+    "backlash",
+    "ripple",
+    "leak",
+];
+
+impl Effects {
+    /// One effect switched on at a plausible size for the paper's rig, the others off; `None`
+    /// for an unknown name (see [`EFFECT_PRESETS`]).
+    pub fn preset(name: &str) -> Option<Self> {
+        let mut e = Self::default();
+        match name {
+            "air" => e.air_pocket_mm3 = [20.0; CHAMBERS],
+            "hysteresis" => {
+                e.hysteresis = Some(Hysteresis {
+                    amplitude_kpa: 1.0,
+                    transition_mm3: 20.0,
+                })
+            }
+            "sensor-lag" => e.sensor_lag_s = 0.02,
+            // 1 m of 2 mm tube: ρL/A = 1000·1/3.14e-6 Pa·s²/m³ ≈ 3e-4 kPa·s²/mm³.
+            "inertance" => e.inertance_kpa_s2_per_mm3 = 3.0e-4,
+            "thermal-drift" => {
+                e.thermal_drift = Some(ThermalDrift {
+                    offset_change_kpa: 1.0,
+                    time_constant_s: 300.0,
+                })
+            }
+            "backlash" => e.backlash_mm3 = 0.4,
+            // One turn of a screw at 200 full steps per turn and 0.04 mm³ per step: 8 mm³.
+            "ripple" => {
+                e.ripple = Some(Ripple {
+                    amplitude_mm3: 0.2,
+                    period_mm3: 8.0,
+                })
+            }
+            "leak" => e.leak_mm3_per_s_per_kpa = 0.002,
+            _ => return None,
+        }
+        Some(e)
+    }
+}
+
+/// The always-present sensor imperfections. Defaults: a P-7100 class sensor (100 kPa full scale)
+/// on the firmware's 12-bit ADC, where one count is 0.032 kPa.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SensorSpec {
+    /// Standard deviation of white noise at the sensor output, kPa (0.05 %FS).
+    pub noise_kpa: f64,
+    /// Zero offset of each sensor, kPa (within the ±1 %FS of an amplified gauge sensor).
+    pub offset_kpa: [f64; CHAMBERS],
+}
+
+impl Default for SensorSpec {
+    fn default() -> Self {
+        Self {
+            noise_kpa: 0.05,
+            offset_kpa: [0.42, -0.31, 0.18],
+        }
+    }
+}
+
+/// One push of an external force on the tip: a train of raised-cosine pulses.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ForcePush {
+    /// Start, s of simulated time.
+    pub start_s: f64,
+    /// Length of the train, s.
+    pub duration_s: f64,
+    /// Pulse rate, Hz (the paper pushes at 1 Hz).
+    pub frequency_hz: f64,
+    /// Peak force, N.
+    pub peak_n: f64,
+    /// Azimuth φ of the push, degrees (chamber i sits at 120°·i).
+    #[serde(default)]
+    pub azimuth_deg: f64,
+    /// Tilt α from the actuator axis, degrees (0: axial, 90: sideways).
+    #[serde(default)]
+    pub tilt_deg: f64,
+}
+
+impl ForcePush {
+    /// Force magnitude at `t_s`, N: F_peak·(1 − cos 2πf(t − t₀))/2 inside the train, else 0.
+    pub fn force_n(&self, t_s: f64) -> f64 {
+        let dt = t_s - self.start_s;
+        if dt < 0.0 || dt > self.duration_s {
+            return 0.0;
+        }
+        let phase = core::f64::consts::TAU * self.frequency_hz * dt;
+        self.peak_n * 0.5 * (1.0 - libm::cos(phase))
+    }
+
+    /// Share w_i of each chamber (module docs); Σ w_i = 1.
+    pub fn shares(&self) -> [f64; CHAMBERS] {
+        let tilt = libm::sin(self.tilt_deg.to_radians()).clamp(0.0, 1.0);
+        let phi = self.azimuth_deg.to_radians();
+        let lobe: [f64; CHAMBERS] = core::array::from_fn(|i| {
+            let phi_i = (120.0 * i as f64).to_radians();
+            libm::cos(phi - phi_i).max(0.0)
+        });
+        let sum: f64 = lobe.iter().sum(); // ≥ cos 60° = 0.5 for any φ
+        core::array::from_fn(|i| (1.0 - tilt) / CHAMBERS as f64 + tilt * lobe[i] / sum)
+    }
+}
+
+/// Everything physical about the rig.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct PlantConfig {
+    /// Actuator design (law and envelope).
+    pub design: Design,
+    /// Optional effects.
+    pub effects: Effects,
+    /// Sensor noise and offsets.
+    pub sensor: SensorSpec,
+    /// Delivery time constant τ_d of motor, screw, seal and tubing, s (> 0).
+    pub delivery_time_constant_s: f64,
+    /// Effective area of each chamber for the external force, mm² (paper: 22).
+    pub area_mm2: [f64; CHAMBERS],
+    /// Longest backward-Euler sub-step, s.
+    pub max_substep_s: f64,
+    /// Displaced volume per motor step, mm³ (paper: 0.04).
+    pub mm3_per_step: f64,
+}
+
+impl Default for PlantConfig {
+    fn default() -> Self {
+        Self {
+            design: Design::Sba1,
+            effects: Effects::default(),
+            sensor: SensorSpec::default(),
+            delivery_time_constant_s: 0.003,
+            area_mm2: [model_core::force::DEFAULT_AREA_MM2 as f64; CHAMBERS],
+            max_substep_s: 1.0e-3,
+            mm3_per_step: 0.04,
+        }
+    }
+}
+
+/// A physical parameter outside its meaningful range.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+#[error("plant parameter `{name}` = {value}: {why}")]
+pub struct ParamError {
+    /// Parameter name as in scenario files.
+    pub name: &'static str,
+    /// The offending value.
+    pub value: f64,
+    /// What it must be.
+    pub why: &'static str,
+}
+
+fn check(name: &'static str, value: f64, ok: bool, why: &'static str) -> Result<(), ParamError> {
+    if value.is_finite() && ok {
+        Ok(())
+    } else {
+        Err(ParamError { name, value, why })
+    }
+}
+
+impl PlantConfig {
+    /// Check every parameter's range.
+    pub fn validate(&self) -> Result<(), ParamError> {
+        let e = &self.effects;
+        let nonneg = "must be finite and ≥ 0";
+        let pos = "must be finite and > 0";
+        for &a in &e.air_pocket_mm3 {
+            check("effects.air_pocket_mm3", a, a >= 0.0, nonneg)?;
+        }
+        if let Some(h) = e.hysteresis {
+            check(
+                "effects.hysteresis.amplitude_kpa",
+                h.amplitude_kpa,
+                h.amplitude_kpa >= 0.0,
+                nonneg,
+            )?;
+            check(
+                "effects.hysteresis.transition_mm3",
+                h.transition_mm3,
+                h.transition_mm3 > 0.0,
+                pos,
+            )?;
+        }
+        check(
+            "effects.sensor_lag_s",
+            e.sensor_lag_s,
+            e.sensor_lag_s >= 0.0,
+            nonneg,
+        )?;
+        let i = e.inertance_kpa_s2_per_mm3;
+        check("effects.inertance_kpa_s2_per_mm3", i, i >= 0.0, nonneg)?;
+        if let Some(d) = e.thermal_drift {
+            check(
+                "effects.thermal_drift.offset_change_kpa",
+                d.offset_change_kpa,
+                true,
+                "must be finite",
+            )?;
+            check(
+                "effects.thermal_drift.time_constant_s",
+                d.time_constant_s,
+                d.time_constant_s > 0.0,
+                pos,
+            )?;
+        }
+        check(
+            "effects.backlash_mm3",
+            e.backlash_mm3,
+            e.backlash_mm3 >= 0.0,
+            nonneg,
+        )?;
+        if let Some(r) = e.ripple {
+            check(
+                "effects.ripple.amplitude_mm3",
+                r.amplitude_mm3,
+                r.amplitude_mm3 >= 0.0,
+                nonneg,
+            )?;
+            check(
+                "effects.ripple.period_mm3",
+                r.period_mm3,
+                r.period_mm3 > 0.0,
+                pos,
+            )?;
+        }
+        let g = e.leak_mm3_per_s_per_kpa;
+        check("effects.leak_mm3_per_s_per_kpa", g, g >= 0.0, nonneg)?;
+        let s = &self.sensor;
+        check("sensor.noise_kpa", s.noise_kpa, s.noise_kpa >= 0.0, nonneg)?;
+        for &o in &s.offset_kpa {
+            check(
+                "sensor.offset_kpa",
+                o,
+                o.abs() < 50.0,
+                "must be finite and within ±50 kPa",
+            )?;
+        }
+        let k = self.delivery_time_constant_s;
+        check(
+            "delivery_time_constant_s",
+            k,
+            k > 0.0 && k < 1.0,
+            "must be in (0, 1) s",
+        )?;
+        for &a in &self.area_mm2 {
+            check("area_mm2", a, a > 0.0, pos)?;
+        }
+        let m = self.mm3_per_step;
+        check("mm3_per_step", m, m > 0.0, pos)?;
+        let h = self.max_substep_s;
+        check(
+            "max_substep_s",
+            h,
+            h > 0.0 && h <= 0.1,
+            "must be in (0, 0.1] s",
+        )?;
+        Ok(())
+    }
+}
+
+/// What is true about one chamber at one instant (the simulator's ground truth).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct ChamberTruth {
+    /// Motor position as volume: net steps × volume per step, mm³.
+    pub motor_mm3: f64,
+    /// Displaced syringe volume u (after backlash and ripple), mm³.
+    pub syringe_mm3: f64,
+    /// Delivered volume w (u through the delivery lag), mm³.
+    pub delivered_mm3: f64,
+    /// Chamber volume v, mm³.
+    pub chamber_mm3: f64,
+    /// Chamber flow v̇, mm³/s.
+    pub flow_mm3_s: f64,
+    /// Line pressure P, kPa gauge.
+    pub pressure_kpa: f64,
+    /// Pressure the sensor element sees (after its lag, before offset and noise), kPa.
+    pub sensed_kpa: f64,
+    /// Air-pocket volume at the current pressure, mm³.
+    pub air_mm3: f64,
+    /// Volume lost through the leak so far, mm³.
+    pub leaked_mm3: f64,
+}
+
+/// Dynamic state of one chamber.
+#[derive(Clone, Debug)]
+struct Chamber {
+    /// Time of the state, µs.
+    t_us: u64,
+    /// Net steps.
+    steps: i64,
+    plunger: f64,
+    /// Delivered volume w and flow ẇ.
+    w: f64,
+    wdot: f64,
+    p: f64,
+    v: f64,
+    vdot: f64,
+    leak: f64,
+    hyst: f64,
+    sensed: f64,
+    air0: f64,
+    unplugged: bool,
+    rng: ChaCha8Rng,
+}
+
+/// The plant: three chambers, their sensors and the external force.
+#[derive(Clone, Debug)]
+pub struct Plant {
+    cfg: PlantConfig,
+    law: ChamberLaw,
+    pushes: Vec<ForcePush>,
+    shares: Vec<[f64; CHAMBERS]>,
+    ch: [Chamber; CHAMBERS],
+    noise: Normal<f64>,
+}
+
+/// Result of one step of the chamber equations.
+struct Solved {
+    p: f64,
+    v: f64,
+    q: f64,
+    leak: f64,
+    hyst: f64,
+}
+
+impl Plant {
+    /// A plant at rest (all syringes withdrawn, P = 0) at t = 0. Each chamber's noise stream is
+    /// seeded from `seed` and its index, so runs are reproducible.
+    pub fn new(cfg: &PlantConfig, pushes: &[ForcePush], seed: u64) -> Result<Self, ParamError> {
+        cfg.validate()?;
+        for p in pushes {
+            check(
+                "force.start_s",
+                p.start_s,
+                p.start_s >= 0.0,
+                "must be finite and ≥ 0",
+            )?;
+            check(
+                "force.duration_s",
+                p.duration_s,
+                p.duration_s >= 0.0,
+                "must be finite and ≥ 0",
+            )?;
+            check(
+                "force.frequency_hz",
+                p.frequency_hz,
+                p.frequency_hz > 0.0,
+                "must be finite and > 0",
+            )?;
+            check(
+                "force.peak_n",
+                p.peak_n,
+                p.peak_n.abs() <= 100.0,
+                "must be finite, |F| ≤ 100 N",
+            )?;
+            check("force.azimuth_deg", p.azimuth_deg, true, "must be finite")?;
+            check(
+                "force.tilt_deg",
+                p.tilt_deg,
+                (0.0..=90.0).contains(&p.tilt_deg),
+                "must be in 0..=90",
+            )?;
+        }
+        let noise = Normal::new(0.0, cfg.sensor.noise_kpa).map_err(|_| ParamError {
+            name: "sensor.noise_kpa",
+            value: cfg.sensor.noise_kpa,
+            why: "must be finite and ≥ 0",
+        })?;
+        let ch = core::array::from_fn(|i| Chamber {
+            t_us: 0,
+            steps: 0,
+            plunger: 0.0,
+            w: 0.0,
+            wdot: 0.0,
+            p: 0.0,
+            v: 0.0,
+            vdot: 0.0,
+            leak: 0.0,
+            hyst: 0.0,
+            sensed: 0.0,
+            air0: cfg.effects.air_pocket_mm3[i],
+            unplugged: false,
+            // Independent streams per chamber: ChaCha's stream id, not a reseeded copy.
+            rng: {
+                let mut r = ChaCha8Rng::seed_from_u64(seed);
+                r.set_stream(i as u64 + 1);
+                r
+            },
+        });
+        Ok(Self {
+            law: cfg.design.law(),
+            shares: pushes.iter().map(ForcePush::shares).collect(),
+            pushes: pushes.to_vec(),
+            cfg: cfg.clone(),
+            ch,
+            noise,
+        })
+    }
+
+    /// The configuration this plant was built from.
+    pub fn config(&self) -> &PlantConfig {
+        &self.cfg
+    }
+
+    /// True external force magnitude at `t_us`, N.
+    pub fn force_n(&self, t_us: u64) -> f64 {
+        let t = t_us as f64 * 1e-6;
+        self.pushes.iter().map(|p| p.force_n(t)).sum()
+    }
+
+    /// Pressure the force adds to chamber `i` at `t_us`, kPa (N/mm² = 1000 kPa).
+    fn force_kpa(&self, i: usize, t_us: u64) -> f64 {
+        if self.pushes.is_empty() {
+            return 0.0;
+        }
+        let t = t_us as f64 * 1e-6;
+        let f: f64 = (self.pushes.iter().zip(&self.shares))
+            .map(|(p, w)| p.force_n(t) * w[i])
+            .sum();
+        1000.0 * f / self.cfg.area_mm2[i]
+    }
+
+    /// Displaced syringe volume u of chamber `i` (after ripple).
+    fn syringe(&self, i: usize) -> f64 {
+        let c = &self.ch[i];
+        match self.cfg.effects.ripple {
+            Some(r) => {
+                c.plunger
+                    + r.amplitude_mm3 * libm::sin(core::f64::consts::TAU * c.plunger / r.period_mm3)
+            }
+            None => c.plunger,
+        }
+    }
+
+    /// Bubble compression x(P) and x'(P) of chamber `i`.
+    fn compression(&self, i: usize, p: f64) -> (f64, f64) {
+        let a = self.ch[i].air0;
+        if a > 0.0 {
+            let d = ATMOSPHERE_KPA + p;
+            (a * p / d, a * ATMOSPHERE_KPA / (d * d))
+        } else {
+            (0.0, 0.0)
+        }
+    }
+
+    /// Whether chamber `i` needs the implicit integrator (module docs).
+    fn stiff(&self, i: usize) -> bool {
+        let e = &self.cfg.effects;
+        self.ch[i].air0 > 0.0
+            || e.leak_mm3_per_s_per_kpa > 0.0
+            || e.inertance_kpa_s2_per_mm3 > 0.0
+            || e.sensor_lag_s > 0.0
+    }
+
+    /// Hysteresis term after a volume change `dv` from state `h0`, and its derivative in `dv`.
+    fn hysteresis(&self, h0: f64, dv: f64) -> (f64, f64) {
+        match self.cfg.effects.hysteresis {
+            Some(hs) => {
+                let s = if dv > 0.0 {
+                    1.0
+                } else if dv < 0.0 {
+                    -1.0
+                } else {
+                    0.0
+                };
+                let decay = libm::exp(-dv.abs() / hs.transition_mm3);
+                let target = s * hs.amplitude_kpa;
+                (
+                    target + (h0 - target) * decay,
+                    (hs.amplitude_kpa - s * h0) / hs.transition_mm3 * decay,
+                )
+            }
+            None => (h0, 0.0),
+        }
+    }
+
+    /// One step of length `h` s of chamber `i`'s equations, the filter state already at the end.
+    fn solve(&self, i: usize, h: f64, dp_force: f64) -> Solved {
+        let c = &self.ch[i];
+        let e = &self.cfg.effects;
+        let g = e.leak_mm3_per_s_per_kpa;
+        let inert = e.inertance_kpa_s2_per_mm3;
+        let (x0, _) = self.compression(i, c.p);
+        let eval = |p: f64| -> (f64, f64, Solved) {
+            let (x, dx) = self.compression(i, p);
+            let (lk, dlk) = if p > 0.0 {
+                (h * g * p, h * g)
+            } else {
+                (0.0, 0.0)
+            };
+            let v = c.w - x - c.leak - lk;
+            let dv_dp = -dx - dlk;
+            // ẇ exact, ẋ and L̇ backward-differenced.
+            let q = c.wdot - (x - x0 + lk) / h;
+            let dq_dp = dv_dp / h;
+            let law = self.law.eval(v, q);
+            let (hy, dhy) = self.hysteresis(c.hyst, v - c.v);
+            let r = law.p + hy + inert * (q - c.vdot) / h + dp_force - p;
+            let dr = (law.dp_dv + dhy) * dv_dp + (law.dp_dvdot + inert / h) * dq_dp - 1.0;
+            let st = Solved {
+                p,
+                v,
+                q,
+                leak: c.leak + lk,
+                hyst: hy,
+            };
+            (r, dr, st)
+        };
+        // r(P) falls monotonically: r > 0 means the root lies above P. With a bubble r → +∞ as
+        // P → −P_atm (it expands without bound), so −P_atm bounds the root from below.
+        let mut lo = if c.air0 > 0.0 {
+            -ATMOSPHERE_KPA
+        } else {
+            f64::NEG_INFINITY
+        };
+        let mut hi = f64::INFINITY;
+        let mut p = c.p;
+        let mut best = None;
+        for _ in 0..200 {
+            let (r, dr, st) = eval(p);
+            if r > 0.0 {
+                lo = p;
+            } else {
+                hi = p;
+            }
+            let done = r.abs() <= 1e-10 * (1.0 + p.abs()) || hi - lo <= 1e-13 * (1.0 + p.abs());
+            best = Some(st);
+            if done {
+                break;
+            }
+            let newton = p - r / dr;
+            p = if dr < 0.0 && newton > lo && newton < hi {
+                newton
+            } else if lo.is_finite() && hi.is_finite() {
+                0.5 * (lo + hi)
+            } else if hi.is_finite() {
+                hi - (1.0 + hi.abs())
+            } else {
+                lo + (1.0 + lo.abs())
+            };
+        }
+        best.expect("at least one iteration")
+    }
+
+    /// The explicit case: no bubble, leak, inertance or lag, so P is a function of w, ẇ.
+    fn explicit(&self, i: usize, dp_force: f64) -> Solved {
+        let c = &self.ch[i];
+        let (hy, _) = self.hysteresis(c.hyst, c.w - c.v);
+        Solved {
+            p: self.law.eval(c.w, c.wdot).p + hy + dp_force,
+            v: c.w,
+            q: c.wdot,
+            leak: 0.0,
+            hyst: hy,
+        }
+    }
+
+    /// Move chamber `i`'s delivery filter forward by `h` s (closed form, u constant).
+    fn deliver(&mut self, i: usize, h: f64) {
+        let u = self.syringe(i);
+        let tau = self.cfg.delivery_time_constant_s;
+        let c = &mut self.ch[i];
+        // e = w − u obeys τ²ë + 2τė + e = 0: e(t) = (e₀ + (ė₀ + e₀/τ)t)·e^(−t/τ).
+        let (e0, d0) = (c.w - u, c.wdot);
+        let b = d0 + e0 / tau;
+        let decay = libm::exp(-h / tau);
+        c.w = u + (e0 + b * h) * decay;
+        c.wdot = (d0 - b * h / tau) * decay;
+    }
+
+    /// Integrate chamber `i` to `t_us` with its plunger where it is.
+    fn advance_chamber(&mut self, i: usize, t_us: u64) {
+        let t0 = self.ch[i].t_us;
+        if t_us <= t0 {
+            return;
+        }
+        let span = (t_us - t0) as f64 * 1e-6;
+        let stiff = self.stiff(i);
+        let n = if stiff {
+            (span / self.cfg.max_substep_s).ceil().max(1.0) as u64
+        } else {
+            1
+        };
+        let lag = self.cfg.effects.sensor_lag_s;
+        let mut t_prev = t0;
+        for k in 1..=n {
+            // Sub-steps end on whole ticks; the last one lands on t_us.
+            let t_end = t0 + (t_us - t0) * k / n;
+            let h = (t_end - t_prev) as f64 * 1e-6;
+            t_prev = t_end;
+            if h <= 0.0 {
+                continue;
+            }
+            self.deliver(i, h);
+            let dp_force = self.force_kpa(i, t_end);
+            let s = if stiff {
+                self.solve(i, h, dp_force)
+            } else {
+                self.explicit(i, dp_force)
+            };
+            let c = &mut self.ch[i];
+            c.p = s.p;
+            c.vdot = s.q;
+            c.v = s.v;
+            c.leak = s.leak;
+            c.hyst = s.hyst;
+            c.sensed = if lag > 0.0 {
+                s.p + (c.sensed - s.p) * libm::exp(-h / lag)
+            } else {
+                s.p
+            };
+            c.t_us = t_end;
+        }
+    }
+
+    /// Integrate every chamber to `t_us`.
+    pub fn advance_to(&mut self, t_us: u64) {
+        for i in 0..CHAMBERS {
+            self.advance_chamber(i, t_us);
+        }
+    }
+
+    /// One motor step of chamber `i` at `t_us` (`inflate`: plunger pushes water in). The chamber is
+    /// first integrated up to `t_us`; steps must come in time order per chamber.
+    pub fn step(&mut self, i: usize, t_us: u64, inflate: bool) {
+        self.advance_chamber(i, t_us);
+        let b = self.cfg.effects.backlash_mm3;
+        let per = self.cfg.mm3_per_step;
+        let c = &mut self.ch[i];
+        c.steps += if inflate { 1 } else { -1 };
+        let motor = c.steps as f64 * per;
+        // Play operator: the plunger moves only once the screw has taken up the backlash.
+        c.plunger = c.plunger.clamp(motor - 0.5 * b, motor + 0.5 * b);
+    }
+
+    /// Disconnect (or reconnect) sensor `i`.
+    pub fn set_unplugged(&mut self, i: usize, unplugged: bool) {
+        self.ch[i].unplugged = unplugged;
+    }
+
+    /// Sensor output of chamber `i` in kPa (lagged pressure + offset + drift + noise); draws noise.
+    fn sensor_kpa(&mut self, i: usize) -> f64 {
+        let t = self.ch[i].t_us as f64 * 1e-6;
+        let drift = match self.cfg.effects.thermal_drift {
+            Some(d) => d.offset_change_kpa * (1.0 - libm::exp(-t / d.time_constant_s)),
+            None => 0.0,
+        };
+        let n = self.noise.sample(&mut self.ch[i].rng);
+        self.ch[i].sensed + self.cfg.sensor.offset_kpa[i] + drift + n
+    }
+
+    /// One ADC conversion of all channels at `t_us` (integrates the plant there first).
+    pub fn adc_counts(&mut self, t_us: u64) -> [u16; CHAMBERS] {
+        self.advance_to(t_us);
+        core::array::from_fn(|i| {
+            let kpa = self.sensor_kpa(i);
+            if self.ch[i].unplugged {
+                return 0;
+            }
+            let counts = firmware::board::kpa_to_counts(kpa as f32).round();
+            counts.clamp(0.0, firmware::board::ADC_MAX as f32) as u16
+        })
+    }
+
+    /// Ground truth of chamber `i` at its current time.
+    pub fn truth(&self, i: usize) -> ChamberTruth {
+        let c = &self.ch[i];
+        let air = if c.air0 > 0.0 {
+            c.air0 * ATMOSPHERE_KPA / (ATMOSPHERE_KPA + c.p)
+        } else {
+            0.0
+        };
+        ChamberTruth {
+            motor_mm3: c.steps as f64 * self.cfg.mm3_per_step,
+            syringe_mm3: self.syringe(i),
+            delivered_mm3: c.w,
+            chamber_mm3: c.v,
+            flow_mm3_s: c.vdot,
+            pressure_kpa: c.p,
+            sensed_kpa: c.sensed,
+            air_mm3: air,
+            leaked_mm3: c.leak,
+        }
+    }
+
+    /// Net steps taken by motor `i`.
+    pub fn steps(&self, i: usize) -> i64 {
+        self.ch[i].steps
+    }
+
+    /// Time chamber `i` has been integrated to, µs.
+    pub fn time_us(&self, i: usize) -> u64 {
+        self.ch[i].t_us
+    }
+}

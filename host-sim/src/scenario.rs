@@ -1,0 +1,397 @@
+//! Scenarios: what to simulate, as data.
+//!
+//! A scenario is a TOML file (or a [`Scenario`] built in code). Vocabulary, every key optional
+//! unless marked:
+//!
+//! ```toml
+//! name = "paper-protocol"          # label, copied into the log metadata
+//! description = "…"
+//! seed = 1                          # noise seed: same seed, same log, byte for byte
+//! duration_s = 3000.0               # simulated time limit, s (required)
+//! stop_on = "protocol-done"         # end early, `tail_s` after the first event line of this kind
+//! tail_s = 1.0                      #   (boot, fault, cleared, zeroed, drift, protocol-done, model)
+//! quantum_us = 1000                 # virtual-time step of the executor loop, µs
+//! record_detail = false             # keep every step and ADC conversion's truth (tests)
+//!
+//! [plant]                           # the physics (crate::plant::PlantConfig)
+//! design = "sba1"                   # sba1 | sba2 | sba3 | sba4 (paper Table V)
+//! delivery_time_constant_s = 0.003  # motor/screw/tubing smoothing of the step train
+//! mm3_per_step = 0.04
+//! area_mm2 = [22.0, 22.0, 22.0]     # effective area per chamber (force share → pressure)
+//! max_substep_s = 0.001             # backward-Euler sub-step limit
+//! [plant.sensor]                    # always on
+//! noise_kpa = 0.05
+//! offset_kpa = [0.42, -0.31, 0.18]
+//! [plant.effects]                   # each off unless given
+//! air_pocket_mm3 = [20.0, 0.0, 0.0]
+//! hysteresis = { amplitude_kpa = 1.0, transition_mm3 = 20.0 }
+//! sensor_lag_s = 0.02
+//! inertance_kpa_s2_per_mm3 = 3e-4
+//! thermal_drift = { offset_change_kpa = 1.0, time_constant_s = 600.0 }
+//! backlash_mm3 = 0.4
+//! ripple = { amplitude_mm3 = 0.2, period_mm3 = 8.0 }
+//! leak_mm3_per_s_per_kpa = 0.001
+//!
+//! [[force]]                         # raised-cosine pulse trains on the tip
+//! start_s = 10.0
+//! duration_s = 10.0
+//! frequency_hz = 1.0
+//! peak_n = 0.3
+//! azimuth_deg = 30.0                # chamber i sits at 120°·i
+//! tilt_deg = 60.0                   # from the actuator axis
+//!
+//! [[commands]]                      # lines sent to the firmware's command port (its protocol)
+//! at_s = 1.5
+//! line = "run all 0 550 20 200 20 40 60 80 100"
+//!
+//! [[faults]]                        # injected hardware faults
+//! at_s = 5.0
+//! unplug = 1                        # sensor 1's connector comes off
+//! ```
+//!
+//! The firmware takes its pressure zero during the first second after boot and refuses motion
+//! until then, so commands usually start at 1.5 s.
+
+use serde::{Deserialize, Serialize};
+
+use crate::law::Design;
+use crate::plant::{Effects, ForcePush, PlantConfig, CHAMBERS};
+
+/// A command line sent at a given time.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TimedCommand {
+    /// When, s of simulated time.
+    pub at_s: f64,
+    /// The line, without terminator (the simulator appends `\n`).
+    pub line: String,
+}
+
+/// A hardware fault injected at a given time.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FaultInjection {
+    /// When, s of simulated time.
+    pub at_s: f64,
+    /// Disconnect this sensor (it then reads 0 counts).
+    pub unplug: usize,
+}
+
+/// Everything that defines one simulated run.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct Scenario {
+    /// Label.
+    pub name: String,
+    /// What it shows.
+    pub description: String,
+    /// Seed of the sensor noise.
+    pub seed: u64,
+    /// Simulated time limit, s.
+    pub duration_s: f64,
+    /// End `tail_s` after the first event line of this kind (e.g. `protocol-done`).
+    pub stop_on: Option<String>,
+    /// See `stop_on`, s.
+    pub tail_s: f64,
+    /// Executor loop step, µs.
+    pub quantum_us: u64,
+    /// The physics.
+    pub plant: PlantConfig,
+    /// External force pushes.
+    pub force: Vec<ForcePush>,
+    /// Commands, in any order (sent in time order).
+    pub commands: Vec<TimedCommand>,
+    /// Injected faults.
+    pub faults: Vec<FaultInjection>,
+    /// Keep every step pulse and the truth at every ADC conversion in [`crate::SimRun`] (off by
+    /// default: an hour holds millions of them).
+    pub record_detail: bool,
+}
+
+impl Default for Scenario {
+    fn default() -> Self {
+        Self {
+            name: "unnamed".into(),
+            description: String::new(),
+            seed: 1,
+            duration_s: 10.0,
+            stop_on: None,
+            tail_s: 1.0,
+            quantum_us: 1_000,
+            plant: PlantConfig::default(),
+            force: Vec::new(),
+            commands: Vec::new(),
+            faults: Vec::new(),
+            record_detail: false,
+        }
+    }
+}
+
+/// When commands start: after the firmware's 1 s boot zero.
+pub const START_S: f64 = 1.5;
+
+/// The paper's protocol parameters (Sec. II: 0–550 mm³, 20–100 mm³/s, ≥ 20 cycles per rate).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Protocol {
+    /// Lower volume, mm³.
+    pub v_low: f64,
+    /// Upper volume, mm³.
+    pub v_high: f64,
+    /// Cycles per flow rate.
+    pub cycles: u16,
+    /// Dwell at each end, ms.
+    pub dwell_ms: u32,
+    /// Flow rates, mm³/s.
+    pub flows: Vec<f64>,
+}
+
+impl Protocol {
+    /// The paper's protocol scaled to `design` (see [`Scenario::design`]), with `cycle_frac` of
+    /// the cycles (at least one).
+    pub fn for_design(design: Design, cycle_frac: f64) -> Self {
+        let scale = Design::Sba1.mean_damping() / design.mean_damping();
+        let cycles = if design == Design::Sba4 { 1.0 } else { 20.0 };
+        Self {
+            v_high: design.max_volume_mm3(),
+            cycles: ((cycles * cycle_frac).round() as u16).max(1),
+            flows: Self::paper()
+                .flows
+                .iter()
+                .map(|f| (f * scale * 10.0).round() / 10.0)
+                .collect(),
+            ..Self::paper()
+        }
+    }
+
+    /// The paper's: 0–550 mm³, 20 cycles at each of 20, 40, 60, 80, 100 mm³/s.
+    pub fn paper() -> Self {
+        Self {
+            v_low: 0.0,
+            v_high: 550.0,
+            cycles: 20,
+            dwell_ms: 200,
+            flows: vec![20.0, 40.0, 60.0, 80.0, 100.0],
+        }
+    }
+
+    /// The firmware command line that runs it on all axes.
+    pub fn command(&self) -> String {
+        let flows: Vec<String> = self.flows.iter().map(|f| format!("{f}")).collect();
+        format!(
+            "run all {} {} {} {} {}",
+            self.v_low,
+            self.v_high,
+            self.cycles,
+            self.dwell_ms,
+            flows.join(" ")
+        )
+    }
+
+    /// Time it takes, s (moves at constant flow plus dwells; acceleration phases ignored).
+    pub fn duration_s(&self) -> f64 {
+        let span = self.v_high - self.v_low;
+        let per_flow: f64 = self
+            .flows
+            .iter()
+            .map(|f| self.cycles as f64 * 2.0 * (span / f + self.dwell_ms as f64 * 1e-3))
+            .sum();
+        per_flow + self.v_low / 50.0 + 1.0
+    }
+}
+
+impl Scenario {
+    /// Run `protocol` on all three chambers of `plant`, ending shortly after it is done.
+    pub fn protocol(name: &str, plant: PlantConfig, protocol: &Protocol) -> Self {
+        let d = plant.design;
+        let mut commands = Vec::new();
+        if d != Design::Sba1 {
+            // The firmware's limits default to SBA1's envelope; widen them to the design's.
+            commands.push(TimedCommand {
+                at_s: START_S - 0.2,
+                line: format!(
+                    "limit all {} {}",
+                    d.max_pressure_kpa() * 1.5,
+                    d.max_volume_mm3()
+                ),
+            });
+        }
+        commands.push(TimedCommand {
+            at_s: START_S,
+            line: protocol.command(),
+        });
+        Self {
+            name: name.into(),
+            description: format!(
+                "{} protocol {}–{} mm³, {} cycles at {:?} mm³/s",
+                d.name(),
+                protocol.v_low,
+                protocol.v_high,
+                protocol.cycles,
+                protocol.flows
+            ),
+            duration_s: START_S + 1.5 * protocol.duration_s() + 10.0,
+            stop_on: Some("protocol-done".into()),
+            plant,
+            commands,
+            ..Self::default()
+        }
+    }
+
+    /// The paper's characterisation protocol on SBA1 (Fig. 1c).
+    pub fn paper_protocol() -> Self {
+        Self::protocol("paper-protocol", PlantConfig::default(), &Protocol::paper())
+    }
+
+    /// The paper's protocol with an air pocket of `mm3` in every syringe (Sec. IV-A).
+    pub fn air_pocket(mm3: f64) -> Self {
+        let plant = PlantConfig {
+            effects: Effects {
+                air_pocket_mm3: [mm3; CHAMBERS],
+                ..Effects::default()
+            },
+            ..PlantConfig::default()
+        };
+        Self::protocol(&format!("air-{mm3}mm3"), plant, &Protocol::paper())
+    }
+
+    /// The paper's protocol scaled to `design`'s envelope (Sec. IV-B, Table V): 0 to its max
+    /// volume, at the paper's rates × c̄_SBA1/c̄_design (Table VI), which keeps the flow part of
+    /// the pressure — and the suction when deflating — at SBA1's level (the paper does not state
+    /// the rates it used for SBA2–SBA4). SBA4 (7000 mm³) runs 1 cycle per rate, the others 20.
+    pub fn design(design: Design) -> Self {
+        let plant = PlantConfig {
+            design,
+            ..PlantConfig::default()
+        };
+        Self::protocol(design.name(), plant, &Protocol::for_design(design, 1.0))
+    }
+
+    /// The paper's protocol with one effect preset switched on (`None` for an unknown name; see
+    /// [`crate::plant::EFFECT_PRESETS`]).
+    pub fn effect(name: &str) -> Option<Self> {
+        let plant = PlantConfig {
+            effects: Effects::preset(name)?,
+            ..PlantConfig::default()
+        };
+        Some(Self::protocol(
+            &format!("effect-{name}"),
+            plant,
+            &Protocol::paper(),
+        ))
+    }
+
+    /// One hour of rig time for the benchmark: all three chambers cycling for 3600 s.
+    /// `full_speed`: 250–550 mm³ at 100 mm³/s throughout (2500 steps/s per motor, the most step
+    /// events); otherwise the paper's 0–550 mm³ at 20, 40 and 60 mm³/s in turn.
+    pub fn rig_hour(full_speed: bool) -> Self {
+        let protocol = if full_speed {
+            Protocol {
+                v_low: 250.0,
+                cycles: 2000,
+                dwell_ms: 0,
+                flows: vec![100.0],
+                ..Protocol::paper()
+            }
+        } else {
+            Protocol {
+                cycles: 40,
+                flows: vec![20.0, 40.0, 60.0],
+                ..Protocol::paper()
+            }
+        };
+        Self {
+            duration_s: 3600.0,
+            stop_on: None,
+            ..Self::protocol("rig-hour", PlantConfig::default(), &protocol)
+        }
+    }
+
+    /// Force pushes as in the paper's Sec. IV-C: inflate to 500 mm³, then push the tip at 1 Hz
+    /// for `seconds` with `peak_n`, from a known direction (azimuth 30°, tilt 60°).
+    pub fn force_pushes(peak_n: f64, seconds: f64) -> Self {
+        let settle = START_S + 500.0 / 50.0 + 3.0;
+        Self {
+            name: "force-pushes".into(),
+            description: format!(
+                "inflate to 500 mm³, push {peak_n} N at 1 Hz for {seconds} s (az 30°, tilt 60°)"
+            ),
+            duration_s: settle + seconds + 2.0,
+            force: vec![ForcePush {
+                start_s: settle,
+                duration_s: seconds,
+                frequency_hz: 1.0,
+                peak_n,
+                azimuth_deg: 30.0,
+                tilt_deg: 60.0,
+            }],
+            commands: vec![TimedCommand {
+                at_s: START_S,
+                line: "move all 500 50".into(),
+            }],
+            ..Self::default()
+        }
+    }
+
+    /// Parse a scenario file's text; `origin` names it in errors.
+    pub fn from_toml(text: &str, origin: &str) -> Result<Self, crate::SimError> {
+        toml::from_str(text).map_err(|e| crate::SimError::Scenario {
+            origin: origin.to_string(),
+            message: e.to_string(),
+        })
+    }
+
+    /// Read and parse a scenario file.
+    pub fn load(path: &std::path::Path) -> Result<Self, crate::SimError> {
+        let origin = path.display().to_string();
+        let text = std::fs::read_to_string(path).map_err(|e| crate::SimError::Scenario {
+            origin: origin.clone(),
+            message: e.to_string(),
+        })?;
+        Self::from_toml(&text, &origin)
+    }
+
+    /// Check the parts that are not the plant's (the plant checks itself).
+    pub fn validate(&self) -> Result<(), crate::SimError> {
+        let bad = |message: String| {
+            Err(crate::SimError::Scenario {
+                origin: self.name.clone(),
+                message,
+            })
+        };
+        if !(self.duration_s.is_finite() && self.duration_s > 0.0 && self.duration_s < 1.0e6) {
+            return bad(format!(
+                "duration_s = {}: must be in (0, 1e6) s",
+                self.duration_s
+            ));
+        }
+        if !(self.tail_s.is_finite() && self.tail_s >= 0.0) {
+            return bad(format!("tail_s = {}: must be ≥ 0", self.tail_s));
+        }
+        if !(1..=40_000).contains(&self.quantum_us) {
+            return bad(format!(
+                "quantum_us = {}: must be in 1..=40000",
+                self.quantum_us
+            ));
+        }
+        for (i, c) in self.commands.iter().enumerate() {
+            if !(c.at_s.is_finite() && c.at_s >= 0.0) {
+                return bad(format!("commands[{i}].at_s = {}: must be ≥ 0", c.at_s));
+            }
+            if c.line.contains(['\n', '\r']) {
+                return bad(format!("commands[{i}].line holds a line break"));
+            }
+        }
+        for (i, f) in self.faults.iter().enumerate() {
+            if !(f.at_s.is_finite() && f.at_s >= 0.0) {
+                return bad(format!("faults[{i}].at_s = {}: must be ≥ 0", f.at_s));
+            }
+            if f.unplug >= CHAMBERS {
+                return bad(format!(
+                    "faults[{i}].unplug = {}: sensors are 0..=2",
+                    f.unplug
+                ));
+            }
+        }
+        Ok(())
+    }
+}
