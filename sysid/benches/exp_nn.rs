@@ -1,0 +1,74 @@
+//! Speed of the exponential (k = 1..10) and neural-network (d = 1..15) sweeps on an 83,000-sample,
+//! SBA-like log: volume on the 0.04 mm³ step grid swept 0..550 mm³ at 20..100 mm³/s, 25 Hz.
+//!
+//! Run: `cargo bench -p sysid --bench exp_nn` (the neural sweep alone: append `-- nn`).
+
+use criterion::{criterion_group, criterion_main, Criterion};
+use std::time::Duration;
+use sysid::{exp, nn};
+
+const N: usize = 83_000;
+
+/// The paper's protocol (Sec. II): strokes 0 → 550 → 0 mm³ at 20, 40, .., 100 mm³/s, sampled at
+/// 25 Hz, so volumes lie on a 0.8 mm³ grid. Pressure: two exponentials, a flow term with a
+/// flow-volume interaction, and a deterministic ripple standing in for noise.
+fn sba_log(n: usize) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
+    let (mut v, mut q, mut p) = (
+        Vec::with_capacity(n),
+        Vec::with_capacity(n),
+        Vec::with_capacity(n),
+    );
+    let dt = 0.04;
+    let (mut steps, mut dir, mut stroke) = (0i64, 1i64, 0usize);
+    for t in 0..n {
+        let rate = 20.0 * (1 + stroke % 5) as f64;
+        let next = (steps + dir * (rate * dt / 0.04).round() as i64).clamp(0, 13_750);
+        if next == 13_750 {
+            dir = -1;
+        } else if next == 0 {
+            dir = 1;
+            stroke += 1;
+        }
+        let vol = next as f64 * 0.04;
+        let flow = (next - steps) as f64 * 0.04 / dt;
+        steps = next;
+        let elastic = 2.0 * (vol / 120.0).exp() - 1.5 * (-vol / 40.0).exp();
+        let ripple = 0.3 * (t as f64 * 1.7).sin();
+        v.push(vol);
+        q.push(flow);
+        p.push(elastic + 0.05 * flow * (1.0 + vol / 550.0) + ripple);
+    }
+    (v, q, p)
+}
+
+fn bench_exp(c: &mut Criterion) {
+    let (v, q, p) = sba_log(N);
+    let mut g = c.benchmark_group("exp");
+    g.sample_size(20);
+    g.bench_function("sweep_k1_10_83k", |b| b.iter(|| exp::sweep(&v, &q, &p, 10)));
+    g.finish();
+}
+
+/// The paper's neural sweep d = 1..15 (p = 0) with the default training settings, on 2 threads.
+fn bench_nn(c: &mut Criterion) {
+    let (v, q, p) = sba_log(N);
+    let cfg = nn::SweepConfig {
+        threads: 2,
+        ..nn::SweepConfig::default()
+    };
+    let inputs = nn::Inputs {
+        v: &v,
+        vdot: &q,
+        ar_order: 0,
+    };
+    let mut g = c.benchmark_group("nn");
+    g.sample_size(10);
+    g.measurement_time(Duration::from_secs(60));
+    g.bench_function("sweep_d1_15_83k_2threads", |b| {
+        b.iter(|| nn::sweep(&inputs, &p, &cfg))
+    });
+    g.finish();
+}
+
+criterion_group!(benches, bench_exp, bench_nn);
+criterion_main!(benches);

@@ -1,0 +1,664 @@
+//! `vfp deploy LINES --port /dev/ttyACM0`: load a model into a board over its serial port with the
+//! firmware's command protocol (`firmware::command`), then read it back to confirm.
+//!
+//! The lines are those printed by `vfp export --format lines` (`model <ch> begin …`, `coef`, `ar`,
+//! `commit`). Each is checked with the firmware's own parser before anything is sent, sent with
+//! `\n`, and must be answered `ok`; the first `err` reply stops the upload and is reported with the
+//! line that caused it. Before the upload a `status` command checks that the other end speaks the
+//! protocol (stale bytes in the port are skipped).
+//!
+//! # Read-back
+//! After `commit`, each channel is read back with `model <ch> read` (shape and scaling) and
+//! `model <ch> read coef <i>` / `model <ch> read ar <i>` (up to 8 values from index i), and every
+//! value is compared bit for bit (as `f32`) with what was sent. A firmware that does not know the
+//! `read` verb answers `err …`; the deploy then says plainly that the model is confirmed by the
+//! board's acknowledgements only.
+//!
+//! [`deploy`] works on any `Read + Write` (a serial port, or [`FirmwarePort`]: the firmware's own
+//! command handler in memory, for tests and the demo).
+
+use std::collections::VecDeque;
+use std::io::{Read, Write};
+use std::path::PathBuf;
+use std::time::Duration;
+
+use firmware::command::{self, Command, ModelCmd};
+
+use crate::cli::CliError;
+
+/// `vfp deploy`: send a model to a board and read it back.
+#[derive(Debug, Clone, clap::Args)]
+pub struct DeployArgs {
+    /// Model lines as printed by `vfp export --format lines` (`-` reads stdin).
+    pub lines: PathBuf,
+    /// Serial port of the board (e.g. /dev/ttyACM0, COM3).
+    #[arg(long)]
+    pub port: String,
+    /// Baud rate (the firmware's UART runs at 115200).
+    #[arg(long, default_value_t = 115_200)]
+    pub baud: u32,
+    /// Seconds to wait for each reply.
+    #[arg(long, default_value_t = 2.0)]
+    pub timeout_s: f64,
+}
+
+/// Everything sent to one channel, and the values it should hold afterwards.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Upload {
+    /// Channel.
+    pub ch: u8,
+    /// The lines, in order (the last is `commit`).
+    pub lines: Vec<String>,
+    /// `[n, m, p]`.
+    pub shape: [u8; 3],
+    /// `[v_offset, v_scale, f_offset, f_scale]`.
+    pub scaling: [f32; 4],
+    /// Scaled coefficients by index.
+    pub coef: Vec<f32>,
+    /// Flattened AR coefficients by index.
+    pub ar: Vec<f32>,
+}
+
+/// Why a deploy failed.
+#[derive(Debug, thiserror::Error)]
+pub enum DeployError {
+    /// A line of the input is not a valid model command.
+    #[error("{source_name}:{line}: {reason}: `{text}`")]
+    BadInput {
+        /// Input name.
+        source_name: String,
+        /// 1-based line.
+        line: usize,
+        /// The text.
+        text: String,
+        /// Why.
+        reason: String,
+    },
+    /// Opening, reading or writing the port failed.
+    #[error("{what}: {source}")]
+    Io {
+        /// What was being done.
+        what: String,
+        /// The error.
+        source: std::io::Error,
+    },
+    /// No reply in time.
+    #[error("no reply to `{sent}` within the timeout; is the board running vfp-fw and is this its command port?")]
+    Timeout {
+        /// The line sent.
+        sent: String,
+    },
+    /// The port closed.
+    #[error("the port closed while waiting for the reply to `{sent}`")]
+    Closed {
+        /// The line sent.
+        sent: String,
+    },
+    /// The other end does not answer `status` like the firmware.
+    #[error("the board does not speak the vfp-fw protocol: `status` got `{reply}`")]
+    NotFirmware {
+        /// What came back.
+        reply: String,
+    },
+    /// The board refused a line.
+    #[error(
+        "channel {ch}: the board refused `{sent}` with `{reply}`; the upload was stopped there"
+    )]
+    Refused {
+        /// Channel.
+        ch: u8,
+        /// The line.
+        sent: String,
+        /// The reply.
+        reply: String,
+    },
+    /// A read-back value differs from what was sent.
+    #[error("channel {ch}: read-back of {what} gave {got} but {sent} was sent")]
+    Mismatch {
+        /// Channel.
+        ch: u8,
+        /// Which value.
+        what: String,
+        /// Sent.
+        sent: String,
+        /// Read back.
+        got: String,
+    },
+}
+
+fn bad(source_name: &str, line: usize, text: &str, reason: impl Into<String>) -> DeployError {
+    DeployError::BadInput {
+        source_name: source_name.into(),
+        line,
+        text: text.into(),
+        reason: reason.into(),
+    }
+}
+
+/// Reads `vfp export` output into per-channel uploads. `model …` lines are kept; blank lines,
+/// `#`/`//` comments and the Rust constants of `--format both` (`pub const …`) are skipped; any
+/// other line, a line the firmware's parser refuses, or an upload without `begin`…`commit` is an
+/// error naming the line.
+pub fn parse_lines(text: &str, source_name: &str) -> Result<Vec<Upload>, DeployError> {
+    let mut out: Vec<Upload> = Vec::new();
+    let mut open: Option<Upload> = None;
+    let mut last_line = 0;
+    for (i, raw) in text.lines().enumerate() {
+        let no = i + 1;
+        last_line = no;
+        let t = raw.trim();
+        if t.is_empty() || t.starts_with('#') || t.starts_with("//") || t.starts_with("pub const") {
+            continue;
+        }
+        if !t.starts_with("model") {
+            return Err(bad(
+                source_name,
+                no,
+                t,
+                "not a `model …` line of `vfp export --format lines`",
+            ));
+        }
+        let cmd = command::parse(t.as_bytes()).map_err(|e| {
+            bad(
+                source_name,
+                no,
+                t,
+                format!("the firmware would refuse it ({e})"),
+            )
+        })?;
+        let Command::Model { ch, cmd } = cmd else {
+            return Err(bad(source_name, no, t, "not a model command"));
+        };
+        match cmd {
+            ModelCmd::Begin { n, m, p, scaling } => {
+                if open.is_some() {
+                    return Err(bad(
+                        source_name,
+                        no,
+                        t,
+                        "`begin` before the previous upload's `commit`",
+                    ));
+                }
+                open = Some(Upload {
+                    ch,
+                    lines: vec![t.to_string()],
+                    shape: [n, m, p],
+                    scaling,
+                    coef: vec![f32::NAN; (n as usize + 1) * (m as usize + 1)],
+                    ar: vec![f32::NAN; 2 * p as usize],
+                });
+            }
+            ModelCmd::Coef { start, ref values } | ModelCmd::Ar { start, ref values } => {
+                let is_ar = matches!(cmd, ModelCmd::Ar { .. });
+                let up = open.as_mut().filter(|u| u.ch == ch).ok_or_else(|| {
+                    bad(source_name, no, t, "no `begin` for this channel before it")
+                })?;
+                let dst = if is_ar { &mut up.ar } else { &mut up.coef };
+                let start = start as usize;
+                if start + values.len() > dst.len() {
+                    return Err(bad(
+                        source_name,
+                        no,
+                        t,
+                        format!("index past the {} values of the model's shape", dst.len()),
+                    ));
+                }
+                dst[start..start + values.len()].copy_from_slice(values);
+                up.lines.push(t.to_string());
+            }
+            ModelCmd::Commit => {
+                let mut up = open
+                    .take()
+                    .filter(|u| u.ch == ch)
+                    .ok_or_else(|| bad(source_name, no, t, "`commit` without `begin`"))?;
+                if up.coef.iter().chain(&up.ar).any(|x| x.is_nan()) {
+                    return Err(bad(
+                        source_name,
+                        no,
+                        t,
+                        "`commit` before every coefficient was given",
+                    ));
+                }
+                up.lines.push(t.to_string());
+                out.push(up);
+            }
+            ModelCmd::Default => {
+                return Err(bad(
+                    source_name,
+                    no,
+                    t,
+                    "`model <ch> default` is not an exported model",
+                ))
+            }
+        }
+    }
+    if let Some(up) = open {
+        return Err(bad(
+            source_name,
+            last_line,
+            &up.lines[0],
+            "upload never committed (`model <ch> commit` missing)",
+        ));
+    }
+    if out.is_empty() {
+        return Err(bad(
+            source_name,
+            last_line,
+            "",
+            "no model lines; pipe in `vfp export LOG --format lines`",
+        ));
+    }
+    Ok(out)
+}
+
+/// How a channel was confirmed.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+#[serde(rename_all = "snake_case", tag = "kind")]
+pub enum Readback {
+    /// Every value read back equals the value sent, bit for bit.
+    Verified {
+        /// Values compared.
+        values: usize,
+    },
+    /// The firmware has no `model <ch> read`: confirmed by the `ok` replies only.
+    Unsupported {
+        /// The board's reply to `model <ch> read`.
+        reply: String,
+    },
+}
+
+/// Result of one channel.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct ChannelResult {
+    /// Channel.
+    pub ch: u8,
+    /// Lines sent and acknowledged.
+    pub lines_acked: usize,
+    /// Read-back.
+    pub readback: Readback,
+}
+
+/// Line-based exchange over a byte port.
+struct Link<'a, P> {
+    port: &'a mut P,
+    pending: Vec<u8>,
+}
+
+/// Longest reply line accepted (the firmware's replies are at most 192 bytes).
+const MAX_REPLY: usize = 1024;
+
+impl<P: Read + Write> Link<'_, P> {
+    fn send(&mut self, line: &str) -> Result<String, DeployError> {
+        let io = |e| DeployError::Io {
+            what: format!("sending `{line}`"),
+            source: e,
+        };
+        self.port.write_all(line.as_bytes()).map_err(io)?;
+        self.port.write_all(b"\n").map_err(io)?;
+        self.port.flush().map_err(io)?;
+        self.reply(line)
+    }
+
+    fn reply(&mut self, sent: &str) -> Result<String, DeployError> {
+        let mut buf = [0u8; 64];
+        loop {
+            if let Some(end) = self.pending.iter().position(|&b| b == b'\n') {
+                let line: Vec<u8> = self.pending.drain(..=end).collect();
+                let s = String::from_utf8_lossy(&line)
+                    .trim_end_matches(['\r', '\n'])
+                    .to_string();
+                return Ok(s);
+            }
+            if self.pending.len() > MAX_REPLY {
+                let s = String::from_utf8_lossy(&self.pending[..80]).to_string();
+                return Err(DeployError::NotFirmware {
+                    reply: format!("{s}… (no line end)"),
+                });
+            }
+            match self.port.read(&mut buf) {
+                Ok(0) => return Err(DeployError::Closed { sent: sent.into() }),
+                Ok(n) => self.pending.extend_from_slice(&buf[..n]),
+                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+                Err(e)
+                    if matches!(
+                        e.kind(),
+                        std::io::ErrorKind::TimedOut | std::io::ErrorKind::WouldBlock
+                    ) =>
+                {
+                    return Err(DeployError::Timeout { sent: sent.into() })
+                }
+                Err(e) => {
+                    return Err(DeployError::Io {
+                        what: format!("reading the reply to `{sent}`"),
+                        source: e,
+                    })
+                }
+            }
+        }
+    }
+}
+
+/// Parses the `f32` words of a reply after `ok`.
+fn reply_floats(reply: &str) -> Option<Vec<f32>> {
+    reply
+        .strip_prefix("ok")?
+        .split_ascii_whitespace()
+        .map(|w| w.parse().ok())
+        .collect()
+}
+
+fn same(a: f32, b: f32) -> bool {
+    a.to_bits() == b.to_bits()
+}
+
+/// Uploads every channel and reads it back (see the module docs).
+pub fn deploy<P: Read + Write>(
+    port: &mut P,
+    uploads: &[Upload],
+) -> Result<Vec<ChannelResult>, DeployError> {
+    let mut link = Link {
+        port,
+        pending: Vec::new(),
+    };
+    // Skip stale lines (at most a few) until the status reply.
+    let mut reply = link.send("status")?;
+    for _ in 0..8 {
+        if reply.starts_with("ok flags") {
+            break;
+        }
+        reply = link.reply("status")?;
+    }
+    if !reply.starts_with("ok flags") {
+        return Err(DeployError::NotFirmware { reply });
+    }
+    let mut results = Vec::new();
+    for up in uploads {
+        for l in &up.lines {
+            let r = link.send(l)?;
+            if r != "ok" && !r.starts_with("ok ") {
+                return Err(DeployError::Refused {
+                    ch: up.ch,
+                    sent: l.clone(),
+                    reply: r,
+                });
+            }
+        }
+        results.push(ChannelResult {
+            ch: up.ch,
+            lines_acked: up.lines.len(),
+            readback: read_back(&mut link, up)?,
+        });
+    }
+    Ok(results)
+}
+
+fn read_back<P: Read + Write>(
+    link: &mut Link<'_, P>,
+    up: &Upload,
+) -> Result<Readback, DeployError> {
+    let ch = up.ch;
+    let cmd = format!("model {ch} read");
+    let r = link.send(&cmd)?;
+    if r.starts_with("err") {
+        return Ok(Readback::Unsupported { reply: r });
+    }
+    let mismatch = |what: String, sent: String, got: String| DeployError::Mismatch {
+        ch,
+        what,
+        sent,
+        got,
+    };
+    let head = reply_floats(&r)
+        .ok_or_else(|| mismatch("the header".into(), "numbers".into(), r.clone()))?;
+    let want: Vec<f32> = up
+        .shape
+        .iter()
+        .map(|&x| x as f32)
+        .chain(up.scaling)
+        .collect();
+    if head.len() != want.len() || !head.iter().zip(&want).all(|(a, b)| same(*a, *b)) {
+        return Err(mismatch("shape and scaling".into(), format!("{want:?}"), r));
+    }
+    let mut values = want.len();
+    for (verb, sent) in [("coef", &up.coef), ("ar", &up.ar)] {
+        for start in (0..sent.len()).step_by(command::MAX_CHUNK) {
+            let c = format!("model {ch} read {verb} {start}");
+            let r = link.send(&c)?;
+            let got = reply_floats(&r)
+                .ok_or_else(|| mismatch(format!("{verb} {start}"), "numbers".into(), r.clone()))?;
+            let end = (start + command::MAX_CHUNK).min(sent.len());
+            let exp = &sent[start..end];
+            if got.len() != exp.len() || !got.iter().zip(exp).all(|(a, b)| same(*a, *b)) {
+                return Err(mismatch(
+                    format!("{verb} {start}..{end}"),
+                    format!("{exp:?}"),
+                    r,
+                ));
+            }
+            values += exp.len();
+        }
+    }
+    Ok(Readback::Verified { values })
+}
+
+/// The firmware's own command handler ([`firmware::app::Shared::command_line`]) behind
+/// `Read + Write`: bytes written are command lines, replies come back as bytes, `\r\n`-terminated,
+/// as from the board's UART. A read with no reply pending reports `TimedOut`, as a serial port
+/// with a timeout does.
+///
+/// `emulate_read`: answer `model <ch> read …` from the firmware state's installed model
+/// ([`firmware::app::State::model`]) for firmware that lacks the verb; off, those lines go to
+/// the firmware unchanged (and are refused if it does not know them).
+pub struct FirmwarePort {
+    /// The firmware's state and command handler.
+    pub shared: firmware::app::Shared,
+    /// Time given to the handler, µs.
+    pub now_us: u64,
+    emulate_read: bool,
+    line: Vec<u8>,
+    out: VecDeque<u8>,
+}
+
+impl FirmwarePort {
+    /// A freshly booted firmware with the default configuration.
+    pub fn new(emulate_read: bool) -> Self {
+        Self {
+            shared: firmware::app::Shared::new(firmware::app::Config::default()),
+            now_us: 0,
+            emulate_read,
+            line: Vec::new(),
+            out: VecDeque::new(),
+        }
+    }
+
+    fn emulated(&self, line: &str) -> Option<String> {
+        let w: Vec<&str> = line.split_ascii_whitespace().collect();
+        if !self.emulate_read || w.len() < 3 || w[0] != "model" || w[2] != "read" {
+            return None;
+        }
+        let ch: usize = w[1].parse().ok().filter(|&c| c < firmware::hal::AXES)?;
+        let m = self.shared.lock(|s| *s.model(ch));
+        let fmt = |v: &[f32]| v.iter().map(|x| format!(" {x:e}")).collect::<String>();
+        let sh = m.shape();
+        let sc = m.scaling();
+        Some(
+            match (w.get(3), w.get(4).and_then(|i| i.parse::<usize>().ok())) {
+                (None, _) => format!(
+                    "ok {} {} {}{}",
+                    sh.n,
+                    sh.m,
+                    sh.p,
+                    fmt(&[sc.v_offset, sc.v_scale, sc.f_offset, sc.f_scale])
+                ),
+                (Some(&"coef"), Some(i)) if i < m.scaled().len() => {
+                    format!(
+                        "ok{}",
+                        fmt(&m.scaled()[i..(i + command::MAX_CHUNK).min(m.scaled().len())])
+                    )
+                }
+                (Some(&"ar"), Some(i)) => {
+                    let ar: Vec<f32> = m.ar().iter().flatten().copied().collect();
+                    if i >= ar.len() {
+                        return Some("err out-of-range".into());
+                    }
+                    format!("ok{}", fmt(&ar[i..(i + command::MAX_CHUNK).min(ar.len())]))
+                }
+                _ => "err invalid-argument 3".into(),
+            },
+        )
+    }
+}
+
+impl Write for FirmwarePort {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        for &b in buf {
+            if b != b'\n' {
+                self.line.push(b);
+                continue;
+            }
+            let line = std::mem::take(&mut self.line);
+            let text = String::from_utf8_lossy(&line)
+                .trim_end_matches('\r')
+                .to_string();
+            let reply = match self.emulated(&text) {
+                Some(r) => r,
+                None => {
+                    let mut r = String::new();
+                    self.shared.command_line(&line, self.now_us, &mut r);
+                    r
+                }
+            };
+            self.out.extend(reply.as_bytes());
+            self.out.extend(b"\r\n");
+            self.now_us += 1_000;
+        }
+        Ok(buf.len())
+    }
+
+    fn flush(&mut self) -> std::io::Result<()> {
+        Ok(())
+    }
+}
+
+impl Read for FirmwarePort {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        if self.out.is_empty() {
+            return Err(std::io::Error::new(
+                std::io::ErrorKind::TimedOut,
+                "no reply pending",
+            ));
+        }
+        let n = buf.len().min(self.out.len());
+        for (d, s) in buf.iter_mut().zip(self.out.drain(..n)) {
+            *d = s;
+        }
+        Ok(n)
+    }
+}
+
+/// Runs `vfp deploy`.
+pub fn run(args: &DeployArgs) -> Result<(), CliError> {
+    let name = args.lines.display().to_string();
+    let text = if name == "-" {
+        let mut s = String::new();
+        std::io::stdin()
+            .read_to_string(&mut s)
+            .map_err(|e| CliError(format!("<stdin>: {e}")))?;
+        s
+    } else {
+        std::fs::read_to_string(&args.lines).map_err(|e| CliError(format!("{name}: {e}")))?
+    };
+    let uploads = parse_lines(&text, &name).map_err(|e| CliError(e.to_string()))?;
+    if !(args.timeout_s.is_finite() && args.timeout_s > 0.0) {
+        return Err(CliError(format!(
+            "--timeout-s {}: must be a positive number of seconds",
+            args.timeout_s
+        )));
+    }
+    let mut port = serialport::new(&args.port, args.baud)
+        .timeout(Duration::from_secs_f64(args.timeout_s))
+        .open()
+        .map_err(|e| CliError(format!("{}: cannot open the serial port: {e}", args.port)))?;
+    let results =
+        deploy(&mut port, &uploads).map_err(|e| CliError(format!("{}: {e}", args.port)))?;
+    for r in &results {
+        match &r.readback {
+            Readback::Verified { values } => {
+                println!("channel {}: {} lines acknowledged, {values} values read back and identical", r.ch, r.lines_acked)
+            }
+            Readback::Unsupported { reply } => println!(
+                "channel {}: {} lines acknowledged; not read back: this firmware answers `model {} read` with `{reply}`, \
+                 so the model is confirmed by the acknowledgements only",
+                r.ch, r.lines_acked, r.ch
+            ),
+        }
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const LINES: &str = "model 1 begin 3 2 0 275 275 0 100\n\
+        model 1 coef 0 1e0 2e0 3e0 4e0 5e0 6e0 7e0 8e0\n\
+        model 1 coef 8 9e0 1e1 1.1e1 -1.2e-3\n\
+        model 1 commit\n";
+
+    #[test]
+    fn parses_export_lines_and_skips_rust_constants() {
+        let text = format!("{LINES}\n// Chamber 1: x\npub const CH1_SHAPE: [u8; 3] = [3, 2, 0];\n");
+        let up = parse_lines(&text, "x").unwrap();
+        assert_eq!(up.len(), 1);
+        assert_eq!(up[0].coef.len(), 12);
+        assert_eq!(up[0].coef[11], -1.2e-3);
+        assert_eq!(up[0].lines.len(), 4);
+    }
+
+    #[test]
+    fn names_the_bad_line() {
+        let e = parse_lines("model 1 begin 3 2 0 275 275 0 100\nmove 0 10\n", "f.txt").unwrap_err();
+        assert!(e.to_string().starts_with("f.txt:2:"), "{e}");
+        let e = parse_lines(
+            "model 1 begin 3 2 0 275 275 0 100\nmodel 1 commit\n",
+            "f.txt",
+        )
+        .unwrap_err();
+        assert!(e.to_string().contains("every coefficient"), "{e}");
+        let e = parse_lines("model 1 coef 0 x\n", "f.txt").unwrap_err();
+        assert!(e.to_string().contains("f.txt:1"), "{e}");
+    }
+
+    #[test]
+    fn deploys_into_the_firmware_and_reads_back() {
+        let up = parse_lines(LINES, "x").unwrap();
+        let mut port = FirmwarePort::new(true);
+        let r = deploy(&mut port, &up).unwrap();
+        assert_eq!(r[0].readback, Readback::Verified { values: 7 + 12 });
+        // The firmware's installed model holds exactly the values sent.
+        let m = port.shared.lock(|s| *s.model(1));
+        assert_eq!(m.scaled(), &up[0].coef[..]);
+        // Without the read verb the firmware refuses it, and the deploy says so.
+        let mut plain = FirmwarePort::new(false);
+        let r = deploy(&mut plain, &up).unwrap();
+        assert!(
+            matches!(&r[0].readback, Readback::Unsupported { reply } if reply.starts_with("err"))
+        );
+    }
+
+    #[test]
+    fn reports_a_refused_line() {
+        // An index past the shape: the firmware's staged-model check refuses it.
+        let up = parse_lines(LINES, "x").unwrap();
+        let mut port = FirmwarePort::new(false);
+        let mut bad = up.clone();
+        bad[0].lines[2] = "model 1 coef 11 9e0 1e1".into();
+        match deploy(&mut port, &bad) {
+            Err(DeployError::Refused { ch: 1, sent, reply }) => {
+                assert_eq!(sent, "model 1 coef 11 9e0 1e1");
+                assert!(reply.starts_with("err"), "{reply}");
+            }
+            other => panic!("{other:?}"),
+        }
+    }
+}

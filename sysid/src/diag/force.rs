@@ -1,0 +1,538 @@
+//! `vfp force --ident IDENT.csv --test TEST.csv`: proprioceptive external force from pressure
+//! residuals (paper §IV-C, Fig. 8).
+//!
+//! A polynomial P̂_c(v, v̇) is identified per chamber c on the force-free log. On the test log the
+//! residual r_c(t) = P_c(t) − P̂_c(v_c(t), v̇_c(t)) of each chamber, times its effective area A_c
+//! (default 22 mm² each), summed over the chambers, is the force magnitude:
+//!
+//! F̂(t) = Σ_c A_c r_c(t)   (kPa · mm² = mN).
+//!
+//! The sum is `model_core::force::estimate`, the device's own code (f32). Its signed total is
+//! kept (not the magnitude |Σ|), so noise averages out instead of biasing F̂ up at zero force.
+//! Chambers are matched by time: for each sample of the chamber with fewest samples, the nearest
+//! sample of every other chamber within half a sample period.
+//!
+//! # What limits the accuracy
+//! With independent pressure noise σ_c per chamber, F̂ carries noise of standard deviation
+//! √(Σ_c A_c² σ_c²) = A σ √3 for equal chambers: a floor no model can beat without filtering
+//! (σ = 0.1 kPa gives 3.8 mN). The report gives this floor twice: from σ_c estimated on the test
+//! log from fourth differences of the residual (σ ≈ std(Δ⁴r)/√70, blind to the slow force signal),
+//! and from the identification RMSE (which adds the model's own misfit). An optional centred
+//! moving average over M samples (`--smooth M`) divides white noise by √M but costs bandwidth:
+//! its −3 dB frequency is ≈ 0.443·f_s/M (0.443 being where |sin(πfM/f_s)/(M sin(πf/f_s))| = 1/√2
+//! for large M), stated in the report.
+
+use super::input::{read_log, Log, Series};
+use super::plot::{self, Curve, Mark};
+use super::{DiagError, OutputOpts};
+use crate::poly::{self, Xy};
+use serde::Serialize;
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+
+/// `vfp force`: external force from pressure residuals.
+#[derive(Debug, Clone, clap::Args)]
+pub struct ForceArgs {
+    /// Force-free log to identify one model per chamber on.
+    #[arg(long)]
+    pub ident: PathBuf,
+    /// Log to estimate the force on (with `force_n` for a comparison).
+    #[arg(long)]
+    pub test: PathBuf,
+    /// Effective area per chamber in mm², one value for all or one per chamber (`22,22,22`).
+    #[arg(long, value_delimiter = ',', default_value = "22")]
+    pub area: Vec<f64>,
+    /// Highest power of volume v.
+    #[arg(long, default_value_t = 3)]
+    pub n: usize,
+    /// Highest power of flow v̇.
+    #[arg(long, default_value_t = 2)]
+    pub m: usize,
+    /// Centred moving average over this many samples (1 = no filter).
+    #[arg(long, default_value_t = 1)]
+    pub smooth: usize,
+    /// Seconds of the test log shown in the time plot (from 1 s before the first push, or from
+    /// the start when the log has no force_n).
+    #[arg(long, default_value_t = 10.0)]
+    pub plot_window: f64,
+    #[command(flatten)]
+    pub out: OutputOpts,
+}
+
+/// Per-chamber information of the report.
+#[derive(Debug, Clone, Serialize)]
+pub struct ChamberForce {
+    /// Chamber index.
+    pub chamber: u8,
+    /// Effective area (mm²).
+    pub area_mm2: f64,
+    /// RMSE of the identified model on the force-free log (kPa).
+    pub ident_rmse_kpa: f64,
+    /// Pressure noise σ on the test log from fourth differences of the residual (kPa).
+    pub test_noise_kpa: f64,
+    /// Mean residual on the test log (kPa).
+    pub mean_residual_kpa: f64,
+}
+
+/// JSON document of `vfp force --json`. Forces in N.
+#[derive(Debug, Serialize)]
+pub struct ForceReport {
+    /// Identification log.
+    pub ident: String,
+    /// Test log.
+    pub test: String,
+    /// Polynomial shape.
+    pub shape: super::Shape,
+    /// Samples (time instants) where all chambers were matched.
+    pub samples: usize,
+    /// Test-log instants dropped because a chamber had no sample within half a period.
+    pub unmatched: usize,
+    /// Chambers used.
+    pub chambers: Vec<ChamberForce>,
+    /// Mean estimated force (N).
+    pub mean_force_n: f64,
+    /// Mean of (estimate − truth) (N), when the test log has `force_n`.
+    pub mean_error_n: Option<f64>,
+    /// Standard deviation of (estimate − truth) (N).
+    pub std_error_n: Option<f64>,
+    /// RMS of (estimate − truth) (N).
+    pub rmse_n: Option<f64>,
+    /// Noise floor √(Σ A²σ²) from the test-log noise estimate (N), after the filter.
+    pub noise_floor_n: f64,
+    /// The same from the identification RMSE (includes model misfit) (N), after the filter.
+    pub model_floor_n: f64,
+    /// Moving-average length (1 = none).
+    pub smooth_samples: usize,
+    /// Sample rate of the test log (Hz).
+    pub sample_rate_hz: f64,
+    /// −3 dB bandwidth of the filter (Hz); Nyquist when unfiltered.
+    pub bandwidth_hz: f64,
+}
+
+/// Result of the estimation, for the report and the plots.
+#[derive(Debug, Clone)]
+pub struct ForceTrace {
+    /// Times of matched instants (s).
+    pub t: Vec<f64>,
+    /// Estimated force (N).
+    pub est: Vec<f64>,
+    /// Truth (N), when present.
+    pub truth: Option<Vec<f64>>,
+    /// Per chamber: (measured, predicted) pressure at the matched instants.
+    pub pressures: BTreeMap<u8, (Vec<f64>, Vec<f64>)>,
+}
+
+/// Matches chambers by time; returns per matched instant the sample index of each chamber.
+fn match_times(chambers: &BTreeMap<u8, &Series>) -> (Vec<BTreeMap<u8, usize>>, usize) {
+    let (&rc, rs) = chambers
+        .iter()
+        .min_by_key(|(_, s)| s.len())
+        .expect("at least one chamber");
+    let mut dts: Vec<f64> = rs.t.windows(2).map(|w| w[1] - w[0]).collect();
+    dts.sort_by(f64::total_cmp);
+    let tol = 0.5 * dts.get(dts.len() / 2).copied().unwrap_or(f64::INFINITY);
+    let mut out = Vec::new();
+    let mut unmatched = 0;
+    for (i, &t) in rs.t.iter().enumerate() {
+        let mut row = BTreeMap::new();
+        row.insert(rc, i);
+        let ok = chambers.iter().filter(|(&c, _)| c != rc).all(|(&c, s)| {
+            let j = s.t.partition_point(|&x| x < t);
+            let best = [j.saturating_sub(1), j.min(s.len() - 1)]
+                .into_iter()
+                .min_by(|&a, &b| (s.t[a] - t).abs().total_cmp(&(s.t[b] - t).abs()))
+                .expect("non-empty");
+            if (s.t[best] - t).abs() <= tol {
+                row.insert(c, best);
+                true
+            } else {
+                false
+            }
+        });
+        if ok {
+            out.push(row);
+        } else {
+            unmatched += 1;
+        }
+    }
+    (out, unmatched)
+}
+
+/// Centred moving average over `m` samples (shorter windows at the ends).
+pub fn moving_average(x: &[f64], m: usize) -> Vec<f64> {
+    if m <= 1 {
+        return x.to_vec();
+    }
+    let (before, after) = ((m - 1) / 2, m / 2);
+    let mut prefix = vec![0.0; x.len() + 1];
+    for (i, v) in x.iter().enumerate() {
+        prefix[i + 1] = prefix[i] + v;
+    }
+    (0..x.len())
+        .map(|i| {
+            let (a, b) = (i.saturating_sub(before), (i + after + 1).min(x.len()));
+            (prefix[b] - prefix[a]) / (b - a) as f64
+        })
+        .collect()
+}
+
+/// σ of white noise under a smooth signal from fourth differences: Δ⁴ of white noise has
+/// variance C(8, 4)·σ² = 70σ², while Δ⁴ of a sinusoid of frequency f is scaled by
+/// (2 sin(πf/f_s))⁴ (0.004 for 1 Hz at 25 Hz), so the pushes themselves hardly leak in.
+pub fn difference_noise(x: &[f64]) -> f64 {
+    if x.len() < 6 {
+        return f64::NAN;
+    }
+    let d: Vec<f64> = x
+        .windows(5)
+        .map(|w| w[4] - 4.0 * w[3] + 6.0 * w[2] - 4.0 * w[1] + w[0])
+        .collect();
+    let mean = d.iter().sum::<f64>() / d.len() as f64;
+    let var = d.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (d.len() - 1) as f64;
+    (var / 70.0).sqrt()
+}
+
+/// Mean, sample standard deviation and RMS of `e`.
+pub fn error_stats(e: &[f64]) -> (f64, f64, f64) {
+    let n = e.len() as f64;
+    let mean = e.iter().sum::<f64>() / n;
+    let var = e.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0).max(1.0);
+    let rms = (e.iter().map(|x| x * x).sum::<f64>() / n).sqrt();
+    (mean, var.sqrt(), rms)
+}
+
+/// Identifies per chamber on `ident`, estimates the force on `test`.
+pub fn estimate(
+    ident: &Log,
+    test: &Log,
+    args: &ForceArgs,
+) -> Result<(ForceReport, ForceTrace), DiagError> {
+    let shape = super::Shape {
+        n: args.n,
+        m: args.m,
+    };
+    let area_of = |c: u8| -> f64 {
+        if args.area.len() == 1 {
+            args.area[0]
+        } else {
+            args.area[c as usize]
+        }
+    };
+    let mut fits = BTreeMap::new();
+    let mut test_series = BTreeMap::new();
+    for (&c, s) in &test.chambers {
+        let is = ident.chambers.get(&c).ok_or_else(|| DiagError::Input {
+            path: ident.path.clone(),
+            line: None,
+            column: Some("chamber".into()),
+            msg: format!(
+                "the test log has chamber {c} but the identification log has none; identify \
+                 every chamber the test log uses"
+            ),
+        })?;
+        let fit = poly::fit(
+            Xy {
+                v: &is.v,
+                vdot: &is.vdot,
+                p: &is.p,
+            },
+            shape.n,
+            shape.m,
+            None,
+        )
+        .map_err(|e| {
+            DiagError::fit(
+                format!("{}, chamber {c}", ident.path.display()),
+                e.to_string(),
+            )
+        })?;
+        fits.insert(c, fit);
+        test_series.insert(c, s);
+    }
+    let (rows, unmatched) = match_times(&test_series);
+    if rows.len() < 3 {
+        return Err(DiagError::Input {
+            path: test.path.clone(),
+            line: None,
+            column: Some("time_s".into()),
+            msg: "fewer than 3 instants where every chamber has a sample; chambers must be \
+                  sampled at common times"
+                .into(),
+        });
+    }
+    let (rc, rs) = test_series
+        .iter()
+        .min_by_key(|(_, s)| s.len())
+        .map(|(c, s)| (*c, *s))
+        .unwrap();
+    let mut pressures: BTreeMap<u8, (Vec<f64>, Vec<f64>)> = BTreeMap::new();
+    let mut raw = vec![0.0; rows.len()];
+    let areas: [f32; 3] = core::array::from_fn(|c| area_of(c as u8) as f32);
+    for (k, row) in rows.iter().enumerate() {
+        // The device's own force law (model-core): Fᵢ = rᵢ·Aᵢ, chambers absent from the log
+        // contribute a zero residual.
+        let mut r = [0.0f32; 3];
+        for (&c, &i) in row {
+            let s = test_series[&c];
+            let pred = fits[&c].predict(s.v[i], s.vdot[i]);
+            let e = pressures.entry(c).or_default();
+            e.0.push(s.p[i]);
+            e.1.push(pred);
+            r[c as usize] = (s.p[i] - pred) as f32;
+        }
+        let f = model_core::force::estimate(r, areas).map_err(|e| DiagError::Input {
+            path: test.path.clone(),
+            line: None,
+            column: None,
+            msg: format!("force estimate at t = {} s: {e}", rs.t[row[&rc]]),
+        })?;
+        raw[k] = f.signed_total_n() as f64;
+    }
+    let est = moving_average(&raw, args.smooth);
+    let t: Vec<f64> = rows.iter().map(|r| rs.t[r[&rc]]).collect();
+    let truth: Option<Vec<f64>> = rs
+        .force
+        .as_ref()
+        .map(|f| rows.iter().map(|r| f[r[&rc]]).collect());
+    let mut dts: Vec<f64> = t.windows(2).map(|w| w[1] - w[0]).collect();
+    dts.sort_by(f64::total_cmp);
+    let fs = 1.0 / dts[dts.len() / 2];
+    let m = args.smooth.max(1) as f64;
+    let chambers: Vec<ChamberForce> = pressures
+        .iter()
+        .map(|(&c, (meas, pred))| {
+            let r: Vec<f64> = meas.iter().zip(pred).map(|(a, b)| a - b).collect();
+            ChamberForce {
+                chamber: c,
+                area_mm2: area_of(c),
+                ident_rmse_kpa: fits[&c].train.rmse,
+                test_noise_kpa: difference_noise(&r),
+                mean_residual_kpa: r.iter().sum::<f64>() / r.len() as f64,
+            }
+        })
+        .collect();
+    let floor = |f: &dyn Fn(&ChamberForce) -> f64| {
+        (chambers
+            .iter()
+            .map(|c| (c.area_mm2 * f(c)).powi(2))
+            .sum::<f64>()
+            / m)
+            .sqrt()
+            * 1e-3
+    };
+    let (mean_e, std_e, rms_e) = match &truth {
+        Some(tr) => {
+            let e: Vec<f64> = est.iter().zip(tr).map(|(a, b)| a - b).collect();
+            let (a, b, c) = error_stats(&e);
+            (Some(a), Some(b), Some(c))
+        }
+        None => (None, None, None),
+    };
+    let report = ForceReport {
+        ident: ident.path.display().to_string(),
+        test: test.path.display().to_string(),
+        shape,
+        samples: rows.len(),
+        unmatched,
+        mean_force_n: est.iter().sum::<f64>() / est.len() as f64,
+        mean_error_n: mean_e,
+        std_error_n: std_e,
+        rmse_n: rms_e,
+        noise_floor_n: floor(&|c| c.test_noise_kpa),
+        model_floor_n: floor(&|c| c.ident_rmse_kpa),
+        smooth_samples: args.smooth.max(1),
+        sample_rate_hz: fs,
+        bandwidth_hz: if args.smooth > 1 {
+            0.443 * fs / m
+        } else {
+            fs / 2.0
+        },
+        chambers,
+    };
+    Ok((
+        report,
+        ForceTrace {
+            t,
+            est,
+            truth,
+            pressures,
+        },
+    ))
+}
+
+/// Runs `vfp force`.
+pub fn run(args: &ForceArgs) -> Result<(), DiagError> {
+    super::ModelOpts {
+        n: args.n,
+        m: args.m,
+        chamber: None,
+        deadband: 0.0,
+    }
+    .validate()?;
+    if !(args.area.len() == 1 || args.area.len() == 3)
+        || args.area.iter().any(|a| !(a.is_finite() && *a > 0.0))
+    {
+        return Err(DiagError::Usage(format!(
+            "--area {:?}: give one positive area in mm2 for all chambers or three (a,b,c)",
+            args.area
+        )));
+    }
+    if args.smooth == 0 {
+        return Err(DiagError::Usage(
+            "--smooth 0: the window is at least 1 sample".into(),
+        ));
+    }
+    let ident = read_log(&args.ident)?;
+    let test = read_log(&args.test)?;
+    let (report, trace) = estimate(&ident, &test, args)?;
+    if let Some(dir) = &args.out.plots {
+        let path = plot_force(dir, &trace, args.plot_window)?;
+        if !args.out.json {
+            println!("figure: {}", path.display());
+        }
+    }
+    if args.out.json {
+        super::print_json(&report);
+    } else {
+        print!("{}", human(&report));
+    }
+    Ok(())
+}
+
+/// The human report (forces in mN).
+pub fn human(r: &ForceReport) -> String {
+    let mn = |x: f64| x * 1e3;
+    let mut s = format!(
+        "External force from pressure residuals (polynomial n = {}, m = {} per chamber, \
+         identified on {})\ntest log {}: {} instants at {:.1} Hz{}\n\n",
+        r.shape.n,
+        r.shape.m,
+        r.ident,
+        r.test,
+        r.samples,
+        r.sample_rate_hz,
+        if r.unmatched > 0 {
+            format!(
+                " ({} dropped: a chamber had no sample at that time)",
+                r.unmatched
+            )
+        } else {
+            String::new()
+        }
+    );
+    s += "  chamber  area (mm2)  ident RMSE (kPa)  test noise (kPa)  mean residual (kPa)\n";
+    for c in &r.chambers {
+        s += &format!(
+            "  {:>7} {:>11.1} {:>17.4} {:>17.4} {:>20.4}\n",
+            c.chamber, c.area_mm2, c.ident_rmse_kpa, c.test_noise_kpa, c.mean_residual_kpa
+        );
+    }
+    s += &format!("\nmean estimated force: {:.2} mN\n", mn(r.mean_force_n));
+    match (r.mean_error_n, r.std_error_n, r.rmse_n) {
+        (Some(m), Some(sd), Some(rm)) => {
+            s += &format!(
+                "error against force_n: {:.2} +/- {:.2} mN (mean +/- std), RMSE {:.2} mN \
+                 (paper: 1.60 +/- 7.50 mN)\n",
+                mn(m),
+                mn(sd),
+                mn(rm)
+            )
+        }
+        _ => s += "no force_n column in the test log: no error statistics\n",
+    }
+    s += &format!(
+        "\nWhat limits the accuracy: pressure noise times area, summed over {} chambers, is a \
+         floor of {:.2} mN (sqrt(sum (A sigma)^2) with sigma from the test log's fourth \
+         differences); with the identification RMSE instead of sigma (adds model misfit) it is \
+         {:.2} mN.\n",
+        r.chambers.len(),
+        mn(r.noise_floor_n),
+        mn(r.model_floor_n)
+    );
+    if r.smooth_samples > 1 {
+        s += &format!(
+            "Filter: centred moving average over {} samples divides white noise by sqrt({}) and \
+             limits the bandwidth to {:.2} Hz (-3 dB) of the {:.1} Hz Nyquist band.\n",
+            r.smooth_samples,
+            r.smooth_samples,
+            r.bandwidth_hz,
+            r.sample_rate_hz / 2.0
+        );
+    } else {
+        s += &format!(
+            "No filter: full bandwidth up to Nyquist ({:.1} Hz); --smooth M trades noise for \
+             bandwidth (about 0.443 fs/M Hz).\n",
+            r.bandwidth_hz
+        );
+    }
+    s
+}
+
+/// Fig. 8c (truth and estimate over time) and Fig. 8a (measured vs predicted pressure).
+fn plot_force(dir: &std::path::Path, tr: &ForceTrace, window: f64) -> Result<PathBuf, DiagError> {
+    let path = plot::target(dir, "diag-force.svg")?;
+    let root = plot::canvas(&path, (1000, 760));
+    let (top, bottom) = root.split_vertically(380);
+    // Show the pushes: start 1 s before the reference force first rises (else at the start).
+    let first = tr
+        .truth
+        .as_ref()
+        .and_then(|f| f.iter().position(|&x| x > 0.0));
+    let t0 = match first {
+        Some(i) => tr.t[i] - 1.0,
+        None => tr.t.first().copied().unwrap_or(0.0),
+    };
+    let keep: Vec<usize> = (0..tr.t.len())
+        .filter(|&i| tr.t[i] >= t0 && tr.t[i] - t0 <= window)
+        .collect();
+    let mut curves = Vec::new();
+    if let Some(truth) = &tr.truth {
+        curves.push(Curve::new(
+            "reference force_n",
+            keep.iter().map(|&i| (tr.t[i], truth[i] * 1e3)).collect(),
+            RGB_BLACK,
+            Mark::Line,
+        ));
+    }
+    curves.push(Curve::new(
+        "estimate (residual x area, summed)",
+        keep.iter().map(|&i| (tr.t[i], tr.est[i] * 1e3)).collect(),
+        plot::color(3),
+        Mark::Line,
+    ));
+    plot::panel(
+        &top,
+        &path,
+        "external force",
+        "time (s)",
+        "force (mN)",
+        &curves,
+    )?;
+    let mut pc = Vec::new();
+    for (k, (c, (meas, pred))) in tr.pressures.iter().enumerate() {
+        pc.push(Curve::new(
+            format!("chamber {c} measured"),
+            keep.iter().map(|&i| (tr.t[i], meas[i])).collect(),
+            plot::color(k),
+            Mark::Dots,
+        ));
+        pc.push(Curve::new(
+            format!("chamber {c} model"),
+            keep.iter().map(|&i| (tr.t[i], pred[i])).collect(),
+            plot::color(k),
+            Mark::Line,
+        ));
+    }
+    plot::panel(
+        &bottom,
+        &path,
+        "chamber pressures",
+        "time (s)",
+        "pressure (kPa)",
+        &pc,
+    )?;
+    plot::finish(root, &path)?;
+    Ok(path.clone())
+}
+
+const RGB_BLACK: plotters::style::RGBColor = plotters::style::RGBColor(0, 0, 0);

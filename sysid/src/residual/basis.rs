@@ -1,0 +1,145 @@
+//! Baseline regressors: the tensor Chebyshev basis `T_i(x)·T_j(y)`, i ≤ n, j ≤ m, on volume and
+//! flow mapped affinely onto [−1, 1] (the basis `sysid`'s polynomial fit uses). It spans exactly the
+//! paper's monomials `vⁱ v̇ʲ` (Table II, multivariate polynomial), so a fit in it is the paper's
+//! model, but its columns are nearly orthogonal on a protocol's data where raw `v⁷` would not be.
+
+/// Chebyshev tensor basis of shape (n, m) with its input scaling.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PolyBasis {
+    /// Highest degree in volume.
+    pub n: usize,
+    /// Highest degree in flow.
+    pub m: usize,
+    /// `x = (v − v_offset)/v_scale`.
+    pub v_offset: f64,
+    /// Half the volume range (mm³).
+    pub v_scale: f64,
+    /// `y = (v̇ − f_offset)/f_scale`.
+    pub f_offset: f64,
+    /// Half the flow range (mm³/s).
+    pub f_scale: f64,
+}
+
+fn half_range(x: &[f64]) -> (f64, f64) {
+    let (lo, hi) = x
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &v| {
+            (lo.min(v), hi.max(v))
+        });
+    let half = 0.5 * (hi - lo);
+    (0.5 * (hi + lo), if half > 0.0 { half } else { 1.0 })
+}
+
+/// `T_0(x) … T_deg(x)` by the three-term recurrence `T_{k+1} = 2x T_k − T_{k−1}`.
+fn chebyshev(x: f64, deg: usize, out: &mut [f64]) {
+    out[0] = 1.0;
+    if deg >= 1 {
+        out[1] = x;
+    }
+    for k in 2..=deg {
+        out[k] = 2.0 * x * out[k - 1] - out[k - 2];
+    }
+}
+
+impl PolyBasis {
+    /// Basis with the scaling that maps the given data's ranges onto [−1, 1].
+    pub fn for_data(v: &[f64], vdot: &[f64], n: usize, m: usize) -> Self {
+        let (v_offset, v_scale) = half_range(v);
+        let (f_offset, f_scale) = half_range(vdot);
+        Self {
+            n,
+            m,
+            v_offset,
+            v_scale,
+            f_offset,
+            f_scale,
+        }
+    }
+
+    /// Number of columns, (n + 1)(m + 1).
+    pub fn len(&self) -> usize {
+        (self.n + 1) * (self.m + 1)
+    }
+
+    /// Never empty: the constant term is always there.
+    pub fn is_empty(&self) -> bool {
+        false
+    }
+
+    /// Label of column `i·(m+1) + j`.
+    pub fn label(&self, idx: usize) -> String {
+        format!("T{}(v)T{}(vdot)", idx / (self.m + 1), idx % (self.m + 1))
+    }
+
+    /// Columns (column-major) evaluated on the given inputs.
+    pub fn columns(&self, v: &[f64], vdot: &[f64]) -> Vec<Vec<f64>> {
+        let p = self.len();
+        let mut cols = vec![Vec::with_capacity(v.len()); p];
+        let mut tx = [0.0; 16];
+        let mut ty = [0.0; 16];
+        for (&vi, &fi) in v.iter().zip(vdot) {
+            chebyshev((vi - self.v_offset) / self.v_scale, self.n, &mut tx);
+            chebyshev((fi - self.f_offset) / self.f_scale, self.m, &mut ty);
+            for i in 0..=self.n {
+                for j in 0..=self.m {
+                    cols[i * (self.m + 1) + j].push(tx[i] * ty[j]);
+                }
+            }
+        }
+        cols
+    }
+
+    /// `Σ β_idx T_i(x) T_j(y)` at one point.
+    pub fn eval(&self, beta: &[f64], v: f64, vdot: f64) -> f64 {
+        let mut tx = [0.0; 16];
+        let mut ty = [0.0; 16];
+        chebyshev((v - self.v_offset) / self.v_scale, self.n, &mut tx);
+        chebyshev((vdot - self.f_offset) / self.f_scale, self.m, &mut ty);
+        let mut s = 0.0;
+        for i in 0..=self.n {
+            for j in 0..=self.m {
+                s += beta[i * (self.m + 1) + j] * tx[i] * ty[j];
+            }
+        }
+        s
+    }
+
+    /// Damping `∂P/∂v̇` of `Σ β T_i T_j` at one point (central difference over 10⁻⁴ of the flow
+    /// half-range: exact to rounding for a polynomial of degree ≤ 2 in v̇, and far below noise above).
+    pub fn damping(&self, beta: &[f64], v: f64, vdot: f64) -> f64 {
+        let h = 1e-4 * self.f_scale;
+        (self.eval(beta, v, vdot + h) - self.eval(beta, v, vdot - h)) / (2.0 * h)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn chebyshev_matches_cosine_definition() {
+        let mut t = [0.0; 8];
+        for &x in &[-0.9, -0.2, 0.3, 0.99] {
+            chebyshev(x, 7, &mut t);
+            for (k, &tk) in t.iter().enumerate() {
+                let expect = (k as f64 * f64::acos(x)).cos();
+                assert!((tk - expect).abs() < 1e-12);
+            }
+        }
+    }
+
+    #[test]
+    fn damping_of_known_polynomial() {
+        let b = PolyBasis {
+            n: 1,
+            m: 2,
+            v_offset: 0.0,
+            v_scale: 1.0,
+            f_offset: 0.0,
+            f_scale: 1.0,
+        };
+        // P = T0(x)T2(y) = 2y² − 1 → ∂P/∂y = 4y.
+        let beta = [0.0, 0.0, 1.0, 0.0, 0.0, 0.0];
+        assert!((b.damping(&beta, 0.3, 0.5) - 2.0).abs() < 1e-8);
+    }
+}

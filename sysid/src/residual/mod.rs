@@ -1,0 +1,531 @@
+//! The residual loop (`vfp diagnose`): find what a model lacks, add it, and report the error
+//! before and after.
+//!
+//! 1. Fit the baseline polynomial `P = Σ α_ij vⁱ v̇ʲ` (paper Table II; a Chebyshev basis of the same
+//!    span, see `basis`) on training cycles; compute its residual on held-out cycles.
+//! 2. Look at the residual ([`analysis`]): autocorrelation with its white-noise band and Ljung–Box
+//!    test, cross-correlation with v, v̇, v̈ and time, residual against v and v̇ split by direction,
+//!    Welch spectrum.
+//! 3. Hold a library of candidate effects ([`effects`]), each a physical augmentation with a name, a
+//!    one-sentence story and parameters in physical units; nonlinear parameters found by search.
+//! 4. Forward selection ([`select`]): add the candidate that most improves held-out RMSE, keep it
+//!    only if an autocorrelation-corrected nested F-test says so *and* the held-out gain clears a
+//!    stated threshold; refit; repeat until nothing passes.
+//! 5. Whatever structure the final residual still has (Ljung–Box rejects whiteness) is reported by
+//!    its signature — lag, input followed, frequency, direction — not forced onto a name.
+//!
+//! Errors are free-run (simulation) errors from the inputs v, v̇, v̈ and time, except that the leak
+//! and air-compliance effects schedule on the *measured* pressure; a report that contains
+//! them says so.
+
+// Index loops over several aligned signals read more plainly than zipped iterators here.
+#![allow(clippy::needless_range_loop)]
+
+pub mod analysis;
+mod basis;
+pub mod cli;
+pub mod effects;
+mod lsq;
+pub mod select;
+pub(crate) mod signal;
+
+use serde::Serialize;
+
+pub use analysis::{ResidualAnalysis, Signature};
+pub use basis::PolyBasis;
+pub use effects::{Effect, EffectKind};
+pub use select::{NestedTest, Param, Stage};
+
+/// Bad input to the loop; each says what to do.
+#[derive(Debug, thiserror::Error)]
+pub enum DiagnoseError {
+    /// The signal slices differ in length.
+    #[error("signals differ in length ({what} has {got} samples, time has {expected})")]
+    LengthMismatch {
+        /// Which signal.
+        what: &'static str,
+        /// Its length.
+        got: usize,
+        /// Length of the time column.
+        expected: usize,
+    },
+    /// A value is NaN or infinite.
+    #[error("{what} at sample {index} is not a finite number")]
+    NonFinite {
+        /// Which signal.
+        what: &'static str,
+        /// Sample index.
+        index: usize,
+    },
+    /// Time does not increase.
+    #[error("time does not increase at sample {index}")]
+    TimeNotIncreasing {
+        /// Sample index.
+        index: usize,
+    },
+    /// Too little data on one side of the split.
+    #[error("too few samples: {train} training and {heldout} held-out, need at least {needed} of each (record more cycles or hold out fewer)")]
+    TooFewSamples {
+        /// Training samples.
+        train: usize,
+        /// Held-out samples.
+        heldout: usize,
+        /// Minimum of each.
+        needed: usize,
+    },
+    /// The baseline cannot be fitted (e.g. constant volume or flow).
+    #[error("the baseline polynomial cannot be fitted: {0}")]
+    Degenerate(String),
+}
+
+/// One chamber's data with its training / held-out split.
+#[derive(Clone, Debug)]
+pub struct Series {
+    /// Time (s), strictly increasing.
+    pub t: Vec<f64>,
+    /// Volume (mm³).
+    pub v: Vec<f64>,
+    /// Flow (mm³/s).
+    pub vdot: Vec<f64>,
+    /// Volumetric acceleration (mm³/s²), the three-point derivative of flow.
+    pub vddot: Vec<f64>,
+    /// Measured pressure (kPa).
+    pub p: Vec<f64>,
+    /// True on training samples, false on held-out samples.
+    pub train: Vec<bool>,
+}
+
+impl Series {
+    /// Checks and assembles a series; v̈ is derived from v̇.
+    pub fn new(
+        t: Vec<f64>,
+        v: Vec<f64>,
+        vdot: Vec<f64>,
+        p: Vec<f64>,
+        train: Vec<bool>,
+    ) -> Result<Self, DiagnoseError> {
+        let n = t.len();
+        for (what, len) in [
+            ("volume", v.len()),
+            ("flow", vdot.len()),
+            ("pressure", p.len()),
+            ("split mask", train.len()),
+        ] {
+            if len != n {
+                return Err(DiagnoseError::LengthMismatch {
+                    what,
+                    got: len,
+                    expected: n,
+                });
+            }
+        }
+        for (what, x) in [
+            ("time", &t),
+            ("volume", &v),
+            ("flow", &vdot),
+            ("pressure", &p),
+        ] {
+            if let Some(index) = x.iter().position(|x| !x.is_finite()) {
+                return Err(DiagnoseError::NonFinite { what, index });
+            }
+        }
+        if let Some(k) = t.windows(2).position(|w| w[1] <= w[0]) {
+            return Err(DiagnoseError::TimeNotIncreasing { index: k + 1 });
+        }
+        let n_train = train.iter().filter(|&&b| b).count();
+        let needed = 100;
+        if n_train < needed || n - n_train < needed {
+            return Err(DiagnoseError::TooFewSamples {
+                train: n_train,
+                heldout: n - n_train,
+                needed,
+            });
+        }
+        let vddot = signal::derivative(&t, &vdot);
+        Ok(Self {
+            t,
+            v,
+            vdot,
+            vddot,
+            p,
+            train,
+        })
+    }
+
+    /// Number of samples.
+    pub fn len(&self) -> usize {
+        self.t.len()
+    }
+
+    /// Whether there are no samples.
+    pub fn is_empty(&self) -> bool {
+        self.t.is_empty()
+    }
+}
+
+/// Settings of the loop.
+#[derive(Clone, Debug)]
+pub struct Config {
+    /// Baseline degree in volume.
+    pub n: usize,
+    /// Baseline degree in flow.
+    pub m: usize,
+    /// Level of the nested F-test.
+    pub alpha: f64,
+    /// Smallest relative held-out RMSE gain for an effect to be kept.
+    pub min_gain: f64,
+    /// Level of the Ljung–Box test that decides whether structure remains.
+    pub whiteness_alpha: f64,
+    /// Candidates considered.
+    pub candidates: Vec<EffectKind>,
+    /// Most effects added.
+    pub max_effects: usize,
+    /// Worker threads for the candidate searches.
+    pub threads: usize,
+}
+
+impl Default for Config {
+    fn default() -> Self {
+        Self {
+            n: 3,
+            m: 2,
+            alpha: 1e-3,
+            min_gain: 0.01,
+            whiteness_alpha: 0.01,
+            candidates: EffectKind::ALL.to_vec(),
+            max_effects: 6,
+            threads: std::thread::available_parallelism()
+                .map_or(1, |n| n.get())
+                .min(4),
+        }
+    }
+}
+
+/// The baseline's errors.
+#[derive(Clone, Debug, Serialize)]
+pub struct BaselineReport {
+    /// Degree in volume.
+    pub n: usize,
+    /// Degree in flow.
+    pub m: usize,
+    /// Parameters.
+    pub nu: usize,
+    /// Training RMSE (kPa).
+    pub rmse_train: f64,
+    /// Held-out RMSE (kPa).
+    pub rmse_heldout: f64,
+}
+
+/// One effect the loop added.
+#[derive(Clone, Debug, Serialize)]
+pub struct EffectReport {
+    /// Machine name.
+    pub name: &'static str,
+    /// Physical story.
+    pub story: &'static str,
+    /// Parameters with uncertainties, from the final model.
+    pub params: Vec<Param>,
+    /// Held-out RMSE before adding it (kPa).
+    pub rmse_heldout_before: f64,
+    /// Held-out RMSE after adding it (kPa).
+    pub rmse_heldout_after: f64,
+    /// Training RMSE before (kPa).
+    pub rmse_train_before: f64,
+    /// Training RMSE after (kPa).
+    pub rmse_train_after: f64,
+    /// p-value of the nested F-test.
+    pub p_value: f64,
+    /// The test's details.
+    pub test: NestedTest,
+    /// Whether the firmware's model can run this term, and why (not).
+    pub device: DeviceSupport,
+}
+
+/// Whether an effect term can run on the device.
+#[derive(Clone, Debug, Serialize)]
+pub struct DeviceSupport {
+    /// True when `model_core::poly::PolyModel` can evaluate it.
+    pub runs_on_device: bool,
+    /// Why (not).
+    pub reason: &'static str,
+}
+
+/// A candidate that was tried in the last round and not kept.
+#[derive(Clone, Debug, Serialize)]
+pub struct Rejected {
+    /// Machine name.
+    pub name: &'static str,
+    /// Held-out RMSE it would give (kPa).
+    pub rmse_heldout: f64,
+    /// Its test p-value.
+    pub p_value: f64,
+}
+
+/// The final model's errors.
+#[derive(Clone, Debug, Serialize)]
+pub struct FinalReport {
+    /// Parameters.
+    pub nu: usize,
+    /// Training RMSE (kPa).
+    pub rmse_train: f64,
+    /// Held-out RMSE (kPa).
+    pub rmse_heldout: f64,
+    /// Whether predictions use measured pressure as a scheduling input (leak, air compliance).
+    pub uses_measured_pressure: bool,
+}
+
+/// Short summary of a residual analysis for the JSON report.
+#[derive(Clone, Debug, Serialize)]
+pub struct AnalysisSummary {
+    /// RMS (kPa).
+    pub rmse: f64,
+    /// Ljung–Box p-value.
+    pub ljung_box_p: f64,
+    /// Lag-1 autocorrelation.
+    pub acf_lag1: f64,
+    /// Strongest cross-correlation: (input, lag in samples, value).
+    pub strongest_input: (&'static str, i64, f64),
+    /// Spectral peak (Hz).
+    pub spectral_peak_hz: f64,
+    /// Mean residual inflating minus deflating (kPa).
+    pub direction_gap: f64,
+}
+
+impl From<&ResidualAnalysis> for AnalysisSummary {
+    fn from(a: &ResidualAnalysis) -> Self {
+        let c = a
+            .cross
+            .iter()
+            .max_by(|x, y| x.peak_value.abs().total_cmp(&y.peak_value.abs()));
+        Self {
+            rmse: a.rmse,
+            ljung_box_p: a.whiteness.lb_p_value,
+            acf_lag1: a.whiteness.acf.get(1).copied().unwrap_or(0.0),
+            strongest_input: c.map_or(("none", 0, 0.0), |c| (c.input, c.peak_lag, c.peak_value)),
+            spectral_peak_hz: a.spectrum.peak_hz,
+            direction_gap: a.direction.mean_inflation - a.direction.mean_deflation,
+        }
+    }
+}
+
+/// Everything the loop found.
+#[derive(Clone, Debug, Serialize)]
+pub struct Diagnosis {
+    /// Training / held-out sample counts.
+    pub samples: (usize, usize),
+    /// How significance is decided, in words.
+    pub significance: String,
+    /// The baseline.
+    pub baseline: BaselineReport,
+    /// Effects in the order added.
+    pub effects: Vec<EffectReport>,
+    /// The final model.
+    #[serde(rename = "final")]
+    pub final_model: FinalReport,
+    /// Structure left unexplained (empty when the final residual is white).
+    pub remaining: Vec<Signature>,
+    /// Candidates tried in the last round and not kept.
+    pub rejected_last_round: Vec<Rejected>,
+    /// Residual summary before (baseline, held-out).
+    pub before: AnalysisSummary,
+    /// Residual summary after (final model, held-out).
+    pub after: AnalysisSummary,
+    /// Full analyses for the figures.
+    #[serde(skip)]
+    pub analysis_before: ResidualAnalysis,
+    /// Full analyses for the figures.
+    #[serde(skip)]
+    pub analysis_after: ResidualAnalysis,
+}
+
+/// Device verdict for a list of effect names (for `vfp export`): per effect whether
+/// `model_core::poly::PolyModel` can evaluate it and why (not). The whole augmented model runs on the
+/// device only if every entry is `true`.
+pub fn device_support(kinds: &[EffectKind]) -> Vec<(EffectKind, DeviceSupport)> {
+    kinds
+        .iter()
+        .map(|&k| {
+            let (runs_on_device, reason) = k.device_support();
+            (
+                k,
+                DeviceSupport {
+                    runs_on_device,
+                    reason,
+                },
+            )
+        })
+        .collect()
+}
+
+/// Runs the whole loop on one series.
+pub fn diagnose(series: Series, cfg: &Config) -> Result<Diagnosis, DiagnoseError> {
+    let prep = effects::Prepared::new(series, cfg.n, cfg.m);
+    let baseline = select::fit_stage(&prep, &[]).ok_or_else(|| {
+        DiagnoseError::Degenerate(
+            "its columns are linearly dependent on the training rows (is volume or flow constant?)"
+                .into(),
+        )
+    })?;
+    let mut cur = baseline.clone();
+    let mut reports: Vec<(EffectKind, f64, f64, f64, f64, NestedTest)> = Vec::new();
+    let mut rejected = Vec::new();
+    while cur.effects.len() < cfg.max_effects {
+        let todo: Vec<EffectKind> = cfg
+            .candidates
+            .iter()
+            .copied()
+            .filter(|k| !cur.effects.iter().any(|e| e.kind == *k))
+            .collect();
+        let found = search_all(&prep, &cur, &todo, cfg.threads);
+        let mut ranked: Vec<(select::Candidate, NestedTest)> = found
+            .into_iter()
+            .map(|c| {
+                let t = select::nested_test(&prep, &cur, &c.stage);
+                (c, t)
+            })
+            .collect();
+        ranked.sort_by(|a, b| a.0.stage.rmse_heldout.total_cmp(&b.0.stage.rmse_heldout));
+        let pick = ranked.iter().position(|(c, t)| {
+            t.p_value < cfg.alpha
+                && (cur.rmse_heldout - c.stage.rmse_heldout) >= cfg.min_gain * cur.rmse_heldout
+        });
+        match pick {
+            Some(i) => {
+                let (cand, test) = ranked.swap_remove(i);
+                let kind = cand
+                    .stage
+                    .effects
+                    .last()
+                    .map(|e| e.kind)
+                    .unwrap_or(EffectKind::Inertance);
+                reports.push((
+                    kind,
+                    cur.rmse_heldout,
+                    cand.stage.rmse_heldout,
+                    cur.rmse_train,
+                    cand.stage.rmse_train,
+                    test,
+                ));
+                let tuned = select::retune(&prep, &cand.stage);
+                cur = if tuned.fit.sse <= cand.stage.fit.sse {
+                    tuned
+                } else {
+                    cand.stage
+                };
+                // Report the model as kept (after re-tuning), so each step's "after" is the next
+                // step's "before".
+                if let Some(last) = reports.last_mut() {
+                    last.2 = cur.rmse_heldout;
+                    last.4 = cur.rmse_train;
+                }
+            }
+            None => {
+                rejected = ranked
+                    .iter()
+                    .map(|(c, t)| Rejected {
+                        name: c.stage.effects.last().map_or("?", |e| e.kind.name()),
+                        rmse_heldout: c.stage.rmse_heldout,
+                        p_value: t.p_value,
+                    })
+                    .collect();
+                break;
+            }
+        }
+    }
+    let effects: Vec<EffectReport> = reports
+        .iter()
+        .enumerate()
+        .map(|(i, &(kind, hb, ha, tb, ta, test))| {
+            let (runs_on_device, reason) = kind.device_support();
+            EffectReport {
+                name: kind.name(),
+                story: kind.story(),
+                params: select::effect_params(&prep, &cur, i),
+                rmse_heldout_before: hb,
+                rmse_heldout_after: ha,
+                rmse_train_before: tb,
+                rmse_train_after: ta,
+                p_value: test.p_value,
+                test,
+                device: DeviceSupport {
+                    runs_on_device,
+                    reason,
+                },
+            }
+        })
+        .collect();
+    let se = &prep.series;
+    let sig = analysis::Signals {
+        t: &se.t,
+        v: &se.v,
+        vdot: &se.vdot,
+        vddot: &se.vddot,
+    };
+    let held: Vec<bool> = se.train.iter().map(|b| !b).collect();
+    let max_lag = (2.0 / prep.scales.dt).round().max(10.0) as usize;
+    let analysis_before = analysis::analyse(&sig, &baseline.resid, &held, max_lag);
+    let analysis_after = analysis::analyse(&sig, &cur.resid, &held, max_lag);
+    let remaining = analysis::signatures(&analysis_after, cfg.whiteness_alpha);
+    Ok(Diagnosis {
+        samples: (prep.train_rows.len(), prep.held_rows.len()),
+        significance: format!(
+            "kept only if the nested F-test with autocorrelation-corrected effective sample size rejects at alpha = {} AND held-out RMSE falls by at least {:.1} %",
+            cfg.alpha,
+            100.0 * cfg.min_gain
+        ),
+        baseline: BaselineReport {
+            n: cfg.n,
+            m: cfg.m,
+            nu: baseline.n_params(),
+            rmse_train: baseline.rmse_train,
+            rmse_heldout: baseline.rmse_heldout,
+        },
+        effects,
+        final_model: FinalReport {
+            nu: cur.n_params(),
+            rmse_train: cur.rmse_train,
+            rmse_heldout: cur.rmse_heldout,
+            uses_measured_pressure: cur
+                .effects
+                .iter()
+                .any(|e| matches!(e.kind, EffectKind::Leak | EffectKind::AirCompliance)),
+        },
+        remaining,
+        rejected_last_round: rejected,
+        before: (&analysis_before).into(),
+        after: (&analysis_after).into(),
+        analysis_before,
+        analysis_after,
+    })
+}
+
+/// Searches every candidate, spread over `threads` workers.
+fn search_all(
+    prep: &effects::Prepared,
+    cur: &Stage,
+    todo: &[EffectKind],
+    threads: usize,
+) -> Vec<select::Candidate> {
+    let threads = threads.max(1).min(todo.len().max(1));
+    let mut out: Vec<Option<select::Candidate>> = vec![None; todo.len()];
+    std::thread::scope(|s| {
+        let handles: Vec<_> = (0..threads)
+            .map(|w| {
+                s.spawn(move || {
+                    (w..todo.len())
+                        .step_by(threads)
+                        .map(|i| (i, select::search(prep, cur, todo[i])))
+                        .collect::<Vec<_>>()
+                })
+            })
+            .collect();
+        for h in handles {
+            if let Ok(results) = h.join() {
+                for (i, c) in results {
+                    out[i] = c;
+                }
+            }
+        }
+    });
+    out.into_iter().flatten().collect()
+}

