@@ -81,7 +81,7 @@ impl Plan {
     /// The plan for `--short` or the full demo.
     pub fn new(short: bool) -> Self {
         Self {
-            cycles: if short { 2 } else { 6 },
+            cycles: if short { 2 } else { 20 },
             flows: Protocol::paper().flows,
             push_s: if short { 5.0 } else { 20.0 },
             push_peak_n: 0.3,
