@@ -155,19 +155,10 @@ fn scan_with_points(args: &AirScanArgs) -> Result<(AirScanReport, Points), DiagE
 /// Runs `vfp air-scan`.
 pub fn run(args: &AirScanArgs) -> Result<(), DiagError> {
     let (report, points) = scan_with_points(args)?;
-    if let Some(dir) = &args.out.plots {
+    args.out.emit(&report, human, |dir| {
         let sorted: Vec<_> = points.iter().collect();
-        let path = plot_scan(dir, &report, &sorted)?;
-        if !args.out.json {
-            println!("figure: {}", path.display());
-        }
-    }
-    if args.out.json {
-        super::print_json(&report);
-    } else {
-        print!("{}", human(&report));
-    }
-    Ok(())
+        plot_scan(dir, &report, &sorted)
+    })
 }
 
 fn opt(x: Option<f64>) -> String {

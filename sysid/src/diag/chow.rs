@@ -459,18 +459,9 @@ pub fn run(args: &ChowArgs) -> Result<(), DiagError> {
         pairs,
         matrix,
     };
-    if let Some(dir) = &args.out.plots {
-        let path = plot_chow(dir, &logs, &series, &report)?;
-        if !args.out.json {
-            println!("figure: {}", path.display());
-        }
-    }
-    if args.out.json {
-        super::print_json(&report);
-    } else {
-        print!("{}", human(&report));
-    }
-    Ok(())
+    args.out.emit(&report, human, |dir| {
+        plot_chow(dir, &logs, &series, &report)
+    })
 }
 
 fn fmt_p(p: f64) -> String {

@@ -385,18 +385,9 @@ pub fn run(args: &ForceArgs) -> Result<(), DiagError> {
     let ident = read_log(&args.ident)?;
     let test = read_log(&args.test)?;
     let (report, trace) = estimate(&ident, &test, args)?;
-    if let Some(dir) = &args.out.plots {
-        let path = plot_force(dir, &trace, args.plot_window)?;
-        if !args.out.json {
-            println!("figure: {}", path.display());
-        }
-    }
-    if args.out.json {
-        super::print_json(&report);
-    } else {
-        print!("{}", human(&report));
-    }
-    Ok(())
+    args.out.emit(&report, human, |dir| {
+        plot_force(dir, &trace, args.plot_window)
+    })
 }
 
 /// The human report (forces in mN).

@@ -115,6 +115,30 @@ pub struct OutputOpts {
     pub plots: Option<PathBuf>,
 }
 
+impl OutputOpts {
+    /// Writes the figure when `--plots DIR` asks for it (`plot` gets the directory and returns the
+    /// file it wrote), then the report: pretty JSON with `--json`, else `human(report)`.
+    pub(crate) fn emit<T: serde::Serialize>(
+        &self,
+        report: &T,
+        human: impl Fn(&T) -> String,
+        plot: impl FnOnce(&std::path::Path) -> Result<PathBuf, DiagError>,
+    ) -> Result<(), DiagError> {
+        if let Some(dir) = &self.plots {
+            let path = plot(dir)?;
+            if !self.json {
+                println!("figure: {}", path.display());
+            }
+        }
+        if self.json {
+            print_json(report);
+        } else {
+            print!("{}", human(report));
+        }
+        Ok(())
+    }
+}
+
 /// Prints a serialisable report as pretty JSON on stdout (non-finite numbers become null).
 pub(crate) fn print_json<T: serde::Serialize>(value: &T) {
     // Serialising plain structs of numbers and strings into a String cannot fail.

@@ -212,18 +212,9 @@ pub fn run(args: &StiffnessArgs) -> Result<(), DiagError> {
         first: res[0].summary.clone(),
         chambers: res.iter().map(|r| r.summary.clone()).collect(),
     };
-    if let Some(dir) = &args.out.plots {
-        let path = plot_distributions(dir, &log.label(), &res)?;
-        if !args.out.json {
-            println!("figure: {}", path.display());
-        }
-    }
-    if args.out.json {
-        super::print_json(&report);
-    } else {
-        print!("{}", human(&report));
-    }
-    Ok(())
+    args.out.emit(&report, human, |dir| {
+        plot_distributions(dir, &log.label(), &res)
+    })
 }
 
 fn opt(x: Option<f64>) -> String {
