@@ -29,7 +29,7 @@ use model_core::stats::KcStats;
 use model_core::ModelError;
 
 use crate::board;
-use crate::command::{self, AxisSet, Command, LineAssembler, ModelCmd};
+use crate::command::{self, AxisSet, Command, LineAssembler, ModelCmd, ReadPart};
 use crate::hal::{PressureAdc, SerialPort, Steppers, TelemetrySink, Watchdog, AXES};
 use crate::motion::{Motion, MotionConfig, MotionError};
 use crate::protocol::{ProtocolPoll, ProtocolRun};
@@ -134,6 +134,12 @@ pub enum CommandError {
     /// Target outside `0..=capacity`, a rate above the firmware's maximum, or a coefficient
     /// index past the staged model's shape.
     OutOfRange,
+    /// The word `index` of the line (a `model … read` index) is past the installed model's
+    /// shape: the same reply as the parser's [`command::ParseError::OutOfRange`].
+    OutOfRangeArg {
+        /// Word index.
+        index: u8,
+    },
     /// `model … coef/ar/commit` without a matching `begin` on that channel.
     NoStagedModel,
     /// `commit` before every coefficient was sent.
@@ -149,7 +155,7 @@ impl CommandError {
         match self {
             Self::Faulted => "faulted",
             Self::Busy => "busy",
-            Self::OutOfRange => "out-of-range",
+            Self::OutOfRange | Self::OutOfRangeArg { .. } => "out-of-range",
             Self::NoStagedModel => "no-staged-model",
             Self::Incomplete => "incomplete-model",
             Self::Model(_) => "bad-model",
@@ -161,10 +167,11 @@ impl CommandError {
 impl core::fmt::Display for CommandError {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         f.write_str(self.code())?;
-        if let Self::Model(e) = self {
-            write!(f, " {e}")?;
+        match self {
+            Self::Model(e) => write!(f, " {e}"),
+            Self::OutOfRangeArg { index } => write!(f, " {index}"),
+            _ => Ok(()),
         }
-        Ok(())
     }
 }
 
@@ -646,7 +653,7 @@ impl State {
                     self.chambers[a].hist.clear();
                 }
             }
-            Command::Model { ch, cmd } => self.model_cmd(*ch, cmd, now_us)?,
+            Command::Model { ch, cmd } => self.model_cmd(*ch, cmd, now_us, out)?,
             Command::Rls { ch, lambda } => {
                 let ch = *ch as usize;
                 match lambda {
@@ -725,7 +732,45 @@ impl State {
         }
     }
 
-    fn model_cmd(&mut self, ch: u8, cmd: &ModelCmd, now_us: u64) -> Result<(), CommandError> {
+    /// `model <ch> read …`: the installed model's values, each printed so that it parses back
+    /// to the same `f32` (at most 8 values, well inside [`REPLY_LEN`]).
+    fn read_model(
+        &self,
+        ch: usize,
+        part: ReadPart,
+        out: &mut impl Write,
+    ) -> Result<(), CommandError> {
+        let model = &self.chambers[ch].model;
+        let (values, start) = match part {
+            ReadPart::Header => {
+                let (sh, sc) = (model.shape(), model.scaling());
+                let _ = write!(out, " {} {} {}", sh.n, sh.m, sh.p);
+                for x in [sc.v_offset, sc.v_scale, sc.f_offset, sc.f_scale] {
+                    let _ = crate::telemetry::num(out, x);
+                }
+                return Ok(());
+            }
+            ReadPart::Coef { start } => (model.scaled(), start as usize),
+            ReadPart::Ar { start } => (model.ar().as_flattened(), start as usize),
+        };
+        // The index is word 4 of `model <ch> read coef|ar <index>`.
+        let chunk = values
+            .get(start..)
+            .filter(|v| !v.is_empty())
+            .ok_or(CommandError::OutOfRangeArg { index: 4 })?;
+        for &x in chunk.iter().take(command::MAX_CHUNK) {
+            let _ = crate::telemetry::num(out, x);
+        }
+        Ok(())
+    }
+
+    fn model_cmd(
+        &mut self,
+        ch: u8,
+        cmd: &ModelCmd,
+        now_us: u64,
+        out: &mut impl Write,
+    ) -> Result<(), CommandError> {
         match cmd {
             ModelCmd::Begin { n, m, p, scaling } => {
                 let shape = Shape::new(*n, *m, *p).map_err(CommandError::Model)?;
@@ -787,6 +832,7 @@ impl State {
                 self.staged = None;
             }
             ModelCmd::Default => self.install(ch as usize, model_core::poly::sba1(), now_us),
+            ModelCmd::Read(part) => self.read_model(ch as usize, *part, out)?,
         }
         Ok(())
     }

@@ -450,3 +450,187 @@ fn command_lines_get_one_reply_each() {
         "STOPPED | NOT_ZEROED"
     );
 }
+
+/// Sends `lines` through the command handler, each must be answered `ok`.
+fn load(shared: &Shared, lines: &[String]) {
+    for l in lines {
+        let mut out = String::new();
+        shared.command_line(l.as_bytes(), 0, &mut out);
+        assert_eq!(out, "ok", "{l}");
+    }
+}
+
+/// The `model … begin/coef/ar/commit` lines of a model (`{:e}` is Rust's shortest round trip).
+fn model_lines(ch: u8, shape: [u8; 3], scaling: [f32; 4], coef: &[f32], ar: &[f32]) -> Vec<String> {
+    let [n, m, p] = shape;
+    let [vo, vs, fo, fs] = scaling;
+    let mut lines = vec![format!(
+        "model {ch} begin {n} {m} {p} {vo:e} {vs:e} {fo:e} {fs:e}"
+    )];
+    for (verb, vals) in [("coef", coef), ("ar", ar)] {
+        for (k, chunk) in vals.chunks(command::MAX_CHUNK).enumerate() {
+            let mut l = format!("model {ch} {verb} {}", k * command::MAX_CHUNK);
+            for x in chunk {
+                l += &format!(" {x:e}");
+            }
+            assert!(l.len() <= command::MAX_LINE, "{l}");
+            lines.push(l);
+        }
+    }
+    lines.push(format!("model {ch} commit"));
+    lines
+}
+
+/// Everything `model <ch> read …` reports, as (header, coef, ar) bit patterns, with every
+/// reply checked to fit [`REPLY_LEN`] and to hold at most [`command::MAX_CHUNK`] values.
+fn read_all(shared: &Shared, ch: u8) -> (Vec<u32>, Vec<u32>, Vec<u32>) {
+    let read = |line: &str| -> Option<Vec<u32>> {
+        let mut out = String::new();
+        shared.command_line(line.as_bytes(), 0, &mut out);
+        let fields = out.strip_prefix("ok")?;
+        assert!(fields.len() <= REPLY_LEN, "{out}");
+        let v: Vec<u32> = fields
+            .split_ascii_whitespace()
+            .map(|w| w.parse::<f32>().expect(&out).to_bits())
+            .collect();
+        assert!(
+            !v.is_empty() && v.len() <= command::MAX_CHUNK.max(7),
+            "{out}"
+        );
+        Some(v)
+    };
+    let head = read(&format!("model {ch} read")).expect("header");
+    let (terms, ar_len) = {
+        let h: Vec<f32> = head.iter().map(|&b| f32::from_bits(b)).collect();
+        (((h[0] + 1.0) * (h[1] + 1.0)) as usize, 2 * h[2] as usize)
+    };
+    let mut parts = [Vec::new(), Vec::new()];
+    for (part, (verb, len)) in parts.iter_mut().zip([("coef", terms), ("ar", ar_len)]) {
+        for start in (0..len).step_by(command::MAX_CHUNK) {
+            let got = read(&format!("model {ch} read {verb} {start}")).expect(verb);
+            assert_eq!(got.len(), command::MAX_CHUNK.min(len - start));
+            part.extend(got);
+        }
+        // One past the end is refused, naming the index word.
+        let mut out = String::new();
+        shared.command_line(
+            format!("model {ch} read {verb} {len}").as_bytes(),
+            0,
+            &mut out,
+        );
+        assert_eq!(out, "err out-of-range 4");
+    }
+    let [coef, ar] = parts;
+    (head, coef, ar)
+}
+
+fn bits(v: &[f32]) -> Vec<u32> {
+    v.iter().map(|x| x.to_bits()).collect()
+}
+
+#[test]
+fn installed_model_reads_back_bit_for_bit() {
+    let shared = Shared::new(Config::default());
+    // The boot model (SBA1) on every channel.
+    let sba1 = model_core::poly::sba1();
+    for ch in 0..3 {
+        let (head, coef, ar) = read_all(&shared, ch);
+        assert_eq!(head, bits(&[3.0, 2.0, 0.0, 275.0, 275.0, 0.0, 100.0]));
+        assert_eq!(coef, bits(sba1.scaled()));
+        assert!(ar.is_empty());
+    }
+    // A full-size model whose values are the longest to print, at the edges of both notations
+    // (the reply must still fit), plus ±0, subnormals and the extremes.
+    let awkward = [
+        -f32::MIN_POSITIVE / 3.0,
+        -f32::MAX,
+        -1.1754942e-38,
+        -9.999999e8,
+        -1.0000001e-5,
+        -0.00012345679,
+        -123456790.0,
+        -0.0,
+        f32::from_bits(1),
+        f32::MAX,
+    ];
+    let coef: Vec<f32> = (0..64).map(|i| awkward[i % awkward.len()]).collect();
+    let ar: Vec<f32> = (0..10).map(|i| awkward[(i + 3) % awkward.len()]).collect();
+    let scaling = [-999_999.9, 1.0e-30, -9_999.999, 1.2345679e-11];
+    load(&shared, &model_lines(2, [7, 7, 5], scaling, &coef, &ar));
+    let (head, c, a) = read_all(&shared, 2);
+    let mut want = vec![7.0, 7.0, 5.0];
+    want.extend(scaling);
+    assert_eq!(head, bits(&want));
+    assert_eq!(c, bits(&coef));
+    assert_eq!(a, bits(&ar));
+    // The other channels are untouched; reading disturbs neither a staged model nor events.
+    assert_eq!(read_all(&shared, 0).1, bits(sba1.scaled()));
+    load(
+        &shared,
+        &model_lines(0, [0, 0, 1], [0.0, 1.0, 0.0, 1.0], &[1.5], &[0.25, -0.5])[..3],
+    );
+    let _ = read_all(&shared, 0);
+    load(&shared, &["model 0 commit".to_string()]);
+    let (head, c, a) = read_all(&shared, 0);
+    assert_eq!(head, bits(&[0.0, 0.0, 1.0, 0.0, 1.0, 0.0, 1.0]));
+    assert_eq!((c, a), (bits(&[1.5]), bits(&[0.25, -0.5])));
+    // Past the maximum index the parser refuses it the same way; other mistakes name the word.
+    let reply = |line: &str| {
+        let mut out = String::new();
+        shared.command_line(line.as_bytes(), 0, &mut out);
+        out
+    };
+    assert_eq!(reply("model 0 read coef 64"), "err out-of-range 4");
+    assert_eq!(reply("model 0 read ar 2"), "err out-of-range 4");
+    assert_eq!(reply("model 0 read ar 1"), "ok -0.5");
+    assert_eq!(reply("model 3 read"), "err out-of-range 1");
+    assert_eq!(reply("model 0 read x"), "err invalid-argument 3");
+    assert_eq!(reply("model 0 read coef"), "err missing-argument 4");
+    assert_eq!(reply("model 0 read 0"), "err invalid-argument 3");
+}
+
+mod readback_prop {
+    use super::*;
+    use proptest::prelude::*;
+
+    /// Any finite f32 bit pattern (normal, subnormal, ±0).
+    fn finite() -> impl Strategy<Value = f32> {
+        any::<u32>()
+            .prop_map(f32::from_bits)
+            .prop_filter("finite", |x| x.is_finite())
+    }
+
+    /// A float in `lo..=hi` with any bit pattern there (the parser's ranges for the scaling).
+    fn within(lo: f32, hi: f32) -> impl Strategy<Value = f32> {
+        prop_oneof![
+            finite().prop_filter("in range", move |x| (lo..=hi).contains(x)),
+            lo..=hi
+        ]
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(128))]
+
+        /// Any model the protocol accepts, loaded with `begin/coef/ar/commit`, reads back with
+        /// `read` bit for bit and is the model installed.
+        #[test]
+        fn random_model_round_trips(
+            ch in 0u8..3, n in 0u8..=7, m in 0u8..=7, p in 0u8..=5,
+            vo in within(-1e6, 1e6), vs in within(f32::MIN_POSITIVE, 1e6),
+            fo in within(-1e4, 1e4), fs in within(f32::MIN_POSITIVE, 1e4),
+            pool in proptest::collection::vec(finite(), 74),
+        ) {
+            let terms = (n as usize + 1) * (m as usize + 1);
+            let (coef, ar) = (&pool[..terms], &pool[64..64 + 2 * p as usize]);
+            let shared = Shared::new(Config::default());
+            load(&shared, &model_lines(ch, [n, m, p], [vo, vs, fo, fs], coef, ar));
+            let (head, c, a) = read_all(&shared, ch);
+            prop_assert_eq!(head, bits(&[n as f32, m as f32, p as f32, vo, vs, fo, fs]));
+            prop_assert_eq!(&c, &bits(coef));
+            prop_assert_eq!(&a, &bits(ar));
+            let installed = shared.lock(|s| *s.model(ch as usize));
+            prop_assert_eq!(bits(installed.scaled()), c);
+            prop_assert_eq!(bits(installed.ar().as_flattened()), a);
+        }
+    }
+}

@@ -20,6 +20,8 @@
 //! | `model <ch> ar <index> <b>…` | scaled AR coefficients, flattened `b_11 b_12 b_21 …`, from `index` |
 //! | `model <ch> commit` | check and install the staged model |
 //! | `model <ch> default` | reinstall the paper's SBA1 model |
+//! | `model <ch> read` | `ok <n> <m> <p> <v_off> <v_scale> <f_off> <f_scale>` of the installed model |
+//! | `model <ch> read coef <index>` / `model <ch> read ar <index>` | `ok` and up to 8 installed (scaled, flattened AR) coefficients from `index` |
 //! | `rls <ch> on [<lambda>]` / `rls <ch> off` | online RLS identification (chamber force-free!) |
 //!
 //! Replies: `ok` (possibly followed by fields) or `err <code> [<detail>]`. The parser never
@@ -105,6 +107,25 @@ pub enum ModelCmd {
     Commit,
     /// Install the built-in SBA1 model.
     Default,
+    /// Read back part of the installed model.
+    Read(ReadPart),
+}
+
+/// What `model <ch> read …` reports.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ReadPart {
+    /// Shape and scaling: `n m p v_off v_scale f_off f_scale`.
+    Header,
+    /// Up to [`MAX_CHUNK`] scaled coefficients from `start`.
+    Coef {
+        /// Index of the first value.
+        start: u8,
+    },
+    /// Up to [`MAX_CHUNK`] flattened AR coefficients from `start`.
+    Ar {
+        /// Index of the first value.
+        start: u8,
+    },
 }
 
 /// A parsed command.
@@ -415,6 +436,16 @@ pub fn parse(line: &[u8]) -> Result<Command, ParseError> {
                 },
                 "commit" => ModelCmd::Commit,
                 "default" => ModelCmd::Default,
+                "read" => ModelCmd::Read(match w.next_word() {
+                    None => ReadPart::Header,
+                    Some((_, "coef")) => ReadPart::Coef {
+                        start: w.int(0u8, model_core::poly::MAX_TERMS as u8 - 1)?,
+                    },
+                    Some((_, "ar")) => ReadPart::Ar {
+                        start: w.int(0u8, 2 * model_core::poly::MAX_AR as u8 - 1)?,
+                    },
+                    Some((j, _)) => return Err(ParseError::Invalid { index: j }),
+                }),
                 _ => return Err(ParseError::Invalid { index: i }),
             };
             Command::Model { ch, cmd }
@@ -559,6 +590,19 @@ mod tests {
             } => assert_eq!(&values[..], &[1.5, -2e-3]),
             other => panic!("{other:?}"),
         }
+        for (s, part) in [
+            ("model 1 read", ReadPart::Header),
+            ("model 1 read coef 63", ReadPart::Coef { start: 63 }),
+            ("model 1 read ar 9", ReadPart::Ar { start: 9 }),
+        ] {
+            assert_eq!(
+                p(s),
+                Ok(Command::Model {
+                    ch: 1,
+                    cmd: ModelCmd::Read(part)
+                })
+            );
+        }
         assert_eq!(
             p("rls 1 on"),
             Ok(Command::Rls {
@@ -625,6 +669,31 @@ mod tests {
             Err(ParseError::OutOfRange { index: 7 })
         );
         assert_eq!(p("model 0 frob"), Err(ParseError::Invalid { index: 2 }));
+        assert_eq!(
+            p("model 0 read coef 64"),
+            Err(ParseError::OutOfRange { index: 4 })
+        );
+        assert_eq!(
+            p("model 0 read ar 10"),
+            Err(ParseError::OutOfRange { index: 4 })
+        );
+        assert_eq!(
+            p("model 0 read ar -1"),
+            Err(ParseError::Invalid { index: 4 })
+        );
+        assert_eq!(
+            p("model 0 read coef"),
+            Err(ParseError::Missing { index: 4 })
+        );
+        assert_eq!(
+            p("model 0 read frob 1"),
+            Err(ParseError::Invalid { index: 3 })
+        );
+        assert_eq!(
+            p("model 0 read coef 1 2"),
+            Err(ParseError::TooMany { index: 5 })
+        );
+        assert_eq!(p("model 0 read 1"), Err(ParseError::Invalid { index: 3 }));
         assert_eq!(p("rls 0 maybe"), Err(ParseError::Invalid { index: 2 }));
         assert_eq!(p("status now"), Err(ParseError::TooMany { index: 1 }));
         assert_eq!(parse(&[b'm', 0xff]), Err(ParseError::NotAscii));
@@ -721,12 +790,48 @@ mod tests {
                     Just("move".to_string()), Just("run".to_string()), Just("model".to_string()),
                     Just("rls".to_string()), Just("limit".to_string()), Just("all".to_string()),
                     Just("begin".to_string()), Just("coef".to_string()), Just("on".to_string()),
+                    Just("read".to_string()), Just("ar".to_string()),
                     "-?[0-9]{1,6}(\\.[0-9]{0,4})?(e-?[0-9]{1,2})?", "[a-z]{1,5}",
                 ],
                 0..16)
         ) {
             let line = words.join(" ");
             let _ = parse(line.as_bytes());
+        }
+
+        /// `model <ch> read …` with random tails: never panics; an accepted line is a read of
+        /// an index in range, anything else is an `err` naming a word of the line.
+        #[test]
+        fn never_panics_on_read_forms(
+            ch in "[0-4]|-1|x",
+            tail in proptest::collection::vec(
+                prop_oneof![
+                    Just("coef".to_string()), Just("ar".to_string()), Just("read".to_string()),
+                    "-?[0-9]{1,4}", "[0-9]{1,3}\\.[0-9]", "[a-z]{1,4}", "\\PC{1,3}",
+                ],
+                0..4),
+        ) {
+            let line = format!("model {ch} read {}", tail.join(" "));
+            match parse(line.as_bytes()) {
+                Ok(Command::Model { ch, cmd: ModelCmd::Read(part) }) => {
+                    prop_assert!((ch as usize) < AXES);
+                    match part {
+                        ReadPart::Header => {}
+                        ReadPart::Coef { start } => {
+                            prop_assert!((start as usize) < model_core::poly::MAX_TERMS)
+                        }
+                        ReadPart::Ar { start } => {
+                            prop_assert!((start as usize) < 2 * model_core::poly::MAX_AR)
+                        }
+                    }
+                }
+                Ok(other) => prop_assert!(false, "{line:?} parsed as {other:?}"),
+                Err(ParseError::Missing { index } | ParseError::Invalid { index }
+                    | ParseError::OutOfRange { index } | ParseError::TooMany { index }) => {
+                    prop_assert!((1..=5).contains(&index), "{line:?}: word {index}")
+                }
+                Err(e) => prop_assert_eq!(e, ParseError::NotAscii, "{:?}", line),
+            }
         }
 
         #[test]

@@ -178,7 +178,7 @@ impl<'a> Fields<'a> {
 /// Write `' '` and `x` in the shortest form that reads back to the same `f32`: plain decimals
 /// in the everyday range, exponent form outside it (Rust's `{}` never uses an exponent, so
 /// `f32::MAX` would take 39 digits).
-fn num(out: &mut impl Write, x: f32) -> fmt::Result {
+pub(crate) fn num(out: &mut impl Write, x: f32) -> fmt::Result {
     let a = x.abs();
     if a == 0.0 || !a.is_finite() || (1e-5..1e9).contains(&a) {
         write!(out, " {x}")

@@ -230,6 +230,14 @@ pub fn parse_lines(text: &str, source_name: &str) -> Result<Vec<Upload>, DeployE
                     "`model <ch> default` is not an exported model",
                 ))
             }
+            ModelCmd::Read(_) => {
+                return Err(bad(
+                    source_name,
+                    no,
+                    t,
+                    "`model <ch> read` is not an exported model line",
+                ))
+            }
         }
     }
     if let Some(up) = open {
@@ -444,68 +452,31 @@ fn read_back<P: Read + Write>(
 /// The firmware's own command handler ([`firmware::app::Shared::command_line`]) behind
 /// `Read + Write`: bytes written are command lines, replies come back as bytes, `\r\n`-terminated,
 /// as from the board's UART. A read with no reply pending reports `TimedOut`, as a serial port
-/// with a timeout does.
-///
-/// `emulate_read`: answer `model <ch> read …` from the firmware state's installed model
-/// ([`firmware::app::State::model`]) for firmware that lacks the verb; off, those lines go to
-/// the firmware unchanged (and are refused if it does not know them).
+/// with a timeout does. Every line, `model <ch> read …` included, is answered by the firmware.
 pub struct FirmwarePort {
     /// The firmware's state and command handler.
     pub shared: firmware::app::Shared,
     /// Time given to the handler, µs.
     pub now_us: u64,
-    emulate_read: bool,
     line: Vec<u8>,
     out: VecDeque<u8>,
 }
 
+impl Default for FirmwarePort {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
 impl FirmwarePort {
     /// A freshly booted firmware with the default configuration.
-    pub fn new(emulate_read: bool) -> Self {
+    pub fn new() -> Self {
         Self {
             shared: firmware::app::Shared::new(firmware::app::Config::default()),
             now_us: 0,
-            emulate_read,
             line: Vec::new(),
             out: VecDeque::new(),
         }
-    }
-
-    fn emulated(&self, line: &str) -> Option<String> {
-        let w: Vec<&str> = line.split_ascii_whitespace().collect();
-        if !self.emulate_read || w.len() < 3 || w[0] != "model" || w[2] != "read" {
-            return None;
-        }
-        let ch: usize = w[1].parse().ok().filter(|&c| c < firmware::hal::AXES)?;
-        let m = self.shared.lock(|s| *s.model(ch));
-        let fmt = |v: &[f32]| v.iter().map(|x| format!(" {x:e}")).collect::<String>();
-        let sh = m.shape();
-        let sc = m.scaling();
-        Some(
-            match (w.get(3), w.get(4).and_then(|i| i.parse::<usize>().ok())) {
-                (None, _) => format!(
-                    "ok {} {} {}{}",
-                    sh.n,
-                    sh.m,
-                    sh.p,
-                    fmt(&[sc.v_offset, sc.v_scale, sc.f_offset, sc.f_scale])
-                ),
-                (Some(&"coef"), Some(i)) if i < m.scaled().len() => {
-                    format!(
-                        "ok{}",
-                        fmt(&m.scaled()[i..(i + command::MAX_CHUNK).min(m.scaled().len())])
-                    )
-                }
-                (Some(&"ar"), Some(i)) => {
-                    let ar: Vec<f32> = m.ar().iter().flatten().copied().collect();
-                    if i >= ar.len() {
-                        return Some("err out-of-range".into());
-                    }
-                    format!("ok{}", fmt(&ar[i..(i + command::MAX_CHUNK).min(ar.len())]))
-                }
-                _ => "err invalid-argument 3".into(),
-            },
-        )
     }
 }
 
@@ -517,17 +488,8 @@ impl Write for FirmwarePort {
                 continue;
             }
             let line = std::mem::take(&mut self.line);
-            let text = String::from_utf8_lossy(&line)
-                .trim_end_matches('\r')
-                .to_string();
-            let reply = match self.emulated(&text) {
-                Some(r) => r,
-                None => {
-                    let mut r = String::new();
-                    self.shared.command_line(&line, self.now_us, &mut r);
-                    r
-                }
-            };
+            let mut reply = String::new();
+            self.shared.command_line(&line, self.now_us, &mut reply);
             self.out.extend(reply.as_bytes());
             self.out.extend(b"\r\n");
             self.now_us += 1_000;
@@ -632,25 +594,107 @@ mod tests {
     #[test]
     fn deploys_into_the_firmware_and_reads_back() {
         let up = parse_lines(LINES, "x").unwrap();
-        let mut port = FirmwarePort::new(true);
+        let mut port = FirmwarePort::new();
         let r = deploy(&mut port, &up).unwrap();
+        // Read back by the firmware's own `model <ch> read` handler, every value bit for bit.
         assert_eq!(r[0].readback, Readback::Verified { values: 7 + 12 });
+        assert_eq!(r[0].lines_acked, 4);
         // The firmware's installed model holds exactly the values sent.
         let m = port.shared.lock(|s| *s.model(1));
         assert_eq!(m.scaled(), &up[0].coef[..]);
-        // Without the read verb the firmware refuses it, and the deploy says so.
-        let mut plain = FirmwarePort::new(false);
-        let r = deploy(&mut plain, &up).unwrap();
-        assert!(
-            matches!(&r[0].readback, Readback::Unsupported { reply } if reply.starts_with("err"))
+    }
+
+    #[test]
+    fn reads_back_ar_coefficients_and_several_channels() {
+        let text = "model 0 begin 1 1 2 -2.5e1 1.25e2 3e0 7.5e1\n\
+            model 0 coef 0 1e-40 -0e0 3.4028235e38 -1.1754944e-38\n\
+            model 0 ar 0 1e-1 -2e-1\n\
+            model 0 ar 2 3.3333334e-1 1.0000001e-5\n\
+            model 0 commit\n";
+        let mut ups = parse_lines(text, "x").unwrap();
+        ups.extend(parse_lines(LINES, "x").unwrap());
+        let mut port = FirmwarePort::new();
+        let r = deploy(&mut port, &ups).unwrap();
+        assert_eq!(r[0].readback, Readback::Verified { values: 7 + 4 + 4 });
+        assert_eq!(r[1].readback, Readback::Verified { values: 7 + 12 });
+        let m = port.shared.lock(|s| *s.model(0));
+        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(m.ar().as_flattened()), bits(&ups[0].ar));
+        assert_eq!(bits(m.scaled()), bits(&ups[0].coef));
+    }
+
+    #[test]
+    fn a_read_back_that_differs_is_reported() {
+        // The board acknowledges the lines but holds other values than expected.
+        let mut up = parse_lines(LINES, "x").unwrap();
+        up[0].coef[9] = 10.000001;
+        match deploy(&mut FirmwarePort::new(), &up) {
+            Err(DeployError::Mismatch { ch: 1, what, .. }) => assert_eq!(what, "coef 8..12"),
+            other => panic!("{other:?}"),
+        }
+        let mut up = parse_lines(LINES, "x").unwrap();
+        up[0].scaling[3] = 100.00001;
+        match deploy(&mut FirmwarePort::new(), &up) {
+            Err(DeployError::Mismatch { ch: 1, what, .. }) => assert_eq!(what, "shape and scaling"),
+            other => panic!("{other:?}"),
+        }
+    }
+
+    /// Firmware from before `model <ch> read`: refuses the verb the way its parser did.
+    #[derive(Default)]
+    struct OldFirmware {
+        fw: FirmwarePort,
+        line: Vec<u8>,
+    }
+
+    impl Write for OldFirmware {
+        fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+            for &b in buf {
+                self.line.push(b);
+                if b != b'\n' {
+                    continue;
+                }
+                let line = std::mem::take(&mut self.line);
+                let words: Vec<&[u8]> = line.split(|&c| c == b' ').collect();
+                if words[0] == b"model" && words.get(2).map(|w| w.trim_ascii()) == Some(b"read") {
+                    self.fw.out.extend(b"err invalid-argument 2\r\n");
+                } else {
+                    self.fw.write_all(&line)?;
+                }
+            }
+            Ok(buf.len())
+        }
+        fn flush(&mut self) -> std::io::Result<()> {
+            Ok(())
+        }
+    }
+
+    impl Read for OldFirmware {
+        fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+            self.fw.read(buf)
+        }
+    }
+
+    #[test]
+    fn firmware_without_read_is_confirmed_by_acks_only() {
+        let up = parse_lines(LINES, "x").unwrap();
+        let mut old = OldFirmware::default();
+        let r = deploy(&mut old, &up).unwrap();
+        assert_eq!(
+            r[0].readback,
+            Readback::Unsupported {
+                reply: "err invalid-argument 2".into()
+            }
         );
+        // One reply per line: nothing left over.
+        assert!(old.fw.out.is_empty());
     }
 
     #[test]
     fn reports_a_refused_line() {
         // An index past the shape: the firmware's staged-model check refuses it.
         let up = parse_lines(LINES, "x").unwrap();
-        let mut port = FirmwarePort::new(false);
+        let mut port = FirmwarePort::new();
         let mut bad = up.clone();
         bad[0].lines[2] = "model 1 coef 11 9e0 1e1".into();
         match deploy(&mut port, &bad) {

@@ -95,9 +95,10 @@ fn exported_model_predicts_on_the_board_as_in_sysid() {
     }
     assert!(compared > 1000, "{compared}");
 
-    // `vfp deploy` over the firmware's own command handler: acknowledged and read back exactly.
+    // `vfp deploy` over the firmware's own command handler: acknowledged, and read back exactly
+    // with the firmware's `model <ch> read` (no stand-in).
     let uploads = parse_lines(&lines.join("\n"), "export").expect("export lines parse");
-    let mut port = FirmwarePort::new(true);
+    let mut port = FirmwarePort::new();
     let results = deploy(&mut port, &uploads).expect("deploys");
     for (r, f) in results.iter().zip(&fits) {
         assert_eq!(r.readback, Readback::Verified { values: 7 + 12 });
