@@ -28,3 +28,21 @@ pub fn svg<'a>(path: &'a Path, size: (u32, u32)) -> DrawingArea<SVGBackend<'a>, 
     ensure_fonts();
     SVGBackend::new(path, size).into_drawing_area()
 }
+
+/// Axis range covering the finite values with 5 % padding; (0, 1) when there are none.
+pub fn padded_range(values: impl Iterator<Item = f64>) -> (f64, f64) {
+    let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+    for x in values.filter(|x| x.is_finite()) {
+        lo = lo.min(x);
+        hi = hi.max(x);
+    }
+    if !lo.is_finite() {
+        return (0.0, 1.0);
+    }
+    let pad = if hi > lo {
+        0.05 * (hi - lo)
+    } else {
+        0.5 * lo.abs().max(1e-9)
+    };
+    (lo - pad, hi + pad)
+}

@@ -16,20 +16,7 @@ fn err(path: &Path, e: impl std::fmt::Display) -> CliError {
 }
 
 fn bounds(xs: impl Iterator<Item = f64>) -> (f64, f64) {
-    let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
-    for x in xs.filter(|x| x.is_finite()) {
-        lo = lo.min(x);
-        hi = hi.max(x);
-    }
-    if !lo.is_finite() {
-        return (0.0, 1.0);
-    }
-    let pad = if hi > lo {
-        0.05 * (hi - lo)
-    } else {
-        0.5 * lo.abs().max(1e-9)
-    };
-    (lo - pad, hi + pad)
+    crate::figure::padded_range(xs)
 }
 
 /// Writes every figure for one chamber into `dir` (created if needed).

@@ -81,20 +81,7 @@ pub(crate) fn finish(
 }
 
 fn range(vals: impl Iterator<Item = f64>) -> (f64, f64) {
-    let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
-    for x in vals.filter(|x| x.is_finite()) {
-        lo = lo.min(x);
-        hi = hi.max(x);
-    }
-    if !lo.is_finite() {
-        return (0.0, 1.0);
-    }
-    let pad = if hi > lo {
-        0.05 * (hi - lo)
-    } else {
-        0.5 * lo.abs().max(1e-9)
-    };
-    (lo - pad, hi + pad)
+    crate::figure::padded_range(vals)
 }
 
 /// Draws curves with axes, labels and a legend into `area`.
