@@ -385,6 +385,11 @@ impl SimRun {
         writeln!(out, "# description={}", s.description)?;
         writeln!(out, "# design={}", s.plant.design.name())?;
         writeln!(out, "# seed={}", s.seed)?;
+        // The air pocket as metadata, so `vfp air-scan` finds each log's x without `--x`.
+        let air = s.plant.effects.air_pocket_mm3;
+        if air.iter().all(|&a| a == air[0]) {
+            writeln!(out, "# air_pocket_mm3={}", air[0])?;
+        }
         writeln!(out, "# sample_rate_hz={frame_hz}")?;
         writeln!(out, "# force_n is the simulator's true external force")?;
         writeln!(out, "{LOG_COLUMNS}")?;

@@ -265,3 +265,20 @@ fn all_effects_together_complete_the_protocol() {
         .iter()
         .all(|t| t.chambers.iter().all(|c| c.pressure_kpa.is_finite())));
 }
+
+#[test]
+fn a_log_names_its_air_pocket_in_its_metadata() {
+    let mut sc = Scenario {
+        duration_s: 0.3,
+        ..Scenario::default()
+    };
+    sc.plant.effects.air_pocket_mm3 = [20.0; 3];
+    let mut log = Vec::new();
+    run(&sc).write_log(&mut log).unwrap();
+    let text = String::from_utf8(log).unwrap();
+    assert!(
+        text.lines().any(|l| l == "# air_pocket_mm3=20"),
+        "metadata line missing:\n{}",
+        &text[..text.len().min(400)]
+    );
+}
