@@ -274,19 +274,25 @@ pub fn deploy_fit(ds: &Dataset, n: usize, m: usize) -> Result<PolyFit, CliError>
     poly::fit(Xy::from(&ds.train()), n, m, Some(sc)).map_err(fail)
 }
 
-/// The force-push scenario with `lines` sent to the board's serial port first (10 ms apart).
-pub fn force_scenario(plan: &Plan, seed: u64, lines: &[String]) -> Scenario {
-    let mut s = Scenario::force_pushes(plan.push_peak_n, plan.push_s);
-    s.plant = plant();
-    s.seed = seed.wrapping_add(1);
-    let mut cmds: Vec<TimedCommand> = lines
+/// The model lines as serial commands for a fresh simulated board: 10 ms apart from 50 ms, well
+/// before the firmware's 1 s boot zero ends.
+pub fn upload_commands(lines: &[String]) -> Vec<TimedCommand> {
+    lines
         .iter()
         .enumerate()
         .map(|(i, l)| TimedCommand {
             at_s: 0.05 + 0.01 * i as f64,
             line: l.clone(),
         })
-        .collect();
+        .collect()
+}
+
+/// The force-push scenario with `lines` sent to the board's serial port first (10 ms apart).
+pub fn force_scenario(plan: &Plan, seed: u64, lines: &[String]) -> Scenario {
+    let mut s = Scenario::force_pushes(plan.push_peak_n, plan.push_s);
+    s.plant = plant();
+    s.seed = seed.wrapping_add(1);
+    let mut cmds = upload_commands(lines);
     cmds.append(&mut s.commands);
     s.commands = cmds;
     s

@@ -11,22 +11,9 @@ use rand_distr::{Distribution, Normal};
 /// Pump volume per motor step, mm³.
 pub const STEP_MM3: f64 = 0.04;
 
-/// The (n = 3, m = 2) law identified for SBA1 in the paper's Table IV: αᵢⱼ at index i·3 + j, in
-/// kPa / (mm³)ⁱ (mm³/s)ʲ.
-pub const SBA1_RAW: [f64; 12] = [
-    0.0,
-    1.7660e-1,
-    2.3010e-4, // 1, v̇, v̇²
-    1.2695e-2,
-    -1.3896e-4,
-    -3.0150e-6, // v, v v̇, v v̇²
-    -8.0664e-5,
-    6.6527e-7,
-    1.3800e-8, // v², v² v̇, v² v̇²
-    4.1269e-7,
-    -7.3542e-10,
-    -1.3773e-11, // v³, v³ v̇, v³ v̇²
-];
+/// The (n = 3, m = 2) law identified for SBA1 in the paper's Table IV (αᵢⱼ at index i·3 + j,
+/// raw units): model-core's constant, re-exported for the generators here.
+pub use model_core::poly::SBA1_RAW;
 
 /// Evaluates Σ αᵢⱼ vⁱ v̇ʲ for raw coefficients at index i·(m+1)+j.
 pub fn eval_raw(raw: &[f64], n: usize, m: usize, v: f64, vdot: f64) -> f64 {

@@ -28,14 +28,7 @@ fn exported_model_predicts_on_the_board_as_in_sysid() {
     }
 
     // A fresh board: the lines through its serial port, then moves at several flows.
-    let mut cmds: Vec<TimedCommand> = lines
-        .iter()
-        .enumerate()
-        .map(|(i, l)| TimedCommand {
-            at_s: 0.05 + 0.01 * i as f64,
-            line: l.clone(),
-        })
-        .collect();
+    let mut cmds: Vec<TimedCommand> = sysid::demo::upload_commands(&lines);
     for (at_s, line) in [
         (1.5, "move all 400 80"),
         (8.0, "move all 150 35"),
