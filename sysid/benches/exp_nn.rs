@@ -1,10 +1,15 @@
-//! Speed of the exponential (k = 1..10) and neural-network (d = 1..15) sweeps on an 83,000-sample,
-//! SBA-like log: volume on the 0.04 mm³ step grid swept 0..550 mm³ at 20..100 mm³/s, 25 Hz.
+//! Speed of the exponential (k = 1..10) and neural-network (d = 1..15) sweeps on ~83,000-sample,
+//! SBA-like logs: volume on the 0.04 mm³ step grid swept 0..550 mm³ at 20..100 mm³/s, 25 Hz.
+//! The exponential sweep runs on two logs: a synthetic one whose volumes fall on a coarse 0.8 mm³
+//! grid (few distinct volumes), and the simulated rig's (firmware tasks on host-sim, the paper's
+//! protocol with 26 cycles per rate, chamber 0), where ~14,000 distinct volumes make the
+//! per-trial cost depend on the data reduction.
 //!
-//! Run: `cargo bench -p sysid --bench exp_nn` (the neural sweep alone: append `-- nn`).
+//! Run: `cargo bench -p sysid --bench exp_nn` (one sweep: append `-- exp/` or `-- nn`).
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use std::time::Duration;
+use host_sim::{simulate, PlantConfig, Protocol, Scenario};
 use sysid::{exp, nn};
 
 const N: usize = 83_000;
@@ -41,11 +46,35 @@ fn sba_log(n: usize) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
     (v, q, p)
 }
 
+/// Chamber 0 of the simulated rig running the paper's protocol with 26 cycles per rate.
+fn hostsim_log() -> (Vec<f64>, Vec<f64>, Vec<f64>) {
+    let protocol = Protocol {
+        cycles: 26,
+        ..Protocol::paper()
+    };
+    let run = simulate(&Scenario::protocol(
+        "bench",
+        PlantConfig::default(),
+        &protocol,
+    ))
+    .expect("the paper protocol simulates");
+    let (mut v, mut q, mut p) = (Vec::new(), Vec::new(), Vec::new());
+    for r in run.rows().filter(|r| r.chamber == 0) {
+        v.push(f64::from(r.volume_mm3));
+        q.push(f64::from(r.flow_mm3_s));
+        p.push(f64::from(r.pressure_kpa));
+    }
+    (v, q, p)
+}
+
 fn bench_exp(c: &mut Criterion) {
     let (v, q, p) = sba_log(N);
     let mut g = c.benchmark_group("exp");
     g.sample_size(20);
     g.bench_function("sweep_k1_10_83k", |b| b.iter(|| exp::sweep(&v, &q, &p, 10)));
+    let (v, q, p) = hostsim_log();
+    let name = format!("sweep_k1_10_hostsim_{}k", v.len() / 1000);
+    g.bench_function(name, |b| b.iter(|| exp::sweep(&v, &q, &p, 10)));
     g.finish();
 }
 

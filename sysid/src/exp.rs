@@ -38,10 +38,27 @@
 //!
 //! where f(v) = Σ αᵢ e^{βᵢ v} + δ and S are the within-group (co)variances of v̇ and P. That is an
 //! exactly equivalent least-squares problem with one row per distinct volume plus one row for γ.
-//! When there are many distinct volumes (a continuous-valued log), the β search runs on at most
-//! [`SEARCH_BINS`] volume bins (each bin's samples placed at the bin's mean volume: an
-//! approximation used only to steer β), and the final θ and SSE are always solved on the exact
-//! grouped problem above.
+//!
+//! # Exact projection onto a Chebyshev subspace
+//! A log at 25 Hz from a 0.04 mm³-step pump still has ~10⁴ distinct volumes, and every LM trial
+//! would factor a 10⁴-row matrix. But every column that depends on β is smooth in u: e^{bu} and
+//! u·e^{bu} (|b| ≤ [`B_MAX`]) equal their Chebyshev series of degree [`CHEB_DEGREE`] in
+//! x = 2u − 1 to within ~1e−16 of their largest value (coefficients 2·I_n(b/2)·e^{b/2}, with
+//! I_n(20)/e^{20} < 1e−17 for n ≥ 40). So all model columns lie in the fixed subspace
+//!
+//! ```text
+//! S = span{ √nⱼ·T₀(xⱼ), …, √nⱼ·T_D(xⱼ), √nⱼ·v̇̄ⱼ }          (plus √S_vv in the γ row)
+//! ```
+//!
+//! and `‖y − Aθ‖² = ‖Qᵀy − QᵀAθ‖² + ‖(I − QQᵀ)y‖²` for any orthonormal basis Q of S: the second
+//! term does not depend on β or θ. The Gram matrix of S comes from weighted Chebyshev moments in
+//! one pass (`T_a T_b = ½(T_{a+b} + T_{|a−b|})`, the same device as the polynomial sweep), Q from
+//! its eigen-decomposition after unit-diagonal scaling (directions with eigenvalue below 1e−13 of
+//! the largest are invisible on the data and dropped), and a column with Chebyshev coefficients
+//! c has coordinates `Λ^{1/2} Vᵀ S c` in Q. The constant `‖(I − QQᵀ)y‖²` is computed directly as
+//! the residual of y on S, not by subtraction. Every LM trial then factors a matrix of at most
+//! D + 2 rows, whatever the log's length, and the result is the exact-data optimum — no binning.
+//! The reported SSE is recomputed on the grouped rows.
 //!
 //! # Nesting
 //! The k-term search starts from the (k−1)-term βs plus one new β, the best of a log-spaced grid
@@ -55,18 +72,17 @@ use nalgebra::{DMatrix, DVector};
 
 /// Bound on the scaled rate |b| = |β|·(v_max − v_min); e^40 ≈ 2·10¹⁷ is far past any chamber.
 pub const B_MAX: f64 = 40.0;
-/// Most volume bins the β search runs on; the final solve is always exact.
-pub const SEARCH_BINS: usize = 256;
+/// Degree D of the Chebyshev subspace the problem is projected onto (see the module docs).
+pub const CHEB_DEGREE: usize = 48;
 /// Smallest gap between scaled rates, and between a rate and 0 (the δ column). Closer rates make
 /// nearly collinear columns whose least-squares amplitudes cancel in huge ± pairs (the optimum of
 /// an over-parameterised k drifts there); over u ∈ [0, 1], e^{bu} and e^{(b+0.5)u} differ by at
 /// most a factor 1.65, so little fit is lost.
 pub const B_GAP: f64 = 0.5;
-/// Levenberg–Marquardt iteration cap per k on the search problem, and for the exact polish.
+/// Levenberg–Marquardt iteration cap per k.
 const MAX_ITER: usize = 100;
 /// LM stops when an accepted step lowers the SSE by less than this fraction.
 const REL_TOL: f64 = 1e-8;
-const POLISH_ITER: usize = 3;
 /// Starting values tried for each new scaled rate b.
 const B_GRID: [f64; 14] = [
     -24.0, -12.0, -6.0, -3.0, -1.5, -0.7, -0.3, 0.3, 0.7, 1.5, 3.0, 6.0, 12.0, 24.0,
@@ -171,7 +187,12 @@ pub fn sweep(v: &[f64], vdot: &[f64], p: &[f64], k_max: usize) -> Vec<Result<Exp
         Ok(r) => r,
         Err(e) => return vec![Err(e); k_max],
     };
-    let search = exact.binned(SEARCH_BINS);
+    // Few distinct volumes: the grouped problem is already small, solve it directly.
+    let projected = (exact.len() > 4 * (CHEB_DEGREE + 2)).then(|| Projected::new(&exact));
+    let search: &dyn Problem = match &projected {
+        Some(p) => p,
+        None => &exact,
+    };
     let n = v.len();
     let mut out = Vec::with_capacity(k_max);
     let mut prev_b: Vec<f64> = Vec::new();
@@ -208,11 +229,8 @@ pub fn sweep(v: &[f64], vdot: &[f64], p: &[f64], k_max: usize) -> Vec<Result<Exp
             out.push(Err(ExpError::NoConvergence { k }));
             continue;
         };
-        let mut b = levenberg_marquardt(&search, b0, MAX_ITER);
-        if search.len() < exact.len() {
-            b = levenberg_marquardt(&exact, b, POLISH_ITER);
-        }
-        let fit = exact
+        let b = levenberg_marquardt(search, b0, MAX_ITER);
+        let fit = search
             .solve(&b, false)
             .and_then(|s| exact.to_fit(&b, &s))
             .filter(|f| f.sse.is_finite());
@@ -247,7 +265,7 @@ fn pad(prev: &ExpFit, k: usize) -> ExpFit {
 }
 
 /// LM on the scaled rates b over the reduced problem; returns the best b seen.
-fn levenberg_marquardt(red: &Reduced, mut b: Vec<f64>, max_iter: usize) -> Vec<f64> {
+fn levenberg_marquardt(red: &dyn Problem, mut b: Vec<f64>, max_iter: usize) -> Vec<f64> {
     let k = b.len();
     let Some(mut cur) = red.solve(&b, true) else {
         return b;
@@ -418,61 +436,59 @@ impl Reduced {
         Ok(red)
     }
 
-    /// Merges rows into at most `bins` equal-width volume bins (approximate: each bin's samples are
-    /// placed at its mean volume). Returns a copy when already small enough.
-    fn binned(&self, bins: usize) -> Self {
-        let mut out = Reduced {
-            u: Vec::new(),
-            w: Vec::new(),
-            vdot: Vec::new(),
-            p: Vec::new(),
-            svv: self.svv,
-            svp: self.svp,
-            spp: self.spp,
-            v_min: self.v_min,
-            span: self.span,
-        };
-        if self.len() <= bins {
-            out.u.clone_from(&self.u);
-            out.w.clone_from(&self.w);
-            out.vdot.clone_from(&self.vdot);
-            out.p.clone_from(&self.p);
-            return out;
-        }
-        let mut start = 0;
-        while start < self.len() {
-            let bin = ((self.u[start] * bins as f64) as usize).min(bins - 1);
-            let mut end = start + 1;
-            while end < self.len() && ((self.u[end] * bins as f64) as usize).min(bins - 1) == bin {
-                end += 1;
-            }
-            let n: f64 = (start..end).map(|j| self.w[j] * self.w[j]).sum();
-            let mean = |xs: &[f64]| {
-                (start..end)
-                    .map(|j| self.w[j] * self.w[j] * xs[j])
-                    .sum::<f64>()
-                    / n
-            };
-            let (mu, mq, mp) = (mean(&self.u), mean(&self.vdot), mean(&self.p));
-            for j in start..end {
-                let nj = self.w[j] * self.w[j];
-                let (dq, dp) = (self.vdot[j] - mq, self.p[j] - mp);
-                out.svv += nj * dq * dq;
-                out.svp += nj * dq * dp;
-                out.spp += nj * dp * dp;
-            }
-            out.u.push(mu);
-            out.w.push(n.sqrt());
-            out.vdot.push(mq);
-            out.p.push(mp);
-            start = end;
-        }
-        out
+    /// The exact SSE of θ = (a₁..a_k, δ, γ) at scaled rates `b`, from the grouped rows.
+    fn sse(&self, b: &[f64], theta: &[f64]) -> f64 {
+        let k = b.len();
+        let (delta, gamma) = (theta[k], theta[k + 1]);
+        let between: f64 = (0..self.len())
+            .map(|j| {
+                let u = self.u[j];
+                let f: f64 = (0..k).map(|i| theta[i] * (b[i] * u).exp()).sum();
+                let r = self.w[j] * (self.p[j] - f - delta - gamma * self.vdot[j]);
+                r * r
+            })
+            .sum();
+        between + gamma * gamma * self.svv - 2.0 * gamma * self.svp + self.spp
     }
 
-    /// Solves the linear least-squares problem for θ at scaled rates `b`; with `jac`, also the
-    /// Kaufman Jacobian products. `None` if anything turns non-finite.
+    /// Converts a scaled solution to the paper's parameters: aᵢe^{bᵢu} = αᵢe^{βᵢv} with
+    /// βᵢ = bᵢ/span and αᵢ = aᵢ e^{−βᵢ v_min}; the SSE is recomputed on the grouped rows.
+    fn to_fit(&self, b: &[f64], s: &Solved) -> Option<ExpFit> {
+        let k = b.len();
+        let beta: Vec<f64> = b.iter().map(|bi| bi / self.span).collect();
+        let alpha: Vec<f64> = (0..k)
+            .map(|i| s.theta[i] * (-beta[i] * self.v_min).exp())
+            .collect();
+        if alpha.iter().any(|a| !a.is_finite()) {
+            return None;
+        }
+        Some(ExpFit {
+            k,
+            alpha,
+            beta,
+            delta: s.theta[k],
+            gamma: s.theta[k + 1],
+            sse: self.sse(b, &s.theta).max(0.0),
+        })
+    }
+}
+
+/// A separable least-squares problem in the scaled rates b: the weighted design block
+/// `[A(b) | ∂A/∂b | y]` (columns e^{bᵢu}…, 1, v̇, u·e^{bᵢu}…, P) in some row basis, plus the
+/// part of the SSE no column can reach.
+trait Problem {
+    /// The design block at `b` (derivative columns only with `jac`) and the unreachable SSE.
+    fn assemble(&self, b: &[f64], jac: bool) -> Option<(DMatrix<f64>, f64)>;
+
+    /// Solves for θ at `b`; with `jac`, also the Kaufman Jacobian products.
     fn solve(&self, b: &[f64], jac: bool) -> Option<Solved> {
+        let (x, resid0) = self.assemble(b, jac)?;
+        solve_block(x, resid0, b.len(), jac)
+    }
+}
+
+impl Problem for Reduced {
+    fn assemble(&self, b: &[f64], jac: bool) -> Option<(DMatrix<f64>, f64)> {
         let k = b.len();
         let nlin = k + 2;
         let nder = if jac { k } else { 0 };
@@ -501,87 +517,228 @@ impl Reduced {
             x[(last, cols - 1)] = self.svp / s;
             resid0 -= self.svp * self.svp / self.svv;
         }
-        let resid0 = resid0.max(0.0);
-        // Normalise columns: the QR is invariant, the triangle's conditioning is not.
-        let mut scale = vec![1.0; cols];
-        for (c, sc) in scale.iter_mut().enumerate() {
-            let nrm = x.column(c).norm();
-            if !nrm.is_finite() {
-                return None;
-            }
-            if nrm > 0.0 {
-                *sc = nrm;
-                x.column_mut(c).unscale_mut(nrm);
-            }
-        }
-        let r = x.qr().unpack_r();
-        let m = r.nrows(); // min(rows, cols)
-        let ysc = scale[cols - 1];
-        // θ from the leading triangle by truncated SVD (minimum norm if columns are collinear).
-        let nl = nlin.min(m);
-        let r11 = r.view((0, 0), (nl, nlin)).clone_owned();
-        let z1 = r.view((0, cols - 1), (nl, 1)).clone_owned();
-        let svd = r11.clone().svd(true, true);
-        let tol = 1e-12 * svd.singular_values.max();
-        let th = svd.solve(&z1, tol).ok()?;
-        let fit_gap = (&r11 * &th - &z1).norm_squared();
-        let below = if m > nlin {
-            r.view((nlin, cols - 1), (m - nlin, 1)).norm_squared()
-        } else {
-            0.0
-        };
-        let sse = (fit_gap + below) * ysc * ysc + resid0;
-        let theta: Vec<f64> = (0..nlin).map(|c| th[c] * ysc / scale[c]).collect();
-        if !sse.is_finite() || theta.iter().any(|t| !t.is_finite()) {
+        Some((x, resid0.max(0.0)))
+    }
+}
+
+/// Solves the design block `x = [A | ∂A/∂b | y]` (k exponential columns, then 1 and v̇, then the
+/// derivative columns when `jac`, then y) for θ, and the Kaufman JᵀJ, Jᵀr when `jac`.
+/// `None` if anything turns non-finite.
+fn solve_block(mut x: DMatrix<f64>, resid0: f64, k: usize, jac: bool) -> Option<Solved> {
+    let nlin = k + 2;
+    let cols = x.ncols();
+    // Normalise columns: the QR is invariant, the triangle's conditioning is not.
+    let mut scale = vec![1.0; cols];
+    for (c, sc) in scale.iter_mut().enumerate() {
+        let nrm = x.column(c).norm();
+        if !nrm.is_finite() {
             return None;
         }
-        let (mut jtj, mut jtr) = (DMatrix::zeros(0, 0), DVector::zeros(0));
-        if jac {
-            // Rows nlin..m of R hold the parts of hᵢ and y orthogonal to span(A):
-            // Jᵢ = −aᵢ P⊥hᵢ, r = P⊥y.
-            jtj = DMatrix::zeros(k, k);
-            jtr = DVector::zeros(k);
-            let tail = m.saturating_sub(nlin);
-            let col = |c: usize| r.view((nlin, c), (tail, 1));
-            for i in 0..k {
-                let ci = scale[nlin + i] * theta[i];
-                let hi = col(nlin + i);
-                jtr[i] = -ci * ysc * hi.dot(&col(cols - 1));
-                for l in 0..=i {
-                    let cl = scale[nlin + l] * theta[l];
-                    let v = ci * cl * hi.dot(&col(nlin + l));
-                    jtj[(i, l)] = v;
-                    jtj[(l, i)] = v;
-                }
+        if nrm > 0.0 {
+            *sc = nrm;
+            x.column_mut(c).unscale_mut(nrm);
+        }
+    }
+    let r = x.qr().unpack_r();
+    let m = r.nrows(); // min(rows, cols)
+    let ysc = scale[cols - 1];
+    // θ from the leading triangle by truncated SVD (minimum norm if columns are collinear).
+    let nl = nlin.min(m);
+    let r11 = r.view((0, 0), (nl, nlin)).clone_owned();
+    let z1 = r.view((0, cols - 1), (nl, 1)).clone_owned();
+    let svd = r11.clone().svd(true, true);
+    let tol = 1e-10 * svd.singular_values.max();
+    let th = svd.solve(&z1, tol).ok()?;
+    let fit_gap = (&r11 * &th - &z1).norm_squared();
+    let below = if m > nlin {
+        r.view((nlin, cols - 1), (m - nlin, 1)).norm_squared()
+    } else {
+        0.0
+    };
+    let sse = (fit_gap + below) * ysc * ysc + resid0;
+    let theta: Vec<f64> = (0..nlin).map(|c| th[c] * ysc / scale[c]).collect();
+    if !sse.is_finite() || theta.iter().any(|t| !t.is_finite()) {
+        return None;
+    }
+    let (mut jtj, mut jtr) = (DMatrix::zeros(0, 0), DVector::zeros(0));
+    if jac {
+        // Rows nlin..m of R hold the parts of hᵢ and y orthogonal to span(A):
+        // Jᵢ = −aᵢ P⊥hᵢ, r = P⊥y.
+        jtj = DMatrix::zeros(k, k);
+        jtr = DVector::zeros(k);
+        let tail = m.saturating_sub(nlin);
+        let col = |c: usize| r.view((nlin, c), (tail, 1));
+        for i in 0..k {
+            let ci = scale[nlin + i] * theta[i];
+            let hi = col(nlin + i);
+            jtr[i] = -ci * ysc * hi.dot(&col(cols - 1));
+            for l in 0..=i {
+                let cl = scale[nlin + l] * theta[l];
+                let v = ci * cl * hi.dot(&col(nlin + l));
+                jtj[(i, l)] = v;
+                jtj[(l, i)] = v;
             }
         }
-        Some(Solved {
-            theta,
-            sse,
-            jtj,
-            jtr,
-        })
+    }
+    Some(Solved {
+        theta,
+        sse,
+        jtj,
+        jtr,
+    })
+}
+
+/// The grouped problem projected onto the Chebyshev subspace S (module docs): at most D + 2 rows.
+struct Projected {
+    /// Coordinates in Q of the basis vectors of S (rows: kept directions; columns: T₀..T_D, v̇).
+    to_q: DMatrix<f64>,
+    /// Coordinates of y in Q.
+    y_q: DVector<f64>,
+    /// ‖(I − QQᵀ)y‖² plus the within-group constant: the SSE no model column can reach.
+    unreachable: f64,
+    /// cos(n·θⱼ) at the Chebyshev nodes θⱼ = π(j + ½)/(D + 1), for interpolation.
+    cos: DMatrix<f64>,
+    /// The nodes in scaled volume, uⱼ = (cos θⱼ + 1)/2.
+    nodes_u: Vec<f64>,
+}
+
+impl Projected {
+    fn new(red: &Reduced) -> Self {
+        const D: usize = CHEB_DEGREE;
+        let nb = D + 2; // T₀..T_D and v̇
+                        // One pass: Σ n T_d (d ≤ 2D), Σ n v̇ T_d, Σ n P T_d (d ≤ D), and the v̇, P products.
+        let mut m = vec![0.0; 2 * D + 1];
+        let (mut mq, mut mp) = (vec![0.0; D + 1], vec![0.0; D + 1]);
+        let (mut qq, mut qp) = (red.svv, red.svp);
+        let mut t = vec![0.0; 2 * D + 1];
+        for j in 0..red.len() {
+            let x = 2.0 * red.u[j] - 1.0;
+            let n = red.w[j] * red.w[j];
+            let (q, p) = (red.vdot[j], red.p[j]);
+            t[0] = 1.0;
+            t[1] = x;
+            for d in 2..=2 * D {
+                t[d] = 2.0 * x * t[d - 1] - t[d - 2];
+            }
+            for d in 0..=2 * D {
+                m[d] += n * t[d];
+            }
+            for d in 0..=D {
+                mq[d] += n * q * t[d];
+                mp[d] += n * p * t[d];
+            }
+            qq += n * q * q;
+            qp += n * q * p;
+        }
+        let mut g = DMatrix::<f64>::zeros(nb, nb);
+        for a in 0..=D {
+            for b in 0..=D {
+                g[(a, b)] = 0.5 * (m[a + b] + m[a.abs_diff(b)]);
+            }
+            g[(a, D + 1)] = mq[a];
+            g[(D + 1, a)] = mq[a];
+        }
+        g[(D + 1, D + 1)] = qq;
+        let mut by = DVector::<f64>::from_iterator(nb, mp.iter().copied().chain([qp]));
+        // Unit-diagonal scaling, then eigen-decomposition: Q = B S⁻¹ V Λ^{−1/2}.
+        let sc: Vec<f64> = (0..nb)
+            .map(|i| {
+                let d = g[(i, i)];
+                if d > 0.0 {
+                    d.sqrt()
+                } else {
+                    1.0
+                }
+            })
+            .collect();
+        for a in 0..nb {
+            for b in 0..nb {
+                g[(a, b)] /= sc[a] * sc[b];
+            }
+            by[a] /= sc[a];
+        }
+        let eig = nalgebra::SymmetricEigen::new(g);
+        let lmax = eig.eigenvalues.max();
+        let keep: Vec<usize> = (0..nb)
+            .filter(|&i| eig.eigenvalues[i] > 1e-13 * lmax)
+            .collect();
+        let mut to_q = DMatrix::<f64>::zeros(keep.len(), nb);
+        let mut y_q = DVector::<f64>::zeros(keep.len());
+        // θ_S: least-squares coefficients of y on S, for the directly computed residual.
+        let mut theta_s = vec![0.0; nb];
+        for (r, &i) in keep.iter().enumerate() {
+            let (l, vi) = (eig.eigenvalues[i], eig.eigenvectors.column(i));
+            for c in 0..nb {
+                to_q[(r, c)] = l.sqrt() * vi[c] * sc[c];
+            }
+            y_q[r] = vi.dot(&by) / l.sqrt();
+            let z = vi.dot(&by) / l;
+            for c in 0..nb {
+                theta_s[c] += vi[c] * z / sc[c];
+            }
+        }
+        // ‖y − B θ_S‖² on the grouped rows (Clenshaw for the Chebyshev part) and the γ row.
+        let mut unreachable = 0.0;
+        for j in 0..red.len() {
+            let x = 2.0 * red.u[j] - 1.0;
+            let (mut b1, mut b2) = (0.0, 0.0);
+            for d in (1..=D).rev() {
+                let b0 = theta_s[d] + 2.0 * x * b1 - b2;
+                b2 = b1;
+                b1 = b0;
+            }
+            let poly = theta_s[0] + x * b1 - b2;
+            let r = red.w[j] * (red.p[j] - poly - theta_s[D + 1] * red.vdot[j]);
+            unreachable += r * r;
+        }
+        let gamma_s = theta_s[D + 1];
+        unreachable += gamma_s * gamma_s * red.svv - 2.0 * gamma_s * red.svp + red.spp;
+        let nodes = D + 1;
+        let theta = |j: usize| std::f64::consts::PI * (j as f64 + 0.5) / nodes as f64;
+        let cos = DMatrix::from_fn(nodes, nodes, |n, j| (n as f64 * theta(j)).cos());
+        let nodes_u = (0..nodes).map(|j| 0.5 * (theta(j).cos() + 1.0)).collect();
+        Projected {
+            to_q,
+            y_q,
+            unreachable: unreachable.max(0.0),
+            cos,
+            nodes_u,
+        }
     }
 
-    /// Converts a scaled solution to the paper's parameters: aᵢe^{bᵢu} = αᵢe^{βᵢv} with
-    /// βᵢ = bᵢ/span and αᵢ = aᵢ e^{−βᵢ v_min}.
-    fn to_fit(&self, b: &[f64], s: &Solved) -> Option<ExpFit> {
+    /// Coordinates in Q of the column whose values at the Chebyshev nodes are `f`.
+    fn coords(&self, f: &DVector<f64>) -> DVector<f64> {
+        let nodes = f.len() as f64;
+        let mut c = (&self.cos * f) * (2.0 / nodes);
+        c[0] *= 0.5;
+        self.to_q.columns(0, c.len()) * c
+    }
+}
+
+impl Problem for Projected {
+    fn assemble(&self, b: &[f64], jac: bool) -> Option<(DMatrix<f64>, f64)> {
         let k = b.len();
-        let beta: Vec<f64> = b.iter().map(|bi| bi / self.span).collect();
-        let alpha: Vec<f64> = (0..k)
-            .map(|i| s.theta[i] * (-beta[i] * self.v_min).exp())
-            .collect();
-        if alpha.iter().any(|a| !a.is_finite()) {
-            return None;
+        let nlin = k + 2;
+        let nder = if jac { k } else { 0 };
+        let cols = nlin + nder + 1;
+        let rows = self.to_q.nrows();
+        let mut x = DMatrix::<f64>::zeros(rows, cols);
+        let nb = self.to_q.ncols();
+        for (i, &bi) in b.iter().enumerate() {
+            let f = DVector::from_iterator(
+                self.nodes_u.len(),
+                self.nodes_u.iter().map(|u| (bi * u).exp()),
+            );
+            x.set_column(i, &self.coords(&f));
+            if jac {
+                let fu = f.zip_map(&DVector::from_column_slice(&self.nodes_u), |e, u| e * u);
+                x.set_column(nlin + i, &self.coords(&fu));
+            }
         }
-        Some(ExpFit {
-            k,
-            alpha,
-            beta,
-            delta: s.theta[k],
-            gamma: s.theta[k + 1],
-            sse: s.sse,
-        })
+        x.set_column(k, &self.to_q.column(0));
+        x.set_column(k + 1, &self.to_q.column(nb - 1));
+        x.set_column(cols - 1, &self.y_q);
+        Some((x, self.unreachable))
     }
 }
 
@@ -745,8 +902,8 @@ mod tests {
     }
 
     #[test]
-    fn continuous_volume_uses_bins_and_still_recovers() {
-        // Volumes not on a grid: the β search runs on bins, the final solve is exact.
+    fn continuous_volume_is_projected_and_recovers() {
+        // Every volume distinct: the search runs on the Chebyshev projection.
         let n = 5000;
         let v: Vec<f64> = (0..n)
             .map(|t| 275.0 + 270.0 * (t as f64 * 0.01).sin() + 1e-3 * t as f64)
@@ -758,6 +915,40 @@ mod tests {
             close(f.beta[0], 0.007, 1e-6) && close(f.alpha[0], 0.8, 1e-5),
             "{f:?}"
         );
+    }
+
+    /// The projection is an identity, not an approximation: at any rates, the projected problem's
+    /// θ and SSE equal those of the grouped problem (solved by QR on all its rows).
+    #[test]
+    fn projection_matches_the_grouped_problem() {
+        let (v, q) = sba_like(20_000);
+        let p: Vec<f64> = v
+            .iter()
+            .zip(&q)
+            .zip(noise(v.len(), 0.3, 11))
+            .map(|((&v, &q), e)| 5.0 * ((v - 300.0) / 80.0).tanh() + 0.02 * q + e)
+            .collect();
+        let exact = Reduced::exact(&v, &q, &p).unwrap();
+        assert!(exact.len() > 4 * (CHEB_DEGREE + 2), "{} volumes", exact.len());
+        let proj = Projected::new(&exact);
+        for b in [
+            vec![2.0],
+            vec![-35.0, 4.0],
+            vec![-6.0, 1.5, 39.5],
+            vec![-20.0, -3.0, 0.7, 9.0],
+        ] {
+            let (e, pr) = (
+                exact.solve(&b, true).unwrap(),
+                proj.solve(&b, true).unwrap(),
+            );
+            assert!(close(pr.sse, e.sse, 1e-9), "b {b:?}: {} vs {}", pr.sse, e.sse);
+            for (x, y) in pr.theta.iter().zip(&e.theta) {
+                assert!((x - y).abs() <= 1e-6 * (1.0 + y.abs()), "b {b:?}: θ {x} vs {y}");
+            }
+            for (x, y) in pr.jtr.iter().zip(e.jtr.iter()) {
+                assert!((x - y).abs() <= 1e-6 * (1.0 + y.abs()), "b {b:?}: Jᵀr {x} vs {y}");
+            }
+        }
     }
 
     #[test]
