@@ -11,6 +11,7 @@ use std::error::Error;
 
 use host_sim::{simulate, PlantConfig, Protocol, Scenario};
 use plotters::prelude::*;
+use plotters::style::colors::colormaps::{ColorMap, ViridisRGB};
 use plotters::style::{register_font, FontStyle};
 
 const BIN_MM3: f64 = 10.0;
@@ -98,16 +99,6 @@ fn main() -> Result<(), Box<dyn Error>> {
     }
     flush(&mut leg, leg_sign, leg_peak);
 
-    let palette = [
-        RGBColor(0x1f, 0x77, 0xb4),
-        RGBColor(0x2c, 0xa0, 0x2c),
-        RGBColor(0xff, 0x7f, 0x0e),
-        RGBColor(0xd6, 0x27, 0x28),
-        RGBColor(0x94, 0x67, 0xbd),
-        RGBColor(0x8c, 0x56, 0x4b),
-        RGBColor(0xe3, 0x77, 0xc2),
-        RGBColor(0x7f, 0x7f, 0x7f),
-    ];
     let (p_min, p_max) = bins
         .values()
         .flat_map(|m| m.values().flatten())
@@ -135,7 +126,9 @@ fn main() -> Result<(), Box<dyn Error>> {
         .light_line_style(WHITE.mix(0.0))
         .draw()?;
     for ((idx, inflating), m) in &bins {
-        let color = palette[idx % palette.len()];
+        // Flow rate is ordered, so a sequential map (viridis, stopping short of its pale yellow end).
+        let shade = 0.85 * *idx as f64 / (flows.len().max(2) - 1) as f64;
+        let color: RGBColor = ViridisRGB.get_color(shade);
         let stats: Vec<(f64, f64, f64, f64)> = m
             .iter()
             .filter(|(_, ps)| !ps.is_empty())

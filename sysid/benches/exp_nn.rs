@@ -8,8 +8,8 @@
 //! Run: `cargo bench -p sysid --bench exp_nn` (one sweep: append `-- exp/` or `-- nn`).
 
 use criterion::{criterion_group, criterion_main, Criterion};
-use std::time::Duration;
 use host_sim::{simulate, PlantConfig, Protocol, Scenario};
+use std::time::Duration;
 use sysid::{exp, nn};
 
 const N: usize = 83_000;

@@ -929,7 +929,11 @@ mod tests {
             .map(|((&v, &q), e)| 5.0 * ((v - 300.0) / 80.0).tanh() + 0.02 * q + e)
             .collect();
         let exact = Reduced::exact(&v, &q, &p).unwrap();
-        assert!(exact.len() > 4 * (CHEB_DEGREE + 2), "{} volumes", exact.len());
+        assert!(
+            exact.len() > 4 * (CHEB_DEGREE + 2),
+            "{} volumes",
+            exact.len()
+        );
         let proj = Projected::new(&exact);
         for b in [
             vec![2.0],
@@ -941,12 +945,23 @@ mod tests {
                 exact.solve(&b, true).unwrap(),
                 proj.solve(&b, true).unwrap(),
             );
-            assert!(close(pr.sse, e.sse, 1e-9), "b {b:?}: {} vs {}", pr.sse, e.sse);
+            assert!(
+                close(pr.sse, e.sse, 1e-9),
+                "b {b:?}: {} vs {}",
+                pr.sse,
+                e.sse
+            );
             for (x, y) in pr.theta.iter().zip(&e.theta) {
-                assert!((x - y).abs() <= 1e-6 * (1.0 + y.abs()), "b {b:?}: θ {x} vs {y}");
+                assert!(
+                    (x - y).abs() <= 1e-6 * (1.0 + y.abs()),
+                    "b {b:?}: θ {x} vs {y}"
+                );
             }
             for (x, y) in pr.jtr.iter().zip(e.jtr.iter()) {
-                assert!((x - y).abs() <= 1e-6 * (1.0 + y.abs()), "b {b:?}: Jᵀr {x} vs {y}");
+                assert!(
+                    (x - y).abs() <= 1e-6 * (1.0 + y.abs()),
+                    "b {b:?}: Jᵀr {x} vs {y}"
+                );
             }
         }
     }

@@ -167,6 +167,16 @@ pub struct Xy<'a> {
     pub p: &'a [f64],
 }
 
+impl<'a> From<&'a crate::dataset::Dataset> for Xy<'a> {
+    fn from(d: &'a crate::dataset::Dataset) -> Self {
+        Xy {
+            v: &d.v,
+            vdot: &d.vdot,
+            p: &d.p,
+        }
+    }
+}
+
 impl<'a> From<&'a Columns> for Xy<'a> {
     fn from(c: &'a Columns) -> Self {
         Xy {

@@ -3,7 +3,7 @@
 
 mod diag_common;
 use diag_common::*;
-use sysid::diag::chow::{chow, ChowOptions, ChowTest, Data, Method};
+use sysid::diag::chow::{chow, ChowOptions, ChowTest, Method};
 use sysid::poly::{self, Xy};
 use sysid::synth::SBA1_RAW;
 
@@ -13,14 +13,14 @@ fn pair(law_b: &[f64], rho: f64, seed: u64, o: &ChowOptions) -> ChowTest {
     let tr = protocol(N, 550.0);
     let pa = pressure(&SBA1_RAW, &tr, &ar1_noise(N, 0.2, rho, seed));
     let pb = pressure(law_b, &tr, &ar1_noise(N, 0.2, rho, seed + 1_000_000));
-    let a = Data {
+    let a = Xy {
         v: &tr.v,
-        q: &tr.vdot,
+        vdot: &tr.vdot,
         p: &pa,
     };
-    let b = Data {
+    let b = Xy {
         v: &tr.v,
-        q: &tr.vdot,
+        vdot: &tr.vdot,
         p: &pb,
     };
     chow(a, b, o).unwrap()
@@ -123,14 +123,14 @@ fn classic_statistic_matches_its_formula() {
         ..ChowOptions::default()
     };
     let t = chow(
-        Data {
+        Xy {
             v: &tr.v,
-            q: &tr.vdot,
+            vdot: &tr.vdot,
             p: &pa,
         },
-        Data {
+        Xy {
             v: &tr.v,
-            q: &tr.vdot,
+            vdot: &tr.vdot,
             p: &pb,
         },
         &o,

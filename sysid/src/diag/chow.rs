@@ -41,7 +41,7 @@ use super::input::{read_log, Log, Series};
 use super::plot::{self, Curve, Mark};
 use super::{DiagError, OutputOpts, Shape};
 use crate::linreg;
-use crate::poly::{chebyshev, Scaling, MAX_DEGREE};
+use crate::poly::{chebyshev, Scaling, Xy, MAX_DEGREE};
 use nalgebra::{DMatrix, DVector};
 use serde::Serialize;
 use statrs::distribution::{ContinuousCDF, FisherSnedecor};
@@ -82,27 +82,6 @@ pub struct ChowTest {
     pub ar: Vec<f64>,
     /// Samples in each log.
     pub samples: [usize; 2],
-}
-
-/// One (v, v̇, P) data set in time order.
-#[derive(Clone, Copy, Debug)]
-pub struct Data<'a> {
-    /// Volume (mm³).
-    pub v: &'a [f64],
-    /// Flow (mm³/s).
-    pub q: &'a [f64],
-    /// Pressure (kPa).
-    pub p: &'a [f64],
-}
-
-impl<'a> From<&'a Series> for Data<'a> {
-    fn from(s: &'a Series) -> Self {
-        Data {
-            v: &s.v,
-            q: &s.vdot,
-            p: &s.p,
-        }
-    }
 }
 
 /// Design matrix of the Chebyshev product basis Tᵢ(x)Tⱼ(y) (sysid's [`crate::poly`] basis),
@@ -276,15 +255,15 @@ impl Default for ChowOptions {
 }
 
 /// Chow test of H₀ "a and b follow one polynomial" (module docs).
-pub fn chow(a: Data<'_>, b: Data<'_>, o: &ChowOptions) -> Result<ChowTest, ChowError> {
+pub fn chow(a: Xy<'_>, b: Xy<'_>, o: &ChowOptions) -> Result<ChowTest, ChowError> {
     let shape = o.shape;
     let names = term_names(shape);
     let pv: Vec<f64> = a.v.iter().chain(b.v).copied().collect();
-    let pq: Vec<f64> = a.q.iter().chain(b.q).copied().collect();
+    let pq: Vec<f64> = a.vdot.iter().chain(b.vdot).copied().collect();
     let scaling = Scaling::from_data(&pv, &pq).map_err(|e| ChowError::Fit(2, e.to_string()))?;
     let k = shape.terms();
-    let xa = design(shape, &scaling, a.v, a.q);
-    let xb = design(shape, &scaling, b.v, b.q);
+    let xa = design(shape, &scaling, a.v, a.vdot);
+    let xb = design(shape, &scaling, b.v, b.vdot);
     let (f_classic, df2_classic) = chow_f(&xa, a.p, &xb, b.p, &names)?;
     let dist =
         |df2: usize| FisherSnedecor::new(k as f64, df2 as f64).map_err(|_| ChowError::Degenerate);
