@@ -541,18 +541,8 @@ fn installed_model_reads_back_bit_for_bit() {
     }
     // A full-size model whose values are the longest to print, at the edges of both notations
     // (the reply must still fit), plus ±0, subnormals and the extremes.
-    let awkward = [
-        -f32::MIN_POSITIVE / 3.0,
-        -f32::MAX,
-        -1.1754942e-38,
-        -9.999999e8,
-        -1.0000001e-5,
-        -0.00012345679,
-        -123456790.0,
-        -0.0,
-        f32::from_bits(1),
-        f32::MAX,
-    ];
+    let mut awkward = crate::telemetry::LONGEST_F32.to_vec();
+    awkward.extend([-0.0, f32::from_bits(1), f32::MAX]);
     let coef: Vec<f32> = (0..64).map(|i| awkward[i % awkward.len()]).collect();
     let ar: Vec<f32> = (0..10).map(|i| awkward[(i + 3) % awkward.len()]).collect();
     let scaling = [-999_999.9, 1.0e-30, -9_999.999, 1.2345679e-11];

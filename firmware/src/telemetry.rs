@@ -373,6 +373,19 @@ pub fn parse_line(text: &str) -> Option<Result<Line, TelemetryError>> {
 /// A fixed-capacity line buffer implementing `fmt::Write` (no allocation on the device).
 pub type LineBuf = heapless::String<MAX_LINE>;
 
+/// Candidates for the longest printed f32, at the edges of both notations (test data shared by
+/// the telemetry and command-handler tests).
+#[cfg(test)]
+pub(crate) const LONGEST_F32: [f32; 7] = [
+    -f32::MIN_POSITIVE / 3.0,
+    -f32::MAX,
+    -1.1754942e-38,
+    -9.999999e8,
+    -1.0000001e-5,
+    -0.00012345679,
+    -123456790.0,
+];
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -437,23 +450,14 @@ mod tests {
 
     #[test]
     fn longest_frame_fits() {
-        // Candidates for the longest printed f32 at the edges of both notations.
-        let long = [
-            -f32::MIN_POSITIVE / 3.0,
-            -f32::MAX,
-            -1.1754942e-38,
-            -9.999999e8,
-            -1.0000001e-5,
-            -0.00012345679,
-            -123456790.0,
-        ]
-        .into_iter()
-        .max_by_key(|x| {
-            let mut s = LineBuf::new();
-            num(&mut s, *x).unwrap();
-            s.len()
-        })
-        .unwrap();
+        let long = LONGEST_F32
+            .into_iter()
+            .max_by_key(|x| {
+                let mut s = LineBuf::new();
+                num(&mut s, *x).unwrap();
+                s.len()
+            })
+            .unwrap();
         let c = ChamberFrame {
             v: long,
             vdot: long,
