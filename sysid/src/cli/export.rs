@@ -5,14 +5,23 @@
 //!
 //! Coefficients are the scaled-basis bᵢⱼ of [`model_core::poly::PolyModel`] in f32, printed with
 //! Rust's shortest round-trip formatting so the device parses back exactly the exported values.
+//!
+//! `--augmented` first runs the residual loop of `vfp diagnose` on each chamber and exports the
+//! model it ends with ([`crate::residual::export`]): terms the device can run are folded into the
+//! exported model (inertance as an AR(1) flow term), the others are named with the reason, and
+//! `//` comment lines above each chamber's model state the held-out RMSE of the full augmented
+//! model, of the exported model as the device evaluates it, and of the baseline. `vfp deploy`
+//! skips those comments.
 
 use super::{CliError, DataOpts};
 use crate::dataset::Dataset;
 use crate::poly::{self, Scaling, Xy};
 use crate::polyar;
+use crate::residual::export::{augmented_export, AugmentedExport};
+use crate::residual::{self, EffectKind};
 use model_core::poly::PolyModel;
 use std::fmt::Write;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 /// Most values on one `model … coef`/`ar` line (the firmware's `MAX_CHUNK`).
 pub const CHUNK: usize = 8;
@@ -39,6 +48,25 @@ pub struct Args {
     /// Fit on all samples instead of the training cycles only.
     #[arg(long)]
     pub all_samples: bool,
+    /// Export the model `vfp diagnose` ends with: run the residual loop on each chamber (baseline
+    /// shape from --n/--m, default the AICc selection), fold the kept effects the device can run
+    /// into the exported model (inertance L·v̈ becomes an AR(1) flow term, v̈ taken as the backward
+    /// difference at the log's frame interval), and name those it cannot with the reason. Comment
+    /// lines (`//`, skipped by `vfp deploy`) give the held-out RMSE of the full augmented model, of
+    /// the exported model as the device evaluates it, and of the baseline.
+    #[arg(long)]
+    pub augmented: bool,
+    /// With --augmented: restrict the loop's candidate effects (repeatable; default: the whole
+    /// library, as `vfp diagnose`).
+    #[arg(long = "effect", value_enum, requires = "augmented")]
+    pub effects: Vec<EffectKind>,
+    /// With --augmented: level of the loop's nested F-test (default 1e-3, as `vfp diagnose`).
+    #[arg(long, requires = "augmented")]
+    pub alpha: Option<f64>,
+    /// With --augmented: smallest relative held-out RMSE gain for an effect to be kept (default
+    /// 0.01, as `vfp diagnose`).
+    #[arg(long, requires = "augmented")]
+    pub min_gain: Option<f64>,
 }
 
 /// Output forms.
@@ -120,43 +148,73 @@ pub fn rust_constants(ch: u8, model: &PolyModel, provenance: &str) -> String {
     s
 }
 
-/// The device model for one chamber's dataset: the requested (n, m) or the AICc selection of the
-/// 49-model sweep, with `p` AR lags. Returns the model and a one-line provenance.
+/// The device model for one chamber's dataset: the requested (n, m), or by default the shape of
+/// the 49-model sweep with the lowest training AICc **among those the device evaluates faithfully**
+/// (its f32 loss, [`f32_loss`], at most a tenth of the fit's own RMSE; high degrees fitted on a few
+/// flow levels have cancelling coefficients that f32 cannot hold). When AICc's own choice is
+/// passed over, the provenance says so and by how much it would have lost. `p` AR lags.
 pub fn model_for(
     ds: &Dataset,
     n: Option<usize>,
     m: Option<usize>,
     p: usize,
     all_samples: bool,
-) -> Result<(PolyModel, String), CliError> {
-    let data = if all_samples { ds.all() } else { ds.train() };
-    let all = ds.all();
-    let sc = Scaling::from_data(&all.v, &all.vdot)?;
-    let (n, m) = match (n, m) {
-        (Some(n), Some(m)) => (n, m),
-        (None, None) => {
-            let entries = poly::sweep(Xy::from(&data), None, &sc, 7, 7)?;
-            entries
-                .iter()
-                .filter_map(|e| e.as_ref().ok())
-                .min_by(|a, b| a.train.aicc.total_cmp(&b.train.aicc))
-                .map(|e| (e.n, e.m))
-                .ok_or_else(|| {
-                    CliError("no polynomial model could be fitted to these data".into())
-                })?
-        }
-        _ => {
-            return Err(CliError(
-                "give both --n and --m, or neither (then the AICc selection is used)".into(),
-            ))
-        }
-    };
+) -> Result<Exported, CliError> {
     if p > model_core::poly::MAX_AR {
         return Err(CliError(format!(
             "--p {p}: the device supports AR orders 0..={}",
             model_core::poly::MAX_AR
         )));
     }
+    let data = if all_samples { ds.all() } else { ds.train() };
+    let all = ds.all();
+    let sc = Scaling::from_data(&all.v, &all.vdot)?;
+    match (n, m) {
+        (Some(n), Some(m)) => build(ds, n, m, p, all_samples, sc),
+        (None, None) => {
+            let entries = poly::sweep(Xy::from(&data), None, &sc, 7, 7)?;
+            let mut ranked: Vec<_> = entries.iter().filter_map(|e| e.as_ref().ok()).collect();
+            ranked.sort_by(|a, b| a.train.aicc.total_cmp(&b.train.aicc));
+            let mut passed_over: Option<(usize, usize, F32Loss)> = None;
+            for entry in ranked {
+                let mut e = build(ds, entry.n, entry.m, p, all_samples, sc)?;
+                let loss = f32_loss(&e, &ds.v, &ds.vdot, &ds.p);
+                if loss.rms <= F32_LOSS_LIMIT * loss.model_rmse {
+                    if let Some((n0, m0, l0)) = passed_over {
+                        e.prov.push_str(&format!(
+                            "; AICc's choice (n = {n0}, m = {m0}) passed over: in f32 on the device it would add {:.4} kPa RMS to its {:.4} kPa fit error",
+                            l0.rms, l0.model_rmse
+                        ));
+                    }
+                    return Ok(e);
+                }
+                passed_over.get_or_insert((entry.n, entry.m, loss));
+            }
+            Err(CliError(
+                "no polynomial shape of the sweep is evaluated by the device's f32 arithmetic within a tenth of its fit error; give --n and --m"
+                    .into(),
+            ))
+        }
+        _ => Err(CliError(
+            "give both --n and --m, or neither (then the AICc selection is used)".into(),
+        )),
+    }
+}
+
+/// Most f32 loss, as a fraction of the fit's RMSE, the default shape selection accepts.
+pub const F32_LOSS_LIMIT: f64 = 0.1;
+
+/// Fits shape (n, m, p) on the training cycles (or all samples) with scaling `sc` and rounds it to
+/// the device's form.
+fn build(
+    ds: &Dataset,
+    n: usize,
+    m: usize,
+    p: usize,
+    all_samples: bool,
+    sc: Scaling,
+) -> Result<Exported, CliError> {
+    let data = if all_samples { ds.all() } else { ds.train() };
     if p == 0 {
         let fit = poly::fit(Xy::from(&data), n, m, Some(sc))?;
         let model = fit.to_model_core()?;
@@ -164,7 +222,13 @@ pub fn model_for(
             "n = {n}, m = {m}, RMSE {:.4} kPa on {} samples",
             fit.train.rmse, fit.train.n
         );
-        Ok((model, prov))
+        Ok(Exported {
+            model,
+            prov,
+            power: fit.power.clone(),
+            ar: Vec::new(),
+            scaling: fit.scaling,
+        })
     } else {
         let mut d = ds.clone();
         if all_samples {
@@ -179,8 +243,217 @@ pub fn model_for(
             "n = {n}, m = {m}, p = {p}, RMSE {:.4} kPa on {} samples",
             fit.train.rmse, fit.train.n
         );
-        Ok((model, prov))
+        Ok(Exported {
+            model,
+            prov,
+            power: fit.power(),
+            ar: fit.ar_scaled(),
+            scaling: fit.scaling,
+        })
     }
+}
+
+/// An exported model with the f64 fit it was rounded from.
+#[derive(Clone, Debug)]
+pub struct Exported {
+    /// The model as the device stores it (f32).
+    pub model: PolyModel,
+    /// One-line provenance.
+    pub prov: String,
+    /// The fit's scaled power-basis coefficients (f64, index i·(m+1)+j).
+    pub power: Vec<f64>,
+    /// The fit's scaled AR pairs (f64).
+    pub ar: Vec<[f64; 2]>,
+    /// The fit's scaling (f64).
+    pub scaling: Scaling,
+}
+
+/// What the device's f32 arithmetic and storage lose against the f64 fit on a log.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct F32Loss {
+    /// RMS over the samples of P̂ as the firmware computes it (f32 inputs, coefficients and
+    /// arithmetic, [`PolyModel::eval_ar`] with its history) minus the f64 fit's P̂ (kPa).
+    pub rms: f64,
+    /// RMSE of the f64 fit against the measured pressure on the same samples (kPa): the scale
+    /// to judge `rms` by.
+    pub model_rmse: f64,
+    /// Samples compared (the first p have no AR history).
+    pub samples: usize,
+}
+
+/// Evaluates an exported model along a log twice: as the firmware does, and in f64 from the fit
+/// it was rounded from, and returns the RMS difference. A polynomial whose coefficients cancel
+/// (Σ|b| ≫ |P|, typical of high degrees fitted on a few flow levels) can lose in f32 far more
+/// than its f64 fit error shows.
+pub fn f32_loss(e: &Exported, v: &[f64], vdot: &[f64], p: &[f64]) -> F32Loss {
+    let sh = e.model.shape();
+    let (n, m) = (sh.n as usize, sh.m as usize);
+    let mut hist = model_core::poly::ArHistory::new();
+    let (mut d2, mut e2, mut count) = (0.0, 0.0, 0usize);
+    for k in 0..v.len().min(vdot.len()).min(p.len()) {
+        let (v32, q32) = (v[k] as f32, vdot[k] as f32);
+        if let Ok(dev) = e.model.eval_ar(v32, q32, &hist) {
+            let (x, y) = e.scaling.apply(v[k], vdot[k]);
+            let mut acc = 0.0;
+            for j in (0..=m).rev() {
+                let mut qj = 0.0;
+                for i in (0..=n).rev() {
+                    qj = qj * x + e.power[i * (m + 1) + j];
+                }
+                acc = acc * y + qj;
+            }
+            for (lag, pair) in e.ar.iter().enumerate() {
+                let (xl, yl) = e.scaling.apply(v[k - lag - 1], vdot[k - lag - 1]);
+                acc += pair[0] * xl + pair[1] * yl;
+            }
+            d2 += (f64::from(dev.p) - acc).powi(2);
+            e2 += (p[k] - acc).powi(2);
+            count += 1;
+        }
+        hist.push(v32, q32);
+    }
+    let c = count.max(1) as f64;
+    F32Loss {
+        rms: (d2 / c).sqrt(),
+        model_rmse: (e2 / c).sqrt(),
+        samples: count,
+    }
+}
+
+/// A warning when the device's f32 loss exceeds a tenth of the model's own error on the log.
+pub fn f32_warning(e: &Exported, ds: &Dataset) -> Option<String> {
+    let r = f32_loss(e, &ds.v, &ds.vdot, &ds.p);
+    let sum_b: f32 = e.model.scaled().iter().map(|b| b.abs()).sum();
+    (r.rms > F32_LOSS_LIMIT * r.model_rmse).then(|| {
+        format!(
+            "WARNING: f32 evaluation on the device adds {:.4} kPa RMS to this model's {:.4} kPa: its coefficients (Σ|b| = {sum_b:.3e}) cancel beyond f32 precision; a smaller --n/--m keeps the device accurate",
+            r.rms, r.model_rmse
+        )
+    })
+}
+
+/// Settings of the residual loop from the command line, checked.
+fn loop_config(args: &Args, ds: &Dataset) -> Result<residual::Config, CliError> {
+    if args.p != 0 {
+        return Err(CliError(format!(
+            "--p {}: the augmented export chooses its own AR terms (inertance becomes AR(1)); leave --p out",
+            args.p
+        )));
+    }
+    if args.all_samples {
+        return Err(CliError(
+            "--all-samples: the augmented export compares models on held-out cycles; leave it out"
+                .into(),
+        ));
+    }
+    if args.data.holdout_every < 2 {
+        return Err(CliError(format!(
+            "--holdout-every {}: the augmented export needs held-out cycles (2 or more)",
+            args.data.holdout_every
+        )));
+    }
+    let mut cfg = residual::Config::default();
+    if let Some(a) = args.alpha {
+        if !(a > 0.0 && a < 1.0) {
+            return Err(CliError(format!("--alpha {a}: must lie in (0, 1)")));
+        }
+        cfg.alpha = a;
+    }
+    if let Some(g) = args.min_gain {
+        if !(0.0..1.0).contains(&g) {
+            return Err(CliError(format!("--min-gain {g}: must lie in [0, 1)")));
+        }
+        cfg.min_gain = g;
+    }
+    if !args.effects.is_empty() {
+        cfg.candidates = args.effects.clone();
+    }
+    (cfg.n, cfg.m) = match (args.n, args.m) {
+        (Some(n), Some(m))
+            if (1..=poly::MAX_DEGREE).contains(&n) && (1..=poly::MAX_DEGREE).contains(&m) =>
+        {
+            (n, m)
+        }
+        (Some(n), Some(m)) => {
+            return Err(CliError(format!(
+                "--n {n} --m {m}: the augmented export needs 1 ≤ n, m ≤ {}",
+                poly::MAX_DEGREE
+            )))
+        }
+        (None, None) => residual::cli::select_shape(ds).unwrap_or((3, 2)),
+        _ => {
+            return Err(CliError(
+                "give both --n and --m, or neither (then the AICc selection is used)".into(),
+            ))
+        }
+    };
+    Ok(cfg)
+}
+
+/// The account of one chamber's augmented export, one sentence per line (printed as `//` comments).
+pub fn augmented_report(log: &Path, chamber: u8, x: &AugmentedExport) -> Vec<String> {
+    let d = &x.diagnosis;
+    let r = &x.rmse;
+    let mut out = vec![format!(
+        "vfp export --augmented {}, chamber {chamber}: baseline polynomial n = {}, m = {}",
+        log.display(),
+        d.baseline.n,
+        d.baseline.m
+    )];
+    let kept: Vec<&str> = d.effects.iter().map(|e| e.name).collect();
+    if kept.is_empty() {
+        out.push(
+            "the residual loop kept no effect: the exported model is the baseline polynomial"
+                .into(),
+        );
+    } else {
+        out.push(format!("the residual loop kept: {}", kept.join(", ")));
+    }
+    for c in &x.carried {
+        out.push(format!(
+            "on the device: {} = {:.4e} {} ({})",
+            c.name, c.value, c.unit, c.how
+        ));
+    }
+    for e in &x.dropped {
+        out.push(format!("NOT on the device: {} ({})", e.name, e.reason));
+    }
+    if x.nothing_carried() {
+        out.push(format!(
+            "NONE of the kept effects can run on the device: the exported model is the baseline polynomial refitted on the training cycles, not the augmented model; on the device it gives {:.4} kPa held-out RMSE where the augmented model gives {:.4} kPa",
+            r.device, r.augmented
+        ));
+    }
+    out.push(format!(
+        "held-out RMSE: (a) full augmented model {:.4} kPa{}; (b) exported model as the device evaluates it (f32) {:.4} kPa ({:.4} kPa in f64, {} samples); (c) baseline {:.4} kPa",
+        r.augmented,
+        if d.final_model.uses_measured_pressure {
+            " (uses measured pressure as a scheduling input)"
+        } else {
+            ""
+        },
+        r.device,
+        r.device_f64,
+        r.device_samples,
+        r.baseline
+    ));
+    if r.device > 1.05 * r.device_f64 + 1e-3 {
+        let sum_b: f32 = x.device.model.scaled().iter().map(|b| b.abs()).sum();
+        out.push(format!(
+            "WARNING: f32 evaluation on the device costs {:.4} kPa: the coefficients (Σ|b| = {sum_b:.3e}) cancel beyond f32 precision; a smaller --n/--m keeps the device accurate",
+            r.device - r.device_f64
+        ));
+    }
+    if x.device.host.inertance.is_some() {
+        let frame_s = 1.0 / f64::from(firmware::app::Config::default().frame_hz);
+        if (x.device.host.dt - frame_s).abs() > 0.01 * frame_s {
+            out.push(format!(
+                "WARNING: the log's frame interval {:.4} s differs from the firmware's default {:.4} s; the AR(1) inertance term is exact only at {:.4} s",
+                x.device.host.dt, frame_s, x.device.host.dt
+            ));
+        }
+    }
+    out
 }
 
 /// Runs `vfp export`.
@@ -189,7 +462,54 @@ pub fn run(args: &Args) -> Result<(), CliError> {
     let mut lines = Vec::new();
     let mut rust = String::new();
     for ds in &datasets {
-        let (model, prov) = model_for(ds, args.n, args.m, args.p, args.all_samples)?;
+        if args.augmented {
+            let cfg = loop_config(args, ds)?;
+            let wrap = |e: &dyn std::fmt::Display| {
+                CliError(format!(
+                    "{}, chamber {}: {e}",
+                    args.log.display(),
+                    ds.chamber
+                ))
+            };
+            let series = residual::cli::series_from_dataset(ds).map_err(|e| wrap(&e))?;
+            let x = augmented_export(series, &cfg).map_err(|e| wrap(&e))?;
+            let report = augmented_report(&args.log, ds.chamber, &x);
+            for l in report
+                .iter()
+                .filter(|l| l.starts_with("NO") || l.starts_with("WARNING"))
+            {
+                eprintln!("chamber {}: {l}", ds.chamber);
+            }
+            let comments: Vec<String> = report.iter().map(|l| format!("// {l}")).collect();
+            lines.extend(comments.iter().cloned());
+            lines.extend(command_lines(ds.chamber, &x.device.model));
+            if args.format == Format::Rust {
+                // With `both` the same comments already head the lines.
+                for c in &comments {
+                    rust.push_str(c);
+                    rust.push('\n');
+                }
+            }
+            let prov = format!(
+                "{} (augmented: n = {}, m = {}, p = {}, held-out RMSE {:.4} kPa on the device)",
+                args.log.display(),
+                x.diagnosis.baseline.n,
+                x.diagnosis.baseline.m,
+                x.device.model.shape().p,
+                x.rmse.device
+            );
+            rust.push_str(&rust_constants(ds.chamber, &x.device.model, &prov));
+            continue;
+        }
+        let e = model_for(ds, args.n, args.m, args.p, args.all_samples)?;
+        let (model, prov) = (e.model, e.prov.clone());
+        if let Some(w) = f32_warning(&e, ds) {
+            eprintln!("chamber {}: {w}", ds.chamber);
+            lines.push(format!("// chamber {}: {w}", ds.chamber));
+            if args.format == Format::Rust {
+                rust.push_str(&format!("// {w}\n"));
+            }
+        }
         lines.extend(command_lines(ds.chamber, &model));
         rust.push_str(&rust_constants(
             ds.chamber,

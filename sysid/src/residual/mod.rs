@@ -25,6 +25,7 @@ pub mod analysis;
 mod basis;
 pub mod cli;
 pub mod effects;
+pub mod export;
 mod lsq;
 pub mod select;
 pub(crate) mod signal;

@@ -1,0 +1,349 @@
+//! The augmented model on the device (`vfp export --augmented`): the model the residual loop ends
+//! with, carried into the firmware's [`PolyModel`] wherever its terms can run there, and an honest
+//! account of what cannot.
+//!
+//! # What the device can evaluate
+//! The firmware evaluates (model-core, paper Table II "autoregressive multivariate polynomial")
+//!
+//! ```text
+//! P̂(t) = Σ_kl b_kl x(t)^k y(t)^l + Σ_{k=1..p} ( b_k1 x(t−k) + b_k2 y(t−k) ),
+//! x = (v − v_o)/v_s,  y = (v̇ − f_o)/f_s,
+//! ```
+//!
+//! i.e. a polynomial in the present (v, v̇) plus terms *linear* in past inputs, nothing else: no
+//! output feedback, no clock, no hysteron state. Each effect says whether it fits that form
+//! ([`EffectKind::device_support`]); this module carries those it knows how to fold in and lists
+//! the others by name with the reason.
+//!
+//! # Inertance as an AR(1) term
+//! The loop's inertance term is `L·v̈` with v̈ a smoothed (Hermite or three-point) derivative, which
+//! looks one sample ahead. The device only has the past, so it takes the backward difference
+//! `v̈(t) ≈ (v̇(t) − v̇(t−1))/Δt` at its frame interval Δt. With `v̇ = f_o + f_s·y`,
+//!
+//! ```text
+//! L·(v̇(t) − v̇(t−1))/Δt = γ·y(t) − γ·y(t−1),   γ = L·f_s/Δt,
+//! ```
+//!
+//! (the offsets cancel), which is exactly `b_01 += γ` (the v̇-linear coefficient) plus the AR(1)
+//! pair `[b_11, b_12] = [0, −γ]`. The device model is therefore *refitted* with that
+//! backward-difference column in place of the loop's v̈, on the same training rows, so the model
+//! fitted and the model exported are one and the same function (the round trip is tested to
+//! float precision); effects the device cannot run are left out of this refit rather than
+//! truncated from a joint fit, which would leave the remaining coefficients biased.
+//!
+//! # Errors reported
+//! Held-out RMSE of (a) the full augmented model as the loop fitted it, (b) the exported model
+//! evaluated in f32 exactly as the firmware does (history of past samples included) and (c) the
+//! baseline polynomial, so the cost of what stays on the host is visible.
+
+use model_core::poly::{ArHistory, PolyModel};
+
+use super::effects::{Effect, Prepared};
+use super::select::{fit_stage, Stage};
+use super::{diagnose, Config, DiagnoseError, Diagnosis, EffectKind, PolyBasis, Series};
+
+/// Why an augmented export failed.
+#[derive(Debug, thiserror::Error)]
+pub enum ExportError {
+    /// The residual loop itself failed.
+    #[error(transparent)]
+    Diagnose(#[from] DiagnoseError),
+    /// The device-runnable model cannot be fitted.
+    #[error("the device model cannot be fitted: {0}")]
+    Degenerate(String),
+    /// The fitted model does not fit the device's model (shape, scaling, non-finite values).
+    #[error("the device model cannot be built: {0}")]
+    Device(String),
+    /// An effect was asked to be folded into the device model that this exporter cannot fold.
+    #[error("`{0}` cannot be folded into the device's model")]
+    NotFoldable(&'static str),
+    /// The diagnosis names an effect this build does not know.
+    #[error("the diagnosis names an unknown effect `{0}`")]
+    UnknownEffect(String),
+}
+
+/// An effect the exported model carries, in the device's form.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Carried {
+    /// Machine name.
+    pub name: &'static str,
+    /// How it runs on the device.
+    pub how: String,
+    /// Its parameter as refitted for the device (inertance: kPa·s²/mm³).
+    pub value: f64,
+    /// Unit of `value`.
+    pub unit: &'static str,
+}
+
+/// A kept effect the exported model leaves out.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Dropped {
+    /// Machine name.
+    pub name: &'static str,
+    /// Why the device cannot run it.
+    pub reason: String,
+}
+
+/// Held-out RMSE (kPa) of the three models the user chooses between.
+#[derive(Clone, Copy, Debug, serde::Serialize)]
+pub struct Rmses {
+    /// (a) The full augmented model the loop ended with.
+    pub augmented: f64,
+    /// (b) The exported model, evaluated in f32 as the firmware evaluates it.
+    pub device: f64,
+    /// (b) The same model evaluated in f64 on the host (a gap to `device` is f32 round-off).
+    pub device_f64: f64,
+    /// (c) The baseline polynomial.
+    pub baseline: f64,
+    /// Held-out samples behind `device` (the first sample of a log has no history for AR terms).
+    pub device_samples: usize,
+}
+
+/// The f64 host form of the exported model: Chebyshev polynomial plus `L·(v̇ − v̇_prev)/Δt`.
+#[derive(Clone, Debug)]
+pub struct HostModel {
+    /// Basis of the polynomial part (its scaling is the exported one, exactly representable in f32).
+    pub basis: PolyBasis,
+    /// Chebyshev coefficients of the polynomial part.
+    pub beta: Vec<f64>,
+    /// Inertance L (kPa·s²/mm³) when carried.
+    pub inertance: Option<f64>,
+    /// Frame interval Δt of the backward difference (s).
+    pub dt: f64,
+}
+
+impl HostModel {
+    /// Predicted pressure (kPa) from the present volume and flow and the previous frame's flow
+    /// (ignored without inertance; `None` is only valid then).
+    pub fn predict(&self, v: f64, vdot: f64, vdot_prev: Option<f64>) -> Option<f64> {
+        let poly = self.basis.eval(&self.beta, v, vdot);
+        match self.inertance {
+            None => Some(poly),
+            Some(l) => vdot_prev.map(|q| poly + l * (vdot - q) / self.dt),
+        }
+    }
+}
+
+/// A device-runnable model refitted on a series: the baseline polynomial plus the carried terms.
+#[derive(Clone, Debug)]
+pub struct DeviceModel {
+    /// The model for the device.
+    pub model: PolyModel,
+    /// The same model in f64 on the host.
+    pub host: HostModel,
+    /// The device-form refit (its `pred` is the host prediction on the rows it was fitted over).
+    pub refit: Stage,
+    /// Index in the input series of the refit's first row (1 when an AR term needs a previous
+    /// sample, else 0).
+    pub first_row: usize,
+}
+
+/// The augmented model as exported to the device.
+#[derive(Clone, Debug)]
+pub struct AugmentedExport {
+    /// What the loop found.
+    pub diagnosis: Diagnosis,
+    /// Kept effects the exported model carries.
+    pub carried: Vec<Carried>,
+    /// Kept effects it leaves out, with the reason.
+    pub dropped: Vec<Dropped>,
+    /// The exported model.
+    pub device: DeviceModel,
+    /// Held-out errors of (a) augmented, (b) device, (c) baseline.
+    pub rmse: Rmses,
+}
+
+impl AugmentedExport {
+    /// True when the loop kept at least one effect but none made it onto the device (the export
+    /// is then the refitted baseline).
+    pub fn nothing_carried(&self) -> bool {
+        self.carried.is_empty() && !self.dropped.is_empty()
+    }
+}
+
+/// Median sample interval (s): the device's frame interval, as the log recorded it.
+pub fn median_dt(t: &[f64]) -> f64 {
+    let mut d: Vec<f64> = t.windows(2).map(|w| w[1] - w[0]).collect();
+    d.sort_by(f64::total_cmp);
+    d.get(d.len() / 2).copied().unwrap_or(f64::NAN)
+}
+
+/// Whether this exporter can fold `kind` into a [`PolyModel`] (see the module docs).
+pub fn foldable(kind: EffectKind) -> bool {
+    kind == EffectKind::Inertance && kind.device_support().0
+}
+
+/// Runs the residual loop on `series` and exports what it ends with (see the module docs).
+pub fn augmented_export(series: Series, cfg: &Config) -> Result<AugmentedExport, ExportError> {
+    let diagnosis = diagnose(series.clone(), cfg)?;
+    from_diagnosis(diagnosis, &series)
+}
+
+/// Exports the model of a finished diagnosis of `series` (the same series it was run on).
+pub fn from_diagnosis(
+    diagnosis: Diagnosis,
+    series: &Series,
+) -> Result<AugmentedExport, ExportError> {
+    let (n, m) = (diagnosis.baseline.n, diagnosis.baseline.m);
+    let mut carry = Vec::new();
+    let mut dropped = Vec::new();
+    for e in &diagnosis.effects {
+        let kind = EffectKind::ALL
+            .into_iter()
+            .find(|k| k.name() == e.name)
+            .ok_or_else(|| ExportError::UnknownEffect(e.name.into()))?;
+        let (runs, reason) = kind.device_support();
+        if foldable(kind) {
+            carry.push(kind);
+        } else if runs {
+            dropped.push(Dropped {
+                name: kind.name(),
+                reason: format!(
+                    "the device could evaluate it ({reason}), but this exporter does not yet know how to fold it into the model"
+                ),
+            });
+        } else {
+            dropped.push(Dropped {
+                name: kind.name(),
+                reason: reason.into(),
+            });
+        }
+    }
+    let device = device_model(series, n, m, &carry)?;
+    let carried = device
+        .host
+        .inertance
+        .map(|l| Carried {
+            name: EffectKind::Inertance.name(),
+            how: format!(
+                "L·v̈ with v̈ = (v̇(t) − v̇(t−1))/Δt, Δt = {:.4} s: an AR(1) flow coefficient plus a change of the v̇ coefficient",
+                device.host.dt
+            ),
+            value: l,
+            unit: "kPa*s^2/mm3",
+        })
+        .into_iter()
+        .collect();
+    let (f32_rmse, device_samples) = device_rmse(&device.model, series);
+    let rmse = Rmses {
+        augmented: diagnosis.final_model.rmse_heldout,
+        device: f32_rmse,
+        device_f64: device.refit.rmse_heldout,
+        baseline: diagnosis.baseline.rmse_heldout,
+        device_samples,
+    };
+    Ok(AugmentedExport {
+        diagnosis,
+        carried,
+        dropped,
+        device,
+        rmse,
+    })
+}
+
+/// Refits the baseline polynomial of shape (n, m) plus the effects in `carry` in the device's form
+/// on the training rows of `series`, and builds the [`PolyModel`] (module docs). Every kind in
+/// `carry` must be [`foldable`].
+pub fn device_model(
+    series: &Series,
+    n: usize,
+    m: usize,
+    carry: &[EffectKind],
+) -> Result<DeviceModel, ExportError> {
+    if let Some(k) = carry.iter().find(|&&k| !foldable(k)) {
+        return Err(ExportError::NotFoldable(k.name()));
+    }
+    let dt = median_dt(&series.t);
+    let inertance = carry.contains(&EffectKind::Inertance);
+    // With an AR term the first sample has no predecessor: it is left out of the refit, as the
+    // firmware reports no estimate before its history holds one frame.
+    let first_row = usize::from(inertance);
+    let k0 = first_row;
+    let mut dev = Series::new(
+        series.t[k0..].to_vec(),
+        series.v[k0..].to_vec(),
+        series.vdot[k0..].to_vec(),
+        series.p[k0..].to_vec(),
+        series.train[k0..].to_vec(),
+    )?;
+    if inertance {
+        // The backward difference at the frame interval: what the device can compute.
+        dev.vddot = (k0..series.len())
+            .map(|k| (series.vdot[k] - series.vdot[k - 1]) / dt)
+            .collect();
+    }
+    let mut prep = Prepared::new(dev, n, m);
+    // Round the scaling to f32 first, so host and device scale the inputs identically.
+    let r = |x: f64| f64::from(x as f32);
+    prep.basis = PolyBasis {
+        v_offset: r(prep.basis.v_offset),
+        v_scale: r(prep.basis.v_scale),
+        f_offset: r(prep.basis.f_offset),
+        f_scale: r(prep.basis.f_scale),
+        ..prep.basis
+    };
+    let effects: Vec<Effect> = carry.iter().map(|&k| Effect::new(k, 0.0)).collect();
+    let refit = fit_stage(&prep, &effects).ok_or_else(|| {
+        ExportError::Degenerate(
+            "its columns are linearly dependent on the training rows (is volume or flow constant?)"
+                .into(),
+        )
+    })?;
+    let nb = prep.basis.len();
+    let beta = refit.fit.beta[..nb].to_vec();
+    let l = inertance.then(|| {
+        let col = (0..refit.design.owner.len())
+            .find(|&c| {
+                refit.design.owner[c].is_some_and(|i| effects[i].kind == EffectKind::Inertance)
+            })
+            .unwrap_or(nb);
+        refit.fit.beta[col]
+    });
+    let basis = prep.basis.clone();
+    let mut power = crate::poly::chebyshev_to_power_2d(&beta, n, m);
+    let mut ar = Vec::new();
+    if let Some(l) = l {
+        // γ·y(t) − γ·y(t−1), γ = L·f_s/Δt (module docs); index 1 is b_01, the v̇-linear term.
+        let gamma = l * basis.f_scale / dt;
+        power[1] += gamma;
+        ar.push([0.0, -gamma]);
+    }
+    let scaling = crate::poly::Scaling {
+        v_offset: basis.v_offset,
+        v_scale: basis.v_scale,
+        f_offset: basis.f_offset,
+        f_scale: basis.f_scale,
+    };
+    let model = crate::poly::to_model_core(n, m, &power, &ar, &scaling)
+        .map_err(|e| ExportError::Device(e.to_string()))?;
+    Ok(DeviceModel {
+        model,
+        host: HostModel {
+            basis,
+            beta,
+            inertance: l,
+            dt,
+        },
+        refit,
+        first_row,
+    })
+}
+
+/// Held-out RMSE of `model` run over the series in order as the firmware runs it (f32, history of
+/// past frames), with the number of held-out samples it produced an estimate for.
+pub fn device_rmse(model: &PolyModel, series: &Series) -> (f64, usize) {
+    let mut hist = ArHistory::new();
+    let (mut sse, mut n) = (0.0, 0usize);
+    for k in 0..series.len() {
+        let (v, q) = (series.v[k] as f32, series.vdot[k] as f32);
+        if !series.train[k] {
+            if let Ok(e) = model.eval_ar(v, q, &hist) {
+                let r = series.p[k] - f64::from(e.p);
+                sse += r * r;
+                n += 1;
+            }
+        }
+        hist.push(v, q);
+    }
+    ((sse / n.max(1) as f64).sqrt(), n)
+}
