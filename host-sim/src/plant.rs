@@ -20,20 +20,47 @@
 //! τ_d²·ẅ + 2τ_d·ẇ + w = u                      solved in closed form between steps
 //! ```
 //!
+//! That lag is the default drive ([`Drive::Lagged`]); it delays the delivered flow by about 2τ_d
+//! (6 ms) behind the motion the firmware logs. [`Drive::Ideal`] is a rig without it, whose only
+//! deviations from the paper's law are the sensor's (noise, offset, quantisation): an ideal servo
+//! whose motor follows the firmware's commanded profile itself (the trapezoid whose flow the
+//! firmware logs), continuously instead of in steps:
+//!
+//! ```text
+//! ẋ(t) = commanded flow (piecewise linear in t),  x = ∫ẋ dt,  u = x through backlash and ripple
+//! w = u,  ẇ = ẋ·∂u/∂x                           no delivery lag
+//! ```
+//!
+//! Why not the step train: a causal drive can only move after a step arrives, but the firmware's
+//! profile (and the flow it logs) starts moving before the first step of a move (12.6 ms at
+//! 500 mm³/s²) and has stopped before the last one is delivered; on SBA1, where ∂P/∂v̇ ≈ 0.15
+//! kPa·s/mm³, that one step of volume (0.04 mm³) in the wrong place costs ≈ 0.15 kPa in the first
+//! and last frame of every move, eight times the noise of a frame. And τ_d → 0 does not work
+//! either: C(v, v̇)·v̇ would see each step as an impulse of flow. The simulator hands the plant the
+//! commanded flow at the start and end of every 1 ms quantum ([`Plant::command_flow`]); the profile
+//! is linear between its corners, so this is exact except within the quantum holding a corner (a
+//! volume error below 10⁻⁴ mm³, and samples fall on quantum boundaries, where the flow is exact).
+//! The flow is continuous, so the inertance's v̈ is the profile's acceleration and the implicit
+//! solve differences it as it does for the lagged drive. The log's volume is the step count, which
+//! trails the continuous x by half a step while moving (±0.02 mm³, the counter's quantisation); at
+//! rest x is set to the count (they agree to 10⁻⁴ mm³ there).
+//!
 //! The paper identified its law against the syringe volume, so tubing compliance is already inside
 //! K and C; what it did not contain is an air pocket. An isothermal bubble of V₀ mm³ at atmospheric
 //! pressure P_atm (Boyle) sits between plunger and water, and a leak loses water:
 //!
 //! ```text
 //! x(P) = V₀·P / (P_atm + P)                    volume taken up by compressing the bubble, mm³
-//! v    = w − x(P) − L                           chamber volume
-//! v̇    = ẇ − ẋ − L̇,   L̇ = G·max(P, 0)          chamber flow (laminar leak G)
+//! v    = w − x(P) − L − r_c·t                   chamber volume
+//! v̇    = ẇ − ẋ − L̇ − r_c,   L̇ = G·max(P, 0)    chamber flow (laminar leak G, creep r_c)
 //! P    = K(v) + C(v, v̇)·v̇ + H + I·v̈ + ΔP_F(t)  the chamber law (paper Eq. 9) + effects
 //! ```
 //!
 //! H is a rate-independent hysteresis term (a Duhem model in volume, not time: dH = (s·H_a − H)
 //! |dv| / v_h with s = sign(dv), so the loop it adds does not depend on flow rate), I the fluid
-//! inertance, ΔP_F the external force's share (below). With no effects P = K(w) + C(w, ẇ)·ẇ: the
+//! inertance, ΔP_F the external force's share (below), r_c a slow creep of the chamber volume away
+//! from the delivered volume at a constant, pressure-independent rate (water permeating the
+//! elastomer wall). With no effects P = K(w) + C(w, ẇ)·ẇ: the
 //! paper's law at the delivered syringe volume and flow.
 //!
 //! # Integration
@@ -60,7 +87,10 @@
 //! the firmware's model error is what the estimate has to overcome.
 //!
 //! # Sensors
-//! Each sensor reads P through a first-order lag (τ_s), adds its offset, a slow thermal drift of
+//! Each sensor reads P through a first-order lag (τ_s) and, optionally, a transport delay d (it
+//! reports the pressure of d seconds ago: a long sensing line or a skew between the ADC's sampling
+//! instant and the step counter it is logged with; linear interpolation in the integrator's
+//! history), adds its offset, a slow thermal drift of
 //! the offset D·(1 − e^(−t/τ_D)) and white Gaussian noise, and the ADC turns that into counts with
 //! the firmware's own transfer function ([`firmware::board::kpa_to_counts`]), rounded and clamped
 //! to 12 bits. An unplugged sensor reads 0 counts (the divider's bottom resistor pulls the pin low).
@@ -130,10 +160,15 @@ pub struct Effects {
     pub ripple: Option<Ripple>,
     /// Laminar leak conductance, mm³/s per kPa (0: none).
     pub leak_mm3_per_s_per_kpa: f64,
+    /// Transport delay of the sensed pressure, s (0: none).
+    pub transport_delay_s: f64,
+    /// Creep of the chamber volume away from the delivered volume, mm³/s (0: none; positive:
+    /// the chamber holds less than was delivered).
+    pub volume_creep_mm3_per_s: f64,
 }
 
 /// Names of the single-effect presets ([`Effects::preset`]).
-pub const EFFECT_PRESETS: [&str; 8] = [
+pub const EFFECT_PRESETS: [&str; 10] = [
     "air",
     "hysteresis",
     "sensor-lag",
@@ -142,6 +177,8 @@ pub const EFFECT_PRESETS: [&str; 8] = [
     "backlash",
     "ripple",
     "leak",
+    "transport-delay",
+    "volume-creep",
 ];
 
 impl Effects {
@@ -175,6 +212,10 @@ impl Effects {
                 })
             }
             "leak" => e.leak_mm3_per_s_per_kpa = 0.002,
+            // A quarter of a 25 Hz frame: a sampling skew or a few metres of sensing line.
+            "transport-delay" => e.transport_delay_s = 0.01,
+            // 36 mm³ an hour, 6 % of the stroke: slow permeation through the elastomer.
+            "volume-creep" => e.volume_creep_mm3_per_s = 0.01,
             _ => return None,
         }
         Some(e)
@@ -245,6 +286,17 @@ impl ForcePush {
     }
 }
 
+/// How the motor's step train becomes delivered volume (module docs).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Drive {
+    /// Critically damped second-order delivery lag of time constant τ_d (the default rig).
+    #[default]
+    Lagged,
+    /// An ideal servo following the firmware's commanded profile: no lag (module docs).
+    Ideal,
+}
+
 /// Everything physical about the rig.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -255,7 +307,9 @@ pub struct PlantConfig {
     pub effects: Effects,
     /// Sensor noise and offsets.
     pub sensor: SensorSpec,
-    /// Delivery time constant τ_d of motor, screw, seal and tubing, s (> 0).
+    /// How the step train is delivered (`lagged` through τ_d, or `ideal`).
+    pub drive: Drive,
+    /// Delivery time constant τ_d of motor, screw, seal and tubing, s (> 0; lagged drive only).
     pub delivery_time_constant_s: f64,
     /// Effective area of each chamber for the external force, mm² (paper: 22).
     pub area_mm2: [f64; CHAMBERS],
@@ -271,6 +325,7 @@ impl Default for PlantConfig {
             design: Design::Sba1,
             effects: Effects::default(),
             sensor: SensorSpec::default(),
+            drive: Drive::Lagged,
             delivery_time_constant_s: 0.003,
             area_mm2: [model_core::force::DEFAULT_AREA_MM2 as f64; CHAMBERS],
             max_substep_s: 1.0e-3,
@@ -366,6 +421,20 @@ impl PlantConfig {
         }
         let g = e.leak_mm3_per_s_per_kpa;
         check("effects.leak_mm3_per_s_per_kpa", g, g >= 0.0, nonneg)?;
+        let d = e.transport_delay_s;
+        check(
+            "effects.transport_delay_s",
+            d,
+            (0.0..1.0).contains(&d),
+            "must be in [0, 1) s",
+        )?;
+        let r = e.volume_creep_mm3_per_s;
+        check(
+            "effects.volume_creep_mm3_per_s",
+            r,
+            r.abs() <= 10.0,
+            "must be finite, |r| ≤ 10 mm³/s",
+        )?;
         let s = &self.sensor;
         check("sensor.noise_kpa", s.noise_kpa, s.noise_kpa >= 0.0, nonneg)?;
         for &o in &s.offset_kpa {
@@ -414,7 +483,8 @@ pub struct ChamberTruth {
     pub flow_mm3_s: f64,
     /// Line pressure P, kPa gauge.
     pub pressure_kpa: f64,
-    /// Pressure the sensor element sees (after its lag, before offset and noise), kPa.
+    /// Pressure the sensor element reports (after its lag and transport delay, before offset and
+    /// noise), kPa.
     pub sensed_kpa: f64,
     /// Air-pocket volume at the current pressure, mm³.
     pub air_mm3: f64,
@@ -433,6 +503,12 @@ struct Chamber {
     /// Delivered volume w and flow ẇ.
     w: f64,
     wdot: f64,
+    /// Ideal drive: the commanded continuous motor volume x, and the commanded flow over the
+    /// current quantum (t₀ µs, t₁ µs, flow at t₀, flow at t₁).
+    cmd: f64,
+    segment: (u64, u64, f64, f64),
+    /// Transport delay: (instant µs, sensed pressure) history, oldest first.
+    history: std::collections::VecDeque<(u64, f64)>,
     p: f64,
     v: f64,
     vdot: f64,
@@ -513,6 +589,10 @@ impl Plant {
             plunger: 0.0,
             w: 0.0,
             wdot: 0.0,
+            cmd: 0.0,
+            segment: (0, 0, 0.0, 0.0),
+            // At rest and at zero pressure since t = 0.
+            history: std::collections::VecDeque::from([(0, 0.0)]),
             p: 0.0,
             v: 0.0,
             vdot: 0.0,
@@ -615,12 +695,14 @@ impl Plant {
         }
     }
 
-    /// One step of length `h` s of chamber `i`'s equations, the filter state already at the end.
-    fn solve(&self, i: usize, h: f64, dp_force: f64) -> Solved {
+    /// One step of length `h` s of chamber `i`'s equations ending at `t_s`, the drive state
+    /// already at the end.
+    fn solve(&self, i: usize, h: f64, dp_force: f64, t_s: f64) -> Solved {
         let c = &self.ch[i];
         let e = &self.cfg.effects;
         let g = e.leak_mm3_per_s_per_kpa;
         let inert = e.inertance_kpa_s2_per_mm3;
+        let creep = e.volume_creep_mm3_per_s;
         let (x0, _) = self.compression(i, c.p);
         let eval = |p: f64| -> (f64, f64, Solved) {
             let (x, dx) = self.compression(i, p);
@@ -629,10 +711,14 @@ impl Plant {
             } else {
                 (0.0, 0.0)
             };
-            let v = c.w - x - c.leak - lk;
+            let mut v = c.w - x - c.leak - lk;
             let dv_dp = -dx - dlk;
             // ẇ exact, ẋ and L̇ backward-differenced.
-            let q = c.wdot - (x - x0 + lk) / h;
+            let mut q = c.wdot - (x - x0 + lk) / h;
+            if creep != 0.0 {
+                v -= creep * t_s;
+                q -= creep;
+            }
             let dq_dp = dv_dp / h;
             let law = self.law.eval(v, q);
             let (hy, dhy) = self.hysteresis(c.hyst, v - c.v);
@@ -683,22 +769,33 @@ impl Plant {
         best.expect("at least one iteration")
     }
 
-    /// The explicit case: no bubble, leak, inertance or lag, so P is a function of w, ẇ.
-    fn explicit(&self, i: usize, dp_force: f64) -> Solved {
+    /// The explicit case: no bubble, leak, inertance or lag, so P is a function of w, ẇ (and
+    /// the creep at `t_s`).
+    fn explicit(&self, i: usize, dp_force: f64, t_s: f64) -> Solved {
         let c = &self.ch[i];
-        let (hy, _) = self.hysteresis(c.hyst, c.w - c.v);
+        let creep = self.cfg.effects.volume_creep_mm3_per_s;
+        let (v, q) = if creep != 0.0 {
+            (c.w - creep * t_s, c.wdot - creep)
+        } else {
+            (c.w, c.wdot)
+        };
+        let (hy, _) = self.hysteresis(c.hyst, v - c.v);
         Solved {
-            p: self.law.eval(c.w, c.wdot).p + hy + dp_force,
-            v: c.w,
-            q: c.wdot,
+            p: self.law.eval(v, q).p + hy + dp_force,
+            v,
+            q,
             leak: 0.0,
             hyst: hy,
         }
     }
 
-    /// Move chamber `i`'s delivery filter forward by `h` s (closed form, u constant).
-    fn deliver(&mut self, i: usize, h: f64) {
+    /// Move chamber `i`'s drive forward by `h` s to `t_us` (closed form, u constant).
+    fn deliver(&mut self, i: usize, h: f64, t_us: u64) {
         let u = self.syringe(i);
+        if self.cfg.drive == Drive::Ideal {
+            self.servo(i, h, t_us);
+            return;
+        }
         let tau = self.cfg.delivery_time_constant_s;
         let c = &mut self.ch[i];
         // e = w − u obeys τ²ë + 2τė + e = 0: e(t) = (e₀ + (ė₀ + e₀/τ)t)·e^(−t/τ).
@@ -707,6 +804,65 @@ impl Plant {
         let decay = libm::exp(-h / tau);
         c.w = u + (e0 + b * h) * decay;
         c.wdot = (d0 - b * h / tau) * decay;
+    }
+
+    /// Commanded flow at `t_us` from the current quantum's segment (linear; held outside it).
+    fn commanded_flow(&self, i: usize, t_us: u64) -> f64 {
+        let (t0, t1, f0, f1) = self.ch[i].segment;
+        if t1 <= t0 || t_us <= t0 {
+            f0
+        } else if t_us >= t1 {
+            f1
+        } else {
+            f0 + (f1 - f0) * (t_us - t0) as f64 / (t1 - t0) as f64
+        }
+    }
+
+    /// Ideal drive: move the commanded volume forward by `h` s to `t_us` (trapezoid rule, exact
+    /// for the linear flow), the plunger after it through backlash, and w = u with ẇ by the chain
+    /// rule (module docs).
+    fn servo(&mut self, i: usize, h: f64, t_us: u64) {
+        let t_start = t_us.saturating_sub((h * 1e6).round() as u64);
+        let (fa, fb) = (
+            self.commanded_flow(i, t_start),
+            self.commanded_flow(i, t_us),
+        );
+        let b = self.cfg.effects.backlash_mm3;
+        let c = &mut self.ch[i];
+        c.cmd += 0.5 * (fa + fb) * h;
+        let before = c.plunger;
+        c.plunger = c.plunger.clamp(c.cmd - 0.5 * b, c.cmd + 0.5 * b);
+        // The plunger follows the motor only while the screw bears on it.
+        let engaged = b == 0.0 || c.plunger != before;
+        let slope = match self.cfg.effects.ripple {
+            Some(r) => {
+                1.0 + r.amplitude_mm3 * core::f64::consts::TAU / r.period_mm3
+                    * libm::cos(core::f64::consts::TAU * c.plunger / r.period_mm3)
+            }
+            None => 1.0,
+        };
+        let flow = if engaged { fb * slope } else { 0.0 };
+        let u = self.syringe(i);
+        let c = &mut self.ch[i];
+        c.w = u;
+        c.wdot = flow;
+    }
+
+    /// Ideal drive: the firmware's commanded flow of chamber `i` at `t0_us` and `t1_us` (the
+    /// simulator's next quantum; mm³/s, positive inflates). At rest over the whole quantum the
+    /// continuous motor volume is set to the step count (module docs). No effect on a lagged drive.
+    pub fn command_flow(&mut self, i: usize, t0_us: u64, t1_us: u64, f0: f64, f1: f64) {
+        if self.cfg.drive != Drive::Ideal {
+            return;
+        }
+        // Integrate up to the quantum's start on the previous segment first.
+        self.advance_chamber(i, t0_us);
+        let per = self.cfg.mm3_per_step;
+        let c = &mut self.ch[i];
+        c.segment = (t0_us, t1_us, f0, f1);
+        if f0 == 0.0 && f1 == 0.0 {
+            c.cmd = c.steps as f64 * per;
+        }
     }
 
     /// Integrate chamber `i` to `t_us` with its plunger where it is.
@@ -723,6 +879,7 @@ impl Plant {
             1
         };
         let lag = self.cfg.effects.sensor_lag_s;
+        let delay_us = self.cfg.effects.transport_delay_s * 1e6;
         let mut t_prev = t0;
         for k in 1..=n {
             // Sub-steps end on whole ticks; the last one lands on t_us.
@@ -732,12 +889,13 @@ impl Plant {
             if h <= 0.0 {
                 continue;
             }
-            self.deliver(i, h);
+            self.deliver(i, h, t_end);
             let dp_force = self.force_kpa(i, t_end);
+            let t_s = t_end as f64 * 1e-6;
             let s = if stiff {
-                self.solve(i, h, dp_force)
+                self.solve(i, h, dp_force, t_s)
             } else {
-                self.explicit(i, dp_force)
+                self.explicit(i, dp_force, t_s)
             };
             let c = &mut self.ch[i];
             c.p = s.p;
@@ -751,7 +909,44 @@ impl Plant {
                 s.p
             };
             c.t_us = t_end;
+            if delay_us > 0.0 {
+                c.history.push_back((t_end, c.sensed));
+                // Keep one entry at or before the delayed instant for the interpolation.
+                let target = t_end as f64 - delay_us;
+                while c.history.len() >= 2 && c.history[1].0 as f64 <= target {
+                    c.history.pop_front();
+                }
+            }
         }
+    }
+
+    /// What the sensor element of chamber `i` reports now: the lagged pressure, `transport_delay_s`
+    /// ago (linear interpolation in the history; before t = 0 the plant was at rest at 0 kPa).
+    fn delayed_sensed(&self, i: usize) -> f64 {
+        let c = &self.ch[i];
+        let d = self.cfg.effects.transport_delay_s;
+        if d <= 0.0 {
+            return c.sensed;
+        }
+        let target = c.t_us as f64 - d * 1e6;
+        let mut prev = match c.history.front() {
+            Some(&first) if first.0 as f64 <= target => first,
+            Some(&first) => return first.1,
+            None => return c.sensed,
+        };
+        for &(t, p) in c.history.iter().skip(1) {
+            if t as f64 >= target {
+                let span = (t - prev.0) as f64;
+                let w = if span > 0.0 {
+                    (target - prev.0 as f64) / span
+                } else {
+                    1.0
+                };
+                return prev.1 + w * (p - prev.1);
+            }
+            prev = (t, p);
+        }
+        prev.1
     }
 
     /// Integrate every chamber to `t_us`.
@@ -770,8 +965,11 @@ impl Plant {
         let c = &mut self.ch[i];
         c.steps += if inflate { 1 } else { -1 };
         let motor = c.steps as f64 * per;
-        // Play operator: the plunger moves only once the screw has taken up the backlash.
-        c.plunger = c.plunger.clamp(motor - 0.5 * b, motor + 0.5 * b);
+        // Play operator: the plunger moves only once the screw has taken up the backlash. (The
+        // ideal drive's plunger follows the continuous commanded motion instead.)
+        if self.cfg.drive == Drive::Lagged {
+            c.plunger = c.plunger.clamp(motor - 0.5 * b, motor + 0.5 * b);
+        }
     }
 
     /// Disconnect (or reconnect) sensor `i`.
@@ -787,7 +985,7 @@ impl Plant {
             None => 0.0,
         };
         let n = self.noise.sample(&mut self.ch[i].rng);
-        self.ch[i].sensed + self.cfg.sensor.offset_kpa[i] + drift + n
+        self.delayed_sensed(i) + self.cfg.sensor.offset_kpa[i] + drift + n
     }
 
     /// One ADC conversion of all channels at `t_us` (integrates the plant there first).
@@ -818,7 +1016,7 @@ impl Plant {
             chamber_mm3: c.v,
             flow_mm3_s: c.vdot,
             pressure_kpa: c.p,
-            sensed_kpa: c.sensed,
+            sensed_kpa: self.delayed_sensed(i),
             air_mm3: air,
             leaked_mm3: c.leak,
         }

@@ -15,7 +15,9 @@
 //!
 //! [plant]                           # the physics (crate::plant::PlantConfig)
 //! design = "sba1"                   # sba1 | sba2 | sba3 | sba4 (paper Table V)
-//! delivery_time_constant_s = 0.003  # motor/screw/tubing smoothing of the step train
+//! drive = "lagged"                 # lagged: the step train through τ_d (≈ 2τ_d = 6 ms late);
+//!                                   # ideal: rate-matched, no lag (only the sensor deviates)
+//! delivery_time_constant_s = 0.003  # motor/screw/tubing smoothing of the step train (lagged)
 //! mm3_per_step = 0.04
 //! area_mm2 = [22.0, 22.0, 22.0]     # effective area per chamber (force share → pressure)
 //! max_substep_s = 0.001             # backward-Euler sub-step limit
@@ -31,6 +33,8 @@
 //! backlash_mm3 = 0.4
 //! ripple = { amplitude_mm3 = 0.2, period_mm3 = 8.0 }
 //! leak_mm3_per_s_per_kpa = 0.001
+//! transport_delay_s = 0.01          # the sensor reports the pressure of 10 ms ago
+//! volume_creep_mm3_per_s = 0.01     # the chamber loses volume at a constant rate
 //!
 //! [[force]]                         # raised-cosine pulse trains on the tip
 //! start_s = 10.0

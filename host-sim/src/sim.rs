@@ -31,7 +31,7 @@ use futures::stream::{FuturesUnordered, StreamExt};
 use futures::task::ArcWake;
 
 use crate::board::{ReadTruth, Rig, SimAdc, SimSerial, SimSteppers, SimTelemetry, SimWatchdog};
-use crate::plant::{ChamberTruth, Plant, CHAMBERS};
+use crate::plant::{ChamberTruth, Drive, Plant, CHAMBERS};
 use crate::scenario::Scenario;
 use crate::SimError;
 
@@ -215,6 +215,19 @@ pub fn simulate_with(scenario: &Scenario, fw: Config) -> Result<SimRun, SimError
         }
         if now >= end_us || stop_at.is_some_and(|s| now >= s) {
             break;
+        }
+        if scenario.plant.drive == Drive::Ideal {
+            // The ideal drive follows the commanded profile: hand it the next quantum's flow.
+            let q = scenario.quantum_us;
+            let flows: [(f32, f32); CHAMBERS] = shared.lock(|s| {
+                core::array::from_fn(|i| {
+                    (s.motion().flow_at(i, now), s.motion().flow_at(i, now + q))
+                })
+            });
+            let mut r = rig.borrow_mut();
+            for (i, (f0, f1)) in flows.into_iter().enumerate() {
+                r.plant.command_flow(i, now, now + q, f0 as f64, f1 as f64);
+            }
         }
         driver.advance(quantum);
         quanta += 1;

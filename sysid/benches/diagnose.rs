@@ -1,28 +1,34 @@
-//! `vfp diagnose` on a ~20,000-sample log (13 min at 25 Hz) with one injected effect (sensor lag):
-//! the whole loop — baseline, residual analysis, every candidate's parameter search, forward
-//! selection, final analysis.
+//! `vfp diagnose` on a ~20,000-sample log of the simulated rig (host-sim, the firmware's own tasks;
+//! the default lagged drive, a 20 ms sensor lag injected; six cycles of the paper's five-rate
+//! protocol: 19,386 frames, 13 min at 25 Hz): the whole loop with the paper's (3, 2) baseline —
+//! baseline, residual analysis, every candidate's parameter search, forward selection, final
+//! analysis. Simulating the log is not timed.
 //!
 //! `cargo bench -p sysid --bench diagnose`
 
 use criterion::{criterion_group, criterion_main, Criterion};
+use host_sim::{simulate, Protocol, Scenario};
 use sysid::dataset::{Dataset, DatasetConfig};
+use sysid::log::parse_log;
 use sysid::residual::cli::series_from_dataset;
 use sysid::residual::{diagnose, Config};
 
-#[path = "../tests/residual_gen.rs"]
-mod gen;
-
 fn bench(c: &mut Criterion) {
-    // 6 cycles per rate of the five-rate protocol: 19,800 samples at 25 Hz (13.2 min).
-    let g = gen::generate(
-        &[gen::Inject::SensorLag { tau_s: 0.12 }],
-        &[20.0, 40.0, 60.0, 80.0, 100.0],
-        6,
-        0.05,
-        7,
+    let base = Scenario::effect("sensor-lag").expect("preset");
+    let sc = Scenario::protocol(
+        &base.name,
+        base.plant,
+        &Protocol {
+            cycles: 6,
+            ..Protocol::paper()
+        },
     );
-    let n = g.t.len();
-    let ds = Dataset::from_columns(g.t, g.v, g.vdot, g.p, &DatasetConfig::default());
+    let run = simulate(&sc).expect("scenario runs");
+    let mut bytes = Vec::new();
+    run.write_log(&mut bytes).expect("in memory");
+    let log = parse_log(&bytes[..], "bench").expect("log parses");
+    let ds = Dataset::from_log(&log, 0, &DatasetConfig::default()).expect("dataset");
+    let n = ds.t.len();
     let series = series_from_dataset(&ds).expect("valid series");
     let mut group = c.benchmark_group("diagnose");
     group.sample_size(10);

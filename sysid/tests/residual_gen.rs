@@ -3,7 +3,9 @@
 //! sampled at 25 Hz, plus Gaussian sensor noise of known σ. The effects here are written from the
 //! physics (Duhem-type hysteresis, a continuous lag, an integrated air-pocket ODE, …), not from the
 //! regressors `sysid::residual` fits, so a diagnosis is checked against an independent truth.
-//! (Used by `residual_effects.rs` and the `diagnose` benchmark; stands in for host-sim logs.)
+//! (Used by `residual_effects.rs`: the candidates' shapes exactly as the library writes them, and
+//! effects host-sim cannot inject, e.g. a ripple periodic in time; the acceptance on host-sim logs is
+//! `residual_hostsim.rs`.)
 #![allow(dead_code)]
 
 use model_core::poly::SBA1_RAW;

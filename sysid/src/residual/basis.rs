@@ -41,6 +41,22 @@ fn chebyshev(x: f64, deg: usize, out: &mut [f64]) {
     }
 }
 
+/// `T_0 … T_deg` of `(x − offset)/scale` for every sample, one vector per degree.
+fn chebyshev_columns(x: &[f64], offset: f64, scale: f64, deg: usize) -> Vec<Vec<f64>> {
+    let s: Vec<f64> = x.iter().map(|&x| (x - offset) / scale).collect();
+    let mut out: Vec<Vec<f64>> = vec![vec![1.0; x.len()]];
+    if deg >= 1 {
+        out.push(s.clone());
+    }
+    for k in 2..=deg {
+        let next = (out[k - 1].iter().zip(&out[k - 2]).zip(&s))
+            .map(|((a, b), s)| 2.0 * s * a - b)
+            .collect();
+        out.push(next);
+    }
+    out
+}
+
 impl PolyBasis {
     /// Basis with the scaling that maps the given data's ranges onto [−1, 1].
     pub fn for_data(v: &[f64], vdot: &[f64], n: usize, m: usize) -> Self {
@@ -73,17 +89,13 @@ impl PolyBasis {
 
     /// Columns (column-major) evaluated on the given inputs.
     pub fn columns(&self, v: &[f64], vdot: &[f64]) -> Vec<Vec<f64>> {
-        let p = self.len();
-        let mut cols = vec![Vec::with_capacity(v.len()); p];
-        let mut tx = [0.0; 16];
-        let mut ty = [0.0; 16];
-        for (&vi, &fi) in v.iter().zip(vdot) {
-            chebyshev((vi - self.v_offset) / self.v_scale, self.n, &mut tx);
-            chebyshev((fi - self.f_offset) / self.f_scale, self.m, &mut ty);
-            for i in 0..=self.n {
-                for j in 0..=self.m {
-                    cols[i * (self.m + 1) + j].push(tx[i] * ty[j]);
-                }
+        // Column-wise (each loop a plain vectorisable pass; the same operations as `chebyshev`).
+        let tx = chebyshev_columns(v, self.v_offset, self.v_scale, self.n);
+        let ty = chebyshev_columns(vdot, self.f_offset, self.f_scale, self.m);
+        let mut cols = Vec::with_capacity(self.len());
+        for a in &tx {
+            for b in &ty {
+                cols.push(a.iter().zip(b).map(|(a, b)| a * b).collect());
             }
         }
         cols
@@ -124,6 +136,31 @@ mod tests {
             for (k, &tk) in t.iter().enumerate() {
                 let expect = (k as f64 * f64::acos(x)).cos();
                 assert!((tk - expect).abs() < 1e-12);
+            }
+        }
+    }
+
+    #[test]
+    fn columns_equal_pointwise_products() {
+        let b = PolyBasis {
+            n: 3,
+            m: 2,
+            v_offset: 275.0,
+            v_scale: 275.0,
+            f_offset: 0.0,
+            f_scale: 100.0,
+        };
+        let v = [0.0, 100.0, 300.0, 550.0];
+        let f = [-100.0, 20.0, 0.0, 60.0];
+        let cols = b.columns(&v, &f);
+        let (mut tx, mut ty) = ([0.0; 4], [0.0; 3]);
+        for k in 0..4 {
+            chebyshev((v[k] - 275.0) / 275.0, 3, &mut tx);
+            chebyshev(f[k] / 100.0, 2, &mut ty);
+            for i in 0..4 {
+                for j in 0..3 {
+                    assert_eq!(cols[i * 3 + j][k], tx[i] * ty[j]);
+                }
             }
         }
     }

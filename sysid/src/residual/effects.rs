@@ -8,13 +8,16 @@
 //!
 //! * **input transform**: the baseline polynomial is evaluated on what the chamber really sees,
 //!   `P = Σ α_ij T_i(x') T_j(y')` with `(v', v̇')` the transformed volume and flow:
-//!   transport delay `v'(t) = v(t − d)`; backlash `v' = play_b(v)` (the plunger waits `b` mm³ of nut
+//!   transport delay `v'(t) = v(t − d)`; delivery lag `v' = L_τ² v`, `v̇' = L_τ² v̇` (the
+//!   commanded motion through a critically damped second-order lag, two first-order lags `L_τ`
+//!   of time constant τ: motor, screw, seal and tubing deliver it late by 2τ and rounded); backlash `v' = play_b(v)` (the plunger waits `b` mm³ of nut
 //!   travel after each reversal, with zero flow meanwhile); volume drift `v' = v − r·t`; leak
 //!   `v' = v − λ ∫P dt` (flow out ∝ pressure); air compliance `v' = v − V_a·P/(P_atm + P)`
 //!   (isothermal gas of volume `V_a` at atmospheric pressure, Boyle's law);
-//! * **added columns**: hysteresis `H(v)·h_w(t)`, `h_w = (v − play_w(v))/(w/2) ∈ [−1, 1]` (a
-//!   rate-independent direction memory, Krasnosel'skii–Pokrovskii play hysteron) with
-//!   `H(v) = H₀ + H₁ x`; inertance `L·v̈`; offset drift `Σ_d c_d P_d(s)` (Legendre in scaled
+//! * **added columns**: hysteresis `H(v)·h_w(t)`, `h_w ∈ [−1, 1]` a rate-independent direction
+//!   memory that switches exponentially in volume after each reversal, `dh_w = (s − h_w)|dv|/w`
+//!   with `s = sign(dv)` (a Duhem hysteron: its output depends on the path of v, never on its
+//!   speed; w is the volume over which 63 % of the switch happens), with `H(v) = H₀ + H₁ x`; inertance `L·v̈`; offset drift `Σ_d c_d P_d(s)` (Legendre in scaled
 //!   time); ripple `a sin 2πft + b cos 2πft`;
 //! * **output filter** on every column (exact because the model is linear in its coefficients):
 //!   sensor lag `τ Ṗ_m + P_m = P`; air compliance's dynamic part, `τ(t) Ṗ + P = P_static` with
@@ -47,6 +50,8 @@ pub enum EffectKind {
     SensorLag,
     /// Pure time delay between volume and pressure.
     TransportDelay,
+    /// The commanded motion delivered through a critically damped lag.
+    DeliveryLag,
     /// Fluid inertance of the line (v̈ term).
     Inertance,
     /// Slow drift of the pressure sensor's zero.
@@ -78,11 +83,12 @@ pub enum Search {
 
 impl EffectKind {
     /// Every candidate, in the order they are reported when tied.
-    pub const ALL: [EffectKind; 10] = [
+    pub const ALL: [EffectKind; 11] = [
         EffectKind::Hysteresis,
         EffectKind::AirCompliance,
         EffectKind::SensorLag,
         EffectKind::TransportDelay,
+        EffectKind::DeliveryLag,
         EffectKind::Inertance,
         EffectKind::OffsetDrift,
         EffectKind::VolumeDrift,
@@ -98,6 +104,7 @@ impl EffectKind {
             EffectKind::AirCompliance => "air_compliance",
             EffectKind::SensorLag => "sensor_lag",
             EffectKind::TransportDelay => "transport_delay",
+            EffectKind::DeliveryLag => "delivery_lag",
             EffectKind::Inertance => "inertance",
             EffectKind::OffsetDrift => "offset_drift",
             EffectKind::VolumeDrift => "volume_drift",
@@ -121,6 +128,9 @@ impl EffectKind {
             }
             EffectKind::TransportDelay => {
                 "Pressure is reported a fixed time after the volume that caused it (a sampling offset or pressure-wave travel), so the whole pressure trace is shifted in time."
+            }
+            EffectKind::DeliveryLag => {
+                "The motor, lead screw, plunger seal and tubing deliver the commanded motion late and rounded off (a critically damped lag of time constant tau, about 2 tau late), so the chamber sees a smoothed, delayed copy of the logged volume and flow."
             }
             EffectKind::Inertance => {
                 "The water column in the tube has mass, so accelerating the flow takes a pressure proportional to the volumetric acceleration."
@@ -162,13 +172,18 @@ impl EffectKind {
     pub fn search(self, sc: &Scales) -> Search {
         match self {
             EffectKind::Hysteresis => Search::Log(0.002 * sc.v_range, 0.5 * sc.v_range),
-            EffectKind::Backlash => Search::Log(0.002 * sc.v_range, 0.2 * sc.v_range),
+            // Down to a few motor steps of play (0.1 mm³ on a 550 mm³ stroke): at the paper's
+            // stiffest point 0.1 mm³ is already 0.03 kPa, above a frame's noise.
+            EffectKind::Backlash => Search::Log(0.0002 * sc.v_range, 0.2 * sc.v_range),
             EffectKind::AirCompliance => Search::Log(0.002 * sc.v_range, 1.0 * sc.v_range),
             EffectKind::SensorLag => {
                 Search::Log(0.25 * sc.dt, (3.0f64).min(sc.duration / 20.0).max(sc.dt))
             }
             EffectKind::TransportDelay => {
                 Search::Log(0.25 * sc.dt, (1.5f64).min(sc.duration / 20.0).max(sc.dt))
+            }
+            EffectKind::DeliveryLag => {
+                Search::Log(0.05 * sc.dt, (0.75f64).min(sc.duration / 40.0).max(sc.dt))
             }
             EffectKind::VolumeDrift => Search::Signed(
                 0.002 * sc.v_range / sc.duration,
@@ -198,10 +213,11 @@ impl EffectKind {
                 true,
                 "L·v̈ with v̈ taken as the backward difference (v̇(t) − v̇(t−1))/Δt is the AR(1) flow term β·v̇(t−1) plus a change of the v̇ coefficient, which PolyModel evaluates",
             ),
-            EffectKind::Hysteresis => (false, "needs the play-operator state of the volume history; PolyModel has no such state"),
+            EffectKind::Hysteresis => (false, "needs the hysteron state of the volume history; PolyModel has no such state"),
             EffectKind::AirCompliance => (false, "needs the measured pressure and a pressure-scheduled lag; PolyModel has no output feedback"),
             EffectKind::SensorLag => (false, "a lag on the output needs past pressures (output autoregression), which PolyModel does not have"),
             EffectKind::TransportDelay => (false, "needs the polynomial evaluated on delayed inputs; PolyModel's AR terms are only linear in past inputs"),
+            EffectKind::DeliveryLag => (false, "needs the polynomial evaluated on filtered inputs; PolyModel's AR terms are only linear in past inputs"),
             EffectKind::OffsetDrift => (false, "depends on wall-clock time since the log began; on the device re-zero the sensor instead"),
             EffectKind::VolumeDrift => (false, "depends on wall-clock time since the log began; correct the volume source instead"),
             EffectKind::Backlash => (false, "needs the play-operator state of the nut position; compensate in motion planning instead"),
@@ -266,6 +282,27 @@ pub struct Prepared {
     pub train_rows: Vec<usize>,
     /// Held-out row indices.
     pub held_rows: Vec<usize>,
+    /// The baseline columns on the untransformed inputs, with the basis they were built with (a
+    /// candidate search rebuilds the design hundreds of times; most candidates leave the inputs
+    /// alone). Rebuilt whenever `basis` has been changed since.
+    base_cols: std::sync::OnceLock<(PolyBasis, Vec<Vec<f64>>)>,
+}
+
+impl Prepared {
+    /// Baseline columns on the raw inputs (cached for the current basis).
+    fn raw_columns(&self) -> Vec<Vec<f64>> {
+        let (basis, cols) = self.base_cols.get_or_init(|| {
+            (
+                self.basis.clone(),
+                self.basis.columns(&self.series.v, &self.series.vdot),
+            )
+        });
+        if *basis == self.basis {
+            cols.clone()
+        } else {
+            self.basis.columns(&self.series.v, &self.series.vdot)
+        }
+    }
 }
 
 impl Prepared {
@@ -304,6 +341,7 @@ impl Prepared {
             train_rows,
             held_rows,
             series,
+            base_cols: std::sync::OnceLock::new(),
         }
     }
 }
@@ -336,6 +374,34 @@ fn legendre(d: usize, s: f64) -> f64 {
 /// Builds the design of the baseline augmented with `effects` (see the module docs for the order:
 /// input transforms, baseline columns, added columns, output filters).
 pub fn build(prep: &Prepared, effects: &[Effect]) -> Design {
+    let transformed = effects.iter().any(|e| {
+        matches!(
+            e.kind,
+            EffectKind::DeliveryLag
+                | EffectKind::TransportDelay
+                | EffectKind::Backlash
+                | EffectKind::VolumeDrift
+                | EffectKind::Leak
+                | EffectKind::AirCompliance
+        )
+    });
+    let mut cols = if transformed {
+        input_transformed_columns(prep, effects)
+    } else {
+        prep.raw_columns()
+    };
+    let mut labels: Vec<String> = (0..cols.len()).map(|i| prep.basis.label(i)).collect();
+    let mut owner: Vec<Option<usize>> = vec![None; cols.len()];
+    added_and_filters(prep, effects, &mut cols, &mut labels, &mut owner);
+    Design {
+        cols,
+        labels,
+        owner,
+    }
+}
+
+/// Baseline columns on the inputs after the input transforms (module docs).
+fn input_transformed_columns(prep: &Prepared, effects: &[Effect]) -> Vec<Vec<f64>> {
     let se = &prep.series;
     let t = &se.t;
     let mut v = se.v.clone();
@@ -344,6 +410,7 @@ pub fn build(prep: &Prepared, effects: &[Effect]) -> Design {
     // Input transforms, in the physical order along the chain: timing, nut→plunger, then volume
     // that never reaches the chamber.
     for kind in [
+        EffectKind::DeliveryLag,
         EffectKind::TransportDelay,
         EffectKind::Backlash,
         EffectKind::VolumeDrift,
@@ -354,6 +421,11 @@ pub fn build(prep: &Prepared, effects: &[Effect]) -> Design {
             match kind {
                 EffectKind::TransportDelay => {
                     (v, f) = signal::delay_hermite(t, &v, &f, e.theta);
+                }
+                EffectKind::DeliveryLag => {
+                    let c = signal::lag_coeffs(t, |_| e.theta);
+                    v = signal::lag_apply(&c, &signal::lag_apply(&c, &v));
+                    f = signal::lag_apply(&c, &signal::lag_apply(&c, &f));
                 }
                 EffectKind::Backlash => {
                     let z = signal::play(&v, e.theta);
@@ -389,15 +461,24 @@ pub fn build(prep: &Prepared, effects: &[Effect]) -> Design {
             }
         }
     }
-    let mut cols = prep.basis.columns(&v, &f);
-    let mut labels: Vec<String> = (0..cols.len()).map(|i| prep.basis.label(i)).collect();
-    let mut owner: Vec<Option<usize>> = vec![None; cols.len()];
+    prep.basis.columns(&v, &f)
+}
+
+/// Appends the added columns and applies the output filters (module docs).
+fn added_and_filters(
+    prep: &Prepared,
+    effects: &[Effect],
+    cols: &mut Vec<Vec<f64>>,
+    labels: &mut Vec<String>,
+    owner: &mut Vec<Option<usize>>,
+) {
+    let se = &prep.series;
+    let t = &se.t;
+    let t0 = t[0];
     for (idx, e) in effects.iter().enumerate() {
         match e.kind {
             EffectKind::Hysteresis => {
-                let z = signal::play(&se.v, e.theta);
-                let half = 0.5 * e.theta;
-                let h: Vec<f64> = se.v.iter().zip(&z).map(|(v, z)| (v - z) / half).collect();
+                let h = signal::duhem(&se.v, e.theta);
                 let hx: Vec<f64> = h
                     .iter()
                     .zip(&se.v)
@@ -446,20 +527,11 @@ pub fn build(prep: &Prepared, effects: &[Effect]) -> Design {
             })
             .collect();
         let coeffs = signal::lag_coeffs(t, |k| tau[k]);
-        for c in cols.iter_mut() {
-            *c = signal::lag_apply(&coeffs, c);
-        }
+        signal::lag_apply_all(&coeffs, cols);
     }
     for e in effects.iter().filter(|e| e.kind == EffectKind::SensorLag) {
         let coeffs = signal::lag_coeffs(t, |_| e.theta);
-        for c in cols.iter_mut() {
-            *c = signal::lag_apply(&coeffs, c);
-        }
-    }
-    Design {
-        cols,
-        labels,
-        owner,
+        signal::lag_apply_all(&coeffs, cols);
     }
 }
 

@@ -10,7 +10,10 @@
 //!    one-sentence story and parameters in physical units; nonlinear parameters found by search.
 //! 4. Forward selection ([`select`]): add the candidate that most improves held-out RMSE, keep it
 //!    only if an autocorrelation-corrected nested F-test says so *and* the held-out gain clears a
-//!    stated threshold; refit; repeat until nothing passes.
+//!    stated threshold *and* its fit is physically possible (inertance ≥ 0, hysteresis gap ≥ 0;
+//!    searched lags, delays, widths, air volume and leak are positive by construction); refit;
+//!    repeat until nothing passes. A candidate that passes the test with an impossible fit is
+//!    reported among the remaining structure (`unphysical_fit`), not added.
 //! 5. Whatever structure the final residual still has (Ljung–Box rejects whiteness) is reported by
 //!    its signature — lag, input followed, frequency, direction — not forced onto a name.
 //!
@@ -260,6 +263,9 @@ pub struct Rejected {
     pub rmse_heldout: f64,
     /// Its test p-value.
     pub p_value: f64,
+    /// Why it was not kept: `significance` (test or gain threshold not met) or
+    /// `unphysical: <reason>` (its best fit is physically impossible).
+    pub reason: String,
 }
 
 /// The final model's errors.
@@ -323,7 +329,8 @@ pub struct Diagnosis {
     /// The final model.
     #[serde(rename = "final")]
     pub final_model: FinalReport,
-    /// Structure left unexplained (empty when the final residual is white).
+    /// Structure left unexplained: the final residual's signatures when it is not white, and any
+    /// candidate that would have passed but whose best fit is unphysical (`unphysical_fit`).
     pub remaining: Vec<Signature>,
     /// Candidates tried in the last round and not kept.
     pub rejected_last_round: Vec<Rejected>,
@@ -370,6 +377,7 @@ pub fn diagnose(series: Series, cfg: &Config) -> Result<Diagnosis, DiagnoseError
     let mut cur = baseline.clone();
     let mut reports: Vec<(EffectKind, f64, f64, f64, f64, NestedTest)> = Vec::new();
     let mut rejected = Vec::new();
+    let mut unphysical_left: Vec<Signature> = Vec::new();
     while cur.effects.len() < cfg.max_effects {
         let todo: Vec<EffectKind> = cfg
             .candidates
@@ -386,10 +394,16 @@ pub fn diagnose(series: Series, cfg: &Config) -> Result<Diagnosis, DiagnoseError
             })
             .collect();
         ranked.sort_by(|a, b| a.0.stage.rmse_heldout.total_cmp(&b.0.stage.rmse_heldout));
-        let pick = ranked.iter().position(|(c, t)| {
+        let passes = |c: &select::Candidate, t: &NestedTest| {
             t.p_value < cfg.alpha
                 && (cur.rmse_heldout - c.stage.rmse_heldout) >= cfg.min_gain * cur.rmse_heldout
-        });
+        };
+        let verdicts: Vec<Option<(usize, String)>> = ranked
+            .iter()
+            .map(|(c, _)| select::unphysical(&c.stage))
+            .collect();
+        let pick = (0..ranked.len())
+            .position(|i| passes(&ranked[i].0, &ranked[i].1) && verdicts[i].is_none());
         match pick {
             Some(i) => {
                 let (cand, test) = ranked.swap_remove(i);
@@ -408,7 +422,8 @@ pub fn diagnose(series: Series, cfg: &Config) -> Result<Diagnosis, DiagnoseError
                     test,
                 ));
                 let tuned = select::retune(&prep, &cand.stage);
-                cur = if tuned.fit.sse <= cand.stage.fit.sse {
+                cur = if tuned.fit.sse <= cand.stage.fit.sse && select::unphysical(&tuned).is_none()
+                {
                     tuned
                 } else {
                     cand.stage
@@ -421,14 +436,32 @@ pub fn diagnose(series: Series, cfg: &Config) -> Result<Diagnosis, DiagnoseError
                 }
             }
             None => {
-                rejected = ranked
-                    .iter()
-                    .map(|(c, t)| Rejected {
-                        name: c.stage.effects.last().map_or("?", |e| e.kind.name()),
+                for (i, (c, t)) in ranked.iter().enumerate() {
+                    let name = c.stage.effects.last().map_or("?", |e| e.kind.name());
+                    let reason = match &verdicts[i] {
+                        Some((_, why)) => format!("unphysical: {why}"),
+                        None => "significance".to_string(),
+                    };
+                    // What an inadmissible candidate would have absorbed is structure the model
+                    // lacks: report it, with the fit it would have needed.
+                    if passes(c, t) {
+                        if let Some((_, why)) = &verdicts[i] {
+                            unphysical_left.push(Signature {
+                                kind: "unphysical_fit",
+                                description: format!(
+                                    "{name} would lower held-out RMSE {:.4} → {:.4} kPa (p = {:.1e}) but its best fit is not physical ({why}); the structure it follows is left unexplained",
+                                    cur.rmse_heldout, c.stage.rmse_heldout, t.p_value
+                                ),
+                            });
+                        }
+                    }
+                    rejected.push(Rejected {
+                        name,
                         rmse_heldout: c.stage.rmse_heldout,
                         p_value: t.p_value,
-                    })
-                    .collect();
+                        reason,
+                    });
+                }
                 break;
             }
         }
@@ -466,11 +499,12 @@ pub fn diagnose(series: Series, cfg: &Config) -> Result<Diagnosis, DiagnoseError
     let max_lag = (2.0 / prep.scales.dt).round().max(10.0) as usize;
     let analysis_before = analysis::analyse(&sig, &baseline.resid, &held, max_lag);
     let analysis_after = analysis::analyse(&sig, &cur.resid, &held, max_lag);
-    let remaining = analysis::signatures(&analysis_after, cfg.whiteness_alpha);
+    let mut remaining = analysis::signatures(&analysis_after, cfg.whiteness_alpha);
+    remaining.extend(unphysical_left);
     Ok(Diagnosis {
         samples: (prep.train_rows.len(), prep.held_rows.len()),
         significance: format!(
-            "kept only if the nested F-test with autocorrelation-corrected effective sample size rejects at alpha = {} AND held-out RMSE falls by at least {:.1} %",
+            "kept only if the nested F-test with autocorrelation-corrected effective sample size rejects at alpha = {} AND held-out RMSE falls by at least {:.1} % AND the fit is physical (inertance ≥ 0, hysteresis gap ≥ 0; lags, delays, widths, air, leak > 0 by construction)",
             cfg.alpha,
             100.0 * cfg.min_gain
         ),

@@ -19,6 +19,13 @@
 //! (golden section in a bracket around their values), since each was found while the other effects
 //! were still missing.
 //!
+//! **Physical admissibility.** A candidate is kept only if every effect of the augmented model is
+//! physically possible ([`unphysical`]): searched parameters are positive by construction (lags,
+//! delays, widths, air volume, leak conductance, play), and the fitted linear parts are checked —
+//! inertance `L ≥ 0` (the water column's mass), hysteresis gap `inflation − deflation ≥ 0` over the
+//! whole volume range (a loop that returns energy is not friction). An inadmissible candidate is
+//! not added however much it helps; the loop reports it with the structure it would have absorbed.
+//!
 //! Uncertainties: linear coefficients `σ̂²(XᵀX)⁻¹·N/N_eff`; a searched parameter from the curvature
 //! of the profile SSE, `var θ = 2σ̂²/SSE''(θ)·N/N_eff` (Gaussian profile likelihood).
 
@@ -310,6 +317,53 @@ pub fn retune(prep: &Prepared, stage: &Stage) -> Stage {
     fit_stage(prep, &effects).unwrap_or_else(|| stage.clone())
 }
 
+/// Why a fitted model is not physically possible (the first offending effect: its index and the
+/// reason), or `None` when every effect is admissible (module docs).
+pub fn unphysical(stage: &Stage) -> Option<(usize, String)> {
+    for (idx, e) in stage.effects.iter().enumerate() {
+        let cols: Vec<f64> = (0..stage.design.owner.len())
+            .filter(|&c| stage.design.owner[c] == Some(idx))
+            .map(|c| stage.fit.beta[c])
+            .collect();
+        match e.kind {
+            EffectKind::Inertance => {
+                if let Some(&l) = cols.first() {
+                    if l < 0.0 {
+                        return Some((
+                            idx,
+                            format!(
+                                "inertance L = {l:.3e} kPa·s²/mm³ is negative, which no mass of water gives"
+                            ),
+                        ));
+                    }
+                }
+            }
+            EffectKind::Hysteresis => {
+                if let [h0, h1] = cols[..] {
+                    // Gap 2·(H₀ + H₁x) over x ∈ [−1, 1] (the data's volume range): least at one end.
+                    let least = 2.0 * (h0 - h1.abs());
+                    if least < 0.0 {
+                        return Some((
+                            idx,
+                            format!(
+                                "hysteresis gap inflation − deflation reaches {least:.3} kPa (mid-range {:.3} kPa); a loop with deflation above inflation returns energy, which friction cannot",
+                                2.0 * h0
+                            ),
+                        ));
+                    }
+                }
+            }
+            _ => {
+                // Searched parameters are confined to their physical range by the search itself.
+                if e.kind.has_nonlinear() && !(e.theta.is_finite()) {
+                    return Some((idx, format!("{} parameter is not finite", e.kind.name())));
+                }
+            }
+        }
+    }
+    None
+}
+
 /// Outcome of the nested test of `big` against `small`.
 #[derive(Clone, Copy, Debug, Serialize)]
 pub struct NestedTest {
@@ -414,6 +468,7 @@ pub fn effect_params(prep: &Prepared, stage: &Stage, i: usize) -> Vec<Param> {
     let tse = theta_se(prep, stage, i, inflate);
     match e.kind {
         EffectKind::Hysteresis => vec![
+            // Volume over which 63 % of the switch happens after a reversal.
             param("width", e.theta, tse, "mm3"),
             param("gap_at_mid_volume", 2.0 * b(0), 2.0 * se(0), "kPa"),
             param("gap_change_to_range_ends", 2.0 * b(1), 2.0 * se(1), "kPa"),
@@ -435,6 +490,10 @@ pub fn effect_params(prep: &Prepared, stage: &Stage, i: usize) -> Vec<Param> {
         }
         EffectKind::SensorLag => vec![param("time_constant", e.theta, tse, "s")],
         EffectKind::TransportDelay => vec![param("delay", e.theta, tse, "s")],
+        EffectKind::DeliveryLag => vec![
+            param("time_constant", e.theta, tse, "s"),
+            param("effective_delay", 2.0 * e.theta, 2.0 * tse, "s"),
+        ],
         EffectKind::Inertance => vec![param("inertance", b(0), se(0), "kPa*s^2/mm3")],
         EffectKind::OffsetDrift => {
             // Change over the log: Σ_d c_d (P_d(1) − P_d(−1)) = Σ_{d odd} 2 c_d.

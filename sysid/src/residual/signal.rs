@@ -16,6 +16,26 @@ pub fn play(x: &[f64], w: f64) -> Vec<f64> {
     out
 }
 
+/// Duhem hysteron of transition volume `w`: `dh = (s − h)|dx|/w`, `s = sign(dx)`, integrated
+/// exactly over each sample step (x linear in between, one direction per step):
+/// `h_k = s + (h_{k−1} − s)·exp(−|x_k − x_{k−1}|/w)`, started at `h_0 = 0`. Rate-independent: the
+/// output depends on the order of input values, never on their speed.
+pub fn duhem(x: &[f64], w: f64) -> Vec<f64> {
+    let mut out = Vec::with_capacity(x.len());
+    let mut h = 0.0;
+    let mut prev = x.first().copied().unwrap_or(0.0);
+    for &xi in x {
+        let dx = xi - prev;
+        if dx != 0.0 {
+            let s = dx.signum();
+            h = s + (h - s) * (-dx.abs() / w.max(f64::MIN_POSITIVE)).exp();
+        }
+        out.push(h);
+        prev = xi;
+    }
+    out
+}
+
 /// Exact response of `τ ẏ + y = x` to an input that is linear between samples (first-order hold),
 /// with a per-sample time constant `tau[k]` (a constant lag passes a slice of one repeated value):
 ///
@@ -38,21 +58,30 @@ pub fn lag_foh(t: &[f64], x: &[f64], tau: impl Fn(usize) -> f64) -> Vec<f64> {
 pub fn lag_coeffs(t: &[f64], tau: impl Fn(usize) -> f64) -> Vec<(f64, f64)> {
     let mut c = Vec::with_capacity(t.len());
     c.push((0.0, 1.0));
+    // A log's intervals repeat (a fixed frame rate): reuse the last coefficients when Δt and τ do.
+    let mut last = (f64::NAN, f64::NAN, (0.0, 1.0));
     for k in 1..t.len() {
         let dt = t[k] - t[k - 1];
         let tk = tau(k);
-        if tk <= 1e-9 * dt {
-            c.push((0.0, 1.0));
+        if dt == last.0 && tk == last.1 {
+            c.push(last.2);
             continue;
         }
-        let r = dt / tk;
-        // g = (1 − a)/r, with its series for tiny r where 1 − a cancels.
-        let g = if r < 1e-6 {
-            1.0 - 0.5 * r
+        let ck = if tk <= 1e-9 * dt {
+            (0.0, 1.0)
         } else {
-            -(-r).exp_m1() / r
+            let r = dt / tk;
+            // 1 − a = −expm1(−r) without cancellation; g = (1 − a)/r, by its series for tiny r.
+            let one_minus_a = -(-r).exp_m1();
+            let g = if r < 1e-6 {
+                1.0 - 0.5 * r
+            } else {
+                one_minus_a / r
+            };
+            (1.0 - one_minus_a, 1.0 - g)
         };
-        c.push(((-r).exp(), 1.0 - g));
+        last = (dt, tk, ck);
+        c.push(ck);
     }
     c
 }
@@ -70,6 +99,31 @@ pub fn lag_apply(coeffs: &[(f64, f64)], x: &[f64]) -> Vec<f64> {
         y.push(a * prev + (1.0 - a) * x[k - 1] + h * (x[k] - x[k - 1]));
     }
     y
+}
+
+/// [`lag_apply`] on many columns at once, in place. The recurrence is a serial chain per column
+/// (latency-bound); stepping all columns together at each sample lets their independent chains
+/// overlap in the pipeline, several times faster than one column after another.
+pub fn lag_apply_all(coeffs: &[(f64, f64)], cols: &mut [Vec<f64>]) {
+    let n = cols.first().map_or(0, Vec::len);
+    if n == 0 || cols.iter().any(|c| c.len() != n) {
+        for c in cols.iter_mut() {
+            *c = lag_apply(coeffs, c);
+        }
+        return;
+    }
+    // Per column: (previous output, previous input).
+    let mut state: Vec<(f64, f64)> = cols.iter().map(|c| (c[0], c[0])).collect();
+    for k in 1..n {
+        let (a, h) = coeffs[k];
+        let b = 1.0 - a;
+        for (c, st) in cols.iter_mut().zip(state.iter_mut()) {
+            let x = c[k];
+            let y = a * st.0 + b * st.1 + h * (x - st.1);
+            c[k] = y;
+            *st = (y, x);
+        }
+    }
 }
 
 /// Volume and flow delayed by `d`, `(v(t − d), v̇(t − d))`, reconstructed between samples by the
@@ -210,6 +264,19 @@ mod tests {
     }
 
     #[test]
+    fn duhem_switches_exponentially_in_volume_whatever_the_speed() {
+        // Up by 3w in one step or in 300: h = 1 − e^{−3} either way; then down by w: 63 % of the way.
+        let w = 2.0;
+        let fast = duhem(&[0.0, 6.0], w);
+        let slow: Vec<f64> = (0..=300).map(|k| k as f64 * 0.02).collect();
+        let slow = duhem(&slow, w);
+        let up = 1.0 - (-3.0f64).exp();
+        assert!((fast[1] - up).abs() < 1e-12 && (slow[300] - up).abs() < 1e-12);
+        let back = duhem(&[0.0, 6.0, 4.0], w)[2];
+        assert!((back - (-1.0 + (up + 1.0) * (-1.0f64).exp())).abs() < 1e-12);
+    }
+
+    #[test]
     fn lag_of_ramp_trails_by_tau() {
         // A ramp through a first-order lag settles to the ramp delayed by τ (known answer).
         let dt = 0.04;
@@ -218,6 +285,22 @@ mod tests {
         let y = lag_foh(&t, &x, |_| 0.3);
         let last = t.len() - 1;
         assert!((x[last] - y[last] - 3.0 * 0.3).abs() < 1e-9);
+    }
+
+    #[test]
+    fn lag_on_all_columns_equals_lag_on_each() {
+        let t: Vec<f64> = (0..300)
+            .map(|k| k as f64 * 0.04 + 1e-4 * (k % 3) as f64)
+            .collect();
+        let cols: Vec<Vec<f64>> = (0..5)
+            .map(|j| t.iter().map(|&s| (s * (j + 1) as f64).sin()).collect())
+            .collect();
+        let c = lag_coeffs(&t, |k| 0.05 + 0.001 * k as f64);
+        let mut all = cols.clone();
+        lag_apply_all(&c, &mut all);
+        for (x, y) in cols.iter().zip(&all) {
+            assert_eq!(&lag_apply(&c, x), y);
+        }
     }
 
     #[test]

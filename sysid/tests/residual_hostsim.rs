@@ -1,0 +1,351 @@
+//! Acceptance of the residual loop on logs of the simulated rig (host-sim: the firmware's own tasks
+//! driving a plant with known physics), each effect injected and *not declared* to the tool.
+//!
+//! The rig runs the paper's protocol (0–550 mm³ at 20…100 mm³/s, two cycles per rate: 6,500
+//! frames, one cycle in five held out) with the **ideal drive** (`host_sim::plant::Drive::Ideal`,
+//! a servo that follows the firmware's commanded profile), so the only deviations from the paper's
+//! law are the sensor's and the injected effect's. Effects at their preset sizes
+//! (`host_sim::Effects::preset`).
+//!
+//! The noise σ is taken from truth: the standard deviation, over the held-out frames, of the logged
+//! pressure minus what the sensor element saw (`FrameTruth::sensed_kpa`: the true pressure after any
+//! sensor lag or delay) minus the known offset drift. (The sensor spec through the firmware's
+//! eight-fold averaging gives the same: √(0.05² + 0.032²/12)/√8 = 0.0180 kPa.)
+//!
+//! Where the library's model of an effect cannot reach 1.15 σ at 25 Hz the naming is still tested
+//! (with the parameter against the injected truth) and the 15 % test is `#[ignore]`d with the
+//! measured numbers as its reason.
+
+use host_sim::plant::Drive;
+use host_sim::{simulate, Effects, PlantConfig, Protocol, Scenario, SimRun};
+use sysid::dataset::{Dataset, DatasetConfig};
+use sysid::log::parse_log;
+use sysid::residual::cli::series_from_dataset;
+use sysid::residual::{diagnose, Config, Diagnosis};
+
+/// The run, its diagnosis on chamber 0 and σ from truth on the held-out frames.
+struct Outcome {
+    d: Diagnosis,
+    sigma: f64,
+    /// First and last frame time, s.
+    span: (f64, f64),
+}
+
+fn scenario(name: &str, effects: Effects, drive: Drive, seed: u64) -> Scenario {
+    let plant = PlantConfig {
+        drive,
+        effects,
+        ..PlantConfig::default()
+    };
+    let protocol = Protocol {
+        cycles: 2,
+        ..Protocol::paper()
+    };
+    Scenario {
+        seed,
+        ..Scenario::protocol(name, plant, &protocol)
+    }
+}
+
+fn sigma_from_truth(run: &SimRun, ds: &Dataset) -> f64 {
+    let drift = run.scenario.plant.effects.thermal_drift;
+    let e: Vec<f64> = (0..ds.t.len())
+        .filter(|&k| ds.heldout[k])
+        .map(|k| {
+            let f = &run.truth[k];
+            let t = f.t_us as f64 * 1e-6;
+            let d = drift.map_or(0.0, |d| {
+                d.offset_change_kpa * (1.0 - (-t / d.time_constant_s).exp())
+            });
+            ds.p[k] - f.chambers[0].sensed_kpa - d
+        })
+        .collect();
+    let mean = e.iter().sum::<f64>() / e.len() as f64;
+    (e.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / e.len() as f64).sqrt()
+}
+
+fn run(sc: &Scenario) -> Outcome {
+    let sim = simulate(sc).expect("scenario runs");
+    assert!(
+        sim.first_event("fault").is_none(),
+        "{}: the firmware faulted",
+        sc.name
+    );
+    let mut bytes = Vec::new();
+    sim.write_log(&mut bytes).expect("in memory");
+    let log = parse_log(&bytes[..], &sc.name).expect("the simulator's log parses");
+    let ds = Dataset::from_log(&log, 0, &DatasetConfig::default()).expect("dataset");
+    // One row per frame, in order: the truth lines up by index.
+    assert_eq!(ds.t.len(), sim.truth.len());
+    let sigma = sigma_from_truth(&sim, &ds);
+    let series = series_from_dataset(&ds).expect("series");
+    let d = diagnose(series, &Config::default()).expect("diagnosis");
+    eprintln!(
+        "{}: σ {:.4} kPa, baseline {:.4} → final {:.4} kPa ({:.2} σ), effects {:?}, remaining {:?}",
+        sc.name,
+        sigma,
+        d.baseline.rmse_heldout,
+        d.final_model.rmse_heldout,
+        d.final_model.rmse_heldout / sigma,
+        d.effects
+            .iter()
+            .map(|e| (e.name, e.params.iter().map(|p| p.value).collect::<Vec<_>>()))
+            .collect::<Vec<_>>(),
+        d.remaining.iter().map(|r| r.kind).collect::<Vec<_>>()
+    );
+    Outcome {
+        d,
+        sigma,
+        span: (ds.t[0], ds.t[ds.t.len() - 1]),
+    }
+}
+
+fn preset(name: &str) -> Effects {
+    Effects::preset(name).expect("known preset")
+}
+
+fn names(d: &Diagnosis) -> Vec<&'static str> {
+    d.effects.iter().map(|e| e.name).collect()
+}
+
+/// The first effect's parameter `param`.
+fn first_param(d: &Diagnosis, param: &str) -> f64 {
+    d.effects[0]
+        .params
+        .iter()
+        .find(|p| p.name == param)
+        .unwrap_or_else(|| panic!("{} has no {param}", d.effects[0].name))
+        .value
+}
+
+/// The injected effect is the first one named, and its parameter is within `rel` of the truth.
+fn assert_named(o: &Outcome, expect: &str, param: &str, truth: f64, rel: f64) {
+    let found = names(&o.d);
+    assert_eq!(found.first().copied(), Some(expect), "named {found:?}");
+    let got = first_param(&o.d, param);
+    assert!(
+        (got - truth).abs() <= rel * truth.abs(),
+        "{expect}: {param} = {got}, injected {truth} (±{:.0} %)",
+        100.0 * rel
+    );
+}
+
+fn assert_within_15pct(o: &Outcome) {
+    assert!(
+        o.d.final_model.rmse_heldout <= 1.15 * o.sigma,
+        "held-out RMSE after {:.4} kPa exceeds 1.15 σ = {:.4} kPa",
+        o.d.final_model.rmse_heldout,
+        1.15 * o.sigma
+    );
+}
+
+fn ideal(name: &str, effects: Effects, seed: u64) -> Outcome {
+    run(&scenario(name, effects, Drive::Ideal, seed))
+}
+
+/// What the acceptance rests on: with the ideal drive the chamber receives exactly the logged flow
+/// and (to the step counter's quantisation) the logged volume; the default drive does not.
+#[test]
+fn ideal_drive_delivers_what_the_log_says() {
+    let short = |drive| {
+        let plant = PlantConfig {
+            drive,
+            ..PlantConfig::default()
+        };
+        let protocol = Protocol {
+            cycles: 1,
+            flows: vec![20.0, 100.0],
+            ..Protocol::paper()
+        };
+        simulate(&Scenario::protocol("drive", plant, &protocol)).expect("runs")
+    };
+    let worst = |run: &SimRun| {
+        run.frames
+            .iter()
+            .zip(&run.truth)
+            .fold((0.0f64, 0.0f64), |(dv, df), (f, t)| {
+                let (c, tc) = (&f.chambers[0], &t.chambers[0]);
+                (
+                    dv.max((c.v as f64 - tc.chamber_mm3).abs()),
+                    df.max((c.vdot as f64 - tc.flow_mm3_s).abs()),
+                )
+            })
+    };
+    let (dv, df) = worst(&short(Drive::Ideal));
+    // Flow: the same profile (the log carries it as f32). Volume: the count trails the
+    // continuous motion by less than one step (0.04 mm³).
+    assert!(df < 1e-3, "ideal drive: flow off by {df} mm³/s");
+    assert!(dv < 0.04 + 1e-4, "ideal drive: volume off by {dv} mm³");
+    let (_, df) = worst(&short(Drive::Lagged));
+    // About 2τ_d·a = 6 ms × 500 mm³/s² = 3 mm³/s on the ramps.
+    assert!(df > 1.0, "lagged drive: flow off by only {df} mm³/s");
+}
+
+#[test]
+fn clean_ideal_log_gets_no_effect() {
+    let o = ideal("clean", Effects::default(), 1);
+    assert!(o.d.effects.is_empty(), "claimed {:?}", names(&o.d));
+    assert_within_15pct(&o);
+}
+
+#[test]
+fn inertance_is_named_and_explained() {
+    let o = ideal("inertance", preset("inertance"), 2);
+    // 3e-4 kPa·s²/mm³ adds only I·a = 0.15 kPa on the 0.2 s ramps: ±25 %.
+    assert_named(&o, "inertance", "inertance", 3.0e-4, 0.25);
+    assert_within_15pct(&o);
+}
+
+#[test]
+fn thermal_drift_is_named_and_explained() {
+    let o = ideal("thermal-drift", preset("thermal-drift"), 3);
+    assert_eq!(names(&o.d).first().copied(), Some("offset_drift"));
+    // D(1 − e^(−t/τ)) from the first frame to the last, ±20 %.
+    let (a, b) = o.span;
+    let change = 1.0 * ((-a / 300.0).exp() - (-b / 300.0).exp());
+    let got = first_param(&o.d, "change_over_log");
+    assert!((got - change).abs() < 0.2 * change, "{got} vs {change}");
+    assert_within_15pct(&o);
+}
+
+#[test]
+fn volume_creep_is_named_and_explained() {
+    let o = ideal("volume-creep", preset("volume-creep"), 4);
+    assert_named(&o, "volume_drift", "rate", 0.01, 0.1);
+    assert_within_15pct(&o);
+}
+
+#[test]
+fn leak_is_named_and_explained() {
+    let o = ideal("leak", preset("leak"), 5);
+    assert_named(&o, "leak", "conductance", 0.002, 0.15);
+    assert_within_15pct(&o);
+}
+
+#[test]
+fn two_effects_are_both_named() {
+    let effects = Effects {
+        inertance_kpa_s2_per_mm3: 3.0e-4,
+        volume_creep_mm3_per_s: 0.01,
+        ..Effects::default()
+    };
+    let o = ideal("inertance+creep", effects, 6);
+    let found = names(&o.d);
+    assert!(
+        found.contains(&"inertance") && found.contains(&"volume_drift"),
+        "found {found:?}"
+    );
+    assert_within_15pct(&o);
+}
+
+#[test]
+fn air_pocket_is_named() {
+    let o = ideal("air", preset("air"), 7);
+    assert_named(
+        &o,
+        "air_compliance",
+        "air_volume_at_atmospheric_pressure",
+        20.0,
+        0.15,
+    );
+}
+
+#[test]
+fn hysteresis_is_named_and_explained() {
+    let o = ideal("hysteresis", preset("hysteresis"), 8);
+    // Gap inflation − deflation 2·H_a = 2 kPa, switching over v_h = 20 mm³.
+    assert_named(&o, "hysteresis", "gap_at_mid_volume", 2.0, 0.15);
+    let w = first_param(&o.d, "width");
+    assert!((w - 20.0).abs() < 0.25 * 20.0, "width {w} mm³, injected 20");
+    assert_within_15pct(&o);
+}
+
+#[test]
+fn sensor_lag_is_named() {
+    let o = ideal("sensor-lag", preset("sensor-lag"), 9);
+    assert_named(&o, "sensor_lag", "time_constant", 0.02, 0.15);
+}
+
+#[test]
+fn transport_delay_is_named() {
+    let o = ideal("transport-delay", preset("transport-delay"), 10);
+    assert_named(&o, "transport_delay", "delay", 0.01, 0.15);
+}
+
+#[test]
+fn backlash_is_named() {
+    let o = ideal("backlash", preset("backlash"), 11);
+    assert_named(&o, "backlash", "play", 0.4, 0.3);
+}
+
+#[test]
+#[ignore = "known gap: air_compliance named (V = 19.9 mm³ of 20) but held-out RMSE 0.034 kPa = 1.9 σ: the library's linearised pocket (a pressure-scheduled first-order lag) misses the pocket's dynamics at the reversals"]
+fn air_pocket_within_15pct() {
+    assert_within_15pct(&ideal("air", preset("air"), 7));
+}
+
+#[test]
+#[ignore = "known gap: sensor_lag named (τ = 19.5 ms of 20) but held-out RMSE 0.037 kPa = 2.1 σ: the lag acts on the 200 Hz conversions, the library filters 25 Hz frames with a first-order hold"]
+fn sensor_lag_within_15pct() {
+    assert_within_15pct(&ideal("sensor-lag", preset("sensor-lag"), 9));
+}
+
+#[test]
+#[ignore = "known gap: transport_delay named (9.9 ms of 10) but held-out RMSE 0.023 kPa = 1.21 σ: the delay shifts the 200 Hz conversions, the library shifts 25 Hz frame means"]
+fn transport_delay_within_15pct() {
+    assert_within_15pct(&ideal("transport-delay", preset("transport-delay"), 10));
+}
+
+#[test]
+#[ignore = "known gap: backlash named (play 0.36 mm³ of 0.4) but held-out RMSE 0.075 kPa = 4.2 σ: the play operator on 25 Hz frame means misses what happens inside the frame at each reversal"]
+fn backlash_within_15pct() {
+    assert_within_15pct(&ideal("backlash", preset("backlash"), 11));
+}
+
+#[test]
+#[ignore = "known gap: host-sim's ripple is the lead screw's pitch error, periodic in plunger position (8 mm³: 2.5–12.5 Hz at 20–100 mm³/s, up to 25 Hz's Nyquist), the library's ripple is periodic in time; not named (baseline 1.34 kPa)"]
+fn ripple_is_named() {
+    let o = ideal("ripple", preset("ripple"), 12);
+    assert_eq!(names(&o.d).first().copied(), Some("ripple"));
+    assert_within_15pct(&o);
+}
+
+/// The default rig's drive (critically damped delivery lag τ_d = 3 ms, about 2τ_d = 6 ms late):
+/// the loop names the lag with its delay, claims nothing unphysical, and reports what the 25 Hz
+/// frames cannot resolve (the ramp corners) as remaining structure.
+#[test]
+fn default_drive_lag_is_named_and_nothing_unphysical() {
+    let sc = scenario("lagged", Effects::default(), Drive::Lagged, 13);
+    let tau_d = sc.plant.delivery_time_constant_s;
+    let o = run(&sc);
+    let first = o.d.effects.first().expect("an effect is named");
+    let delay = match first.name {
+        "delivery_lag" => first_param(&o.d, "effective_delay"),
+        "transport_delay" => first_param(&o.d, "delay"),
+        other => panic!("named {other}, not the drive's lag"),
+    };
+    assert!(
+        (delay - 2.0 * tau_d).abs() <= 0.15 * 2.0 * tau_d,
+        "delay {delay} s vs 2τ_d = {} s (±15 %)",
+        2.0 * tau_d
+    );
+    for e in &o.d.effects {
+        for p in &e.params {
+            let must_be_positive = matches!(
+                (e.name, p.name.as_str()),
+                ("inertance", "inertance") | ("hysteresis", "gap_at_mid_volume")
+            );
+            assert!(
+                !must_be_positive || p.value >= 0.0,
+                "{} claimed with {} = {}",
+                e.name,
+                p.name,
+                p.value
+            );
+        }
+    }
+    assert!(
+        !o.d.remaining.is_empty(),
+        "the corners a 25 Hz log cannot resolve should be reported as remaining structure"
+    );
+}
