@@ -7,6 +7,7 @@ use std::io::{BufWriter, Write};
 use std::path::PathBuf;
 use std::time::Instant;
 
+use host_sim::plant::Drive;
 use host_sim::{simulate, Design, Protocol, Scenario, EFFECT_PRESETS};
 
 use super::CliError;
@@ -16,8 +17,8 @@ use super::CliError;
 pub struct Args {
     /// What to run: `paper` (the paper's protocol on SBA1), `air:MM3` (an air pocket of MM3 in
     /// every syringe), `design:sba1|sba2|sba3|sba4`, `effect:NAME` (one plant effect: air,
-    /// hysteresis, sensor-lag, inertance, thermal-drift, backlash, ripple, leak), `force` (1 Hz
-    /// pushes at 500 mm³, with truth).
+    /// hysteresis, sensor-lag, inertance, thermal-drift, backlash, ripple, leak, transport-delay,
+    /// volume-creep), `force` (1 Hz pushes at 500 mm³, with truth).
     #[arg(long, default_value = "paper", conflicts_with = "scenario")]
     pub preset: String,
     /// A scenario file (TOML; vocabulary in `host-sim/src/scenario.rs`) instead of a preset.
@@ -38,9 +39,24 @@ pub struct Args {
     /// Seed of the sensor noise (the same seed gives the same log byte for byte).
     #[arg(long)]
     pub seed: Option<u64>,
+    /// How steps become delivered volume: `lagged` (the default rig: a critically damped 3 ms
+    /// delivery lag between the commanded and the delivered water) or `ideal` (a servo that
+    /// delivers exactly the commanded profile, so only the sensor deviates from the law).
+    /// Default: the preset's or scenario file's.
+    #[arg(long, value_enum)]
+    pub drive: Option<DriveArg>,
     /// Where to write the log.
     #[arg(long, short, value_name = "LOG.csv")]
     pub out: PathBuf,
+}
+
+/// `--drive` values (host-sim's [`Drive`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum DriveArg {
+    /// Delivery through the plant's second-order lag.
+    Lagged,
+    /// Exactly the commanded profile.
+    Ideal,
 }
 
 /// Builds the scenario the arguments describe.
@@ -51,6 +67,12 @@ pub fn scenario(args: &Args) -> Result<Scenario, CliError> {
     };
     if let Some(seed) = args.seed {
         sc.seed = seed;
+    }
+    if let Some(d) = args.drive {
+        sc.plant.drive = match d {
+            DriveArg::Lagged => Drive::Lagged,
+            DriveArg::Ideal => Drive::Ideal,
+        };
     }
     sc.validate().map_err(|e| CliError(e.to_string()))?;
     Ok(sc)
