@@ -2,7 +2,8 @@
 //! the default lagged drive, a 20 ms sensor lag injected; six cycles of the paper's five-rate
 //! protocol: 19,386 frames, 13 min at 25 Hz): the whole loop with the paper's (3, 2) baseline —
 //! baseline, residual analysis, every candidate's parameter search, forward selection, final
-//! analysis. Simulating the log is not timed.
+//! analysis — and with a (7, 7) baseline (64 columns, the shape the CLI's AICc default often
+//! picks). Simulating the log is not timed.
 //!
 //! `cargo bench -p sysid --bench diagnose`
 
@@ -34,6 +35,16 @@ fn bench(c: &mut Criterion) {
     group.sample_size(10);
     group.bench_function(format!("{n}_samples"), |b| {
         b.iter(|| diagnose(series.clone(), &Config::default()).expect("runs"))
+    });
+    // The CLI's default baseline is the AICc-selected shape, often (7, 7): 64 columns, where the
+    // parameter searches' Gram matrices dominate.
+    let big = Config {
+        n: 7,
+        m: 7,
+        ..Config::default()
+    };
+    group.bench_function(format!("{n}_samples_baseline_7_7"), |b| {
+        b.iter(|| diagnose(series.clone(), &big).expect("runs"))
     });
     group.finish();
 }

@@ -101,6 +101,22 @@ impl PolyBasis {
         cols
     }
 
+    /// `T_0 … T_dx` of the scaled volume and `T_0 … T_dy` of the scaled flow, one vector per
+    /// degree (the factors of [`Self::columns`]; with `dx = 2n`, `dy = 2m` they give every product of
+    /// two basis columns by `T_i T_k = ½(T_{i+k} + T_{|i−k|})`).
+    pub fn factors(
+        &self,
+        v: &[f64],
+        vdot: &[f64],
+        dx: usize,
+        dy: usize,
+    ) -> (Vec<Vec<f64>>, Vec<Vec<f64>>) {
+        (
+            chebyshev_columns(v, self.v_offset, self.v_scale, dx),
+            chebyshev_columns(vdot, self.f_offset, self.f_scale, dy),
+        )
+    }
+
     /// `Σ β_idx T_i(x) T_j(y)` at one point.
     pub fn eval(&self, beta: &[f64], v: f64, vdot: f64) -> f64 {
         let mut tx = [0.0; 16];

@@ -32,6 +32,7 @@
 use serde::Serialize;
 
 use super::basis::PolyBasis;
+use super::lsq;
 use super::signal;
 use super::Series;
 
@@ -374,18 +375,7 @@ fn legendre(d: usize, s: f64) -> f64 {
 /// Builds the design of the baseline augmented with `effects` (see the module docs for the order:
 /// input transforms, baseline columns, added columns, output filters).
 pub fn build(prep: &Prepared, effects: &[Effect]) -> Design {
-    let transformed = effects.iter().any(|e| {
-        matches!(
-            e.kind,
-            EffectKind::DeliveryLag
-                | EffectKind::TransportDelay
-                | EffectKind::Backlash
-                | EffectKind::VolumeDrift
-                | EffectKind::Leak
-                | EffectKind::AirCompliance
-        )
-    });
-    let mut cols = if transformed {
+    let mut cols = if transforms_inputs(effects) {
         input_transformed_columns(prep, effects)
     } else {
         prep.raw_columns()
@@ -400,8 +390,65 @@ pub fn build(prep: &Prepared, effects: &[Effect]) -> Design {
     }
 }
 
+/// Whether any effect transforms the baseline's inputs.
+fn transforms_inputs(effects: &[Effect]) -> bool {
+    effects.iter().any(|e| {
+        matches!(
+            e.kind,
+            EffectKind::DeliveryLag
+                | EffectKind::TransportDelay
+                | EffectKind::Backlash
+                | EffectKind::VolumeDrift
+                | EffectKind::Leak
+                | EffectKind::AirCompliance
+        )
+    })
+}
+
+/// Training SSE of the baseline augmented with `effects`, for the parameter searches, without
+/// building the design: the baseline block's Gram matrix from Chebyshev moments
+/// (`lsq::sse_fast_poly`). `None` when an output filter (sensor lag, air compliance) makes the
+/// filtered baseline columns no longer products of Chebyshev polynomials; then the caller builds
+/// the design.
+pub fn sse_structured(prep: &Prepared, effects: &[Effect]) -> Option<f64> {
+    if effects
+        .iter()
+        .any(|e| matches!(e.kind, EffectKind::SensorLag | EffectKind::AirCompliance))
+    {
+        return None;
+    }
+    let se = &prep.series;
+    let rows = &prep.train_rows;
+    let gather = |x: &[f64]| -> Vec<f64> { rows.iter().map(|&r| x[r]).collect() };
+    let (v, f) = if transforms_inputs(effects) {
+        let (v, f) = transformed_inputs(prep, effects);
+        (gather(&v), gather(&f))
+    } else {
+        (gather(&se.v), gather(&se.vdot))
+    };
+    // The span of T_i(x)T_j(y), i ≤ n, j ≤ m, is every polynomial of degree ≤ (n, m) in (v, v̇)
+    // whatever the affine scaling, and so is the SSE; scaling onto the transformed inputs' own
+    // range keeps the Gram matrix well conditioned when a transform (leak, drift) moves them
+    // outside the baseline's [−1, 1].
+    let b = &PolyBasis::for_data(&v, &f, prep.basis.n, prep.basis.m);
+    let (tx, ty) = b.factors(&v, &f, 2 * b.n, 2 * b.m);
+    let (mut extra, mut labels, mut owner) = (Vec::new(), Vec::new(), Vec::new());
+    added_and_filters(prep, effects, &mut extra, &mut labels, &mut owner);
+    let extra: Vec<Vec<f64>> = extra.iter().map(|c| gather(c)).collect();
+    let y = gather(&se.p);
+    let mean = y.iter().sum::<f64>() / y.len().max(1) as f64;
+    let yc: Vec<f64> = y.iter().map(|p| p - mean).collect();
+    Some(lsq::sse_fast_poly(&tx, &ty, b.n, b.m, &extra, &yc))
+}
+
 /// Baseline columns on the inputs after the input transforms (module docs).
 fn input_transformed_columns(prep: &Prepared, effects: &[Effect]) -> Vec<Vec<f64>> {
+    let (v, f) = transformed_inputs(prep, effects);
+    prep.basis.columns(&v, &f)
+}
+
+/// Volume and flow after the input transforms (module docs).
+fn transformed_inputs(prep: &Prepared, effects: &[Effect]) -> (Vec<f64>, Vec<f64>) {
     let se = &prep.series;
     let t = &se.t;
     let mut v = se.v.clone();
@@ -461,7 +508,7 @@ fn input_transformed_columns(prep: &Prepared, effects: &[Effect]) -> Vec<Vec<f64
             }
         }
     }
-    prep.basis.columns(&v, &f)
+    (v, f)
 }
 
 /// Appends the added columns and applies the output filters (module docs).
@@ -538,6 +585,49 @@ fn added_and_filters(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn structured_sse_equals_qr_fit_of_the_built_design() {
+        // Identity: the moment route (rescaled onto the transformed inputs' own range) and the QR
+        // fit of the explicitly built design minimise the same SSE — here with a leak large enough
+        // to carry the volume far outside the baseline's [−1, 1], plus added columns.
+        let len = 3000;
+        let t: Vec<f64> = (0..len).map(|k| 0.04 * k as f64).collect();
+        // Two incommensurate tones, so (v, v̇) fills an area (one tone traces an ellipse, on which
+        // the tensor basis is rank-deficient).
+        let v: Vec<f64> = t
+            .iter()
+            .map(|&t| 275.0 + 150.0 * (0.3 * t).sin() + 80.0 * (0.71 * t).sin())
+            .collect();
+        let f: Vec<f64> = t
+            .iter()
+            .map(|&t| 45.0 * (0.3 * t).cos() + 56.8 * (0.71 * t).cos())
+            .collect();
+        let p: Vec<f64> = (0..len)
+            .map(|k| 2.0 + 0.01 * v[k] + 0.002 * f[k] + 0.05 * (1.7 * t[k]).sin())
+            .collect();
+        let train: Vec<bool> = (0..len).map(|k| (k / 300) % 5 != 4).collect();
+        let series = Series::new(t, v, f, p, train).unwrap();
+        let prep = Prepared::new(series, 3, 2);
+        let lam = 2.0 * prep.scales.v_range / prep.scales.p_integral;
+        for effects in [
+            vec![Effect::new(EffectKind::Leak, lam)],
+            vec![
+                Effect::new(EffectKind::Hysteresis, 20.0),
+                Effect::new(EffectKind::Ripple, 0.27),
+                Effect::new(EffectKind::VolumeDrift, 3.0),
+            ],
+            vec![Effect::new(EffectKind::OffsetDrift, 2.0)],
+        ] {
+            let d = build(&prep, &effects);
+            let qr = lsq::fit(&d.cols, &prep.series.p, &prep.train_rows)
+                .expect("full rank")
+                .sse;
+            let fast = sse_structured(&prep, &effects).unwrap();
+            assert!((fast - qr).abs() < 1e-8 * qr, "{effects:?}: {fast} vs {qr}");
+        }
+        assert!(sse_structured(&prep, &[Effect::new(EffectKind::SensorLag, 0.1)]).is_none());
+    }
 
     #[test]
     fn legendre_known_values() {

@@ -89,9 +89,10 @@ pub fn fit(cols: &[Vec<f64>], y: &[f64], rows: &[usize]) -> Option<LsFit> {
 /// costs about log₁₀(‖y − ȳ‖²/SSE) ≈ 5 of 16 digits — ample to rank candidates; every reported fit
 /// goes through [`fit`].
 ///
-/// The Gram matrix is accumulated straight from the columns over the contiguous runs of `rows`
-/// (training rows are whole cycles), in blocks small enough to stay in L1 cache, with no copy of
-/// the design: this is the loop's innermost cost.
+/// The training rows (whole cycles: a few contiguous runs) are copied into one column-major matrix
+/// with the centred pressure as its last column, and `XᵀX` is one `matrixmultiply` product. Only
+/// designs behind an output filter (sensor lag, air compliance) come here during the searches;
+/// the others take [`sse_fast_poly`].
 pub fn sse_fast(cols: &[Vec<f64>], y: &[f64], rows: &[usize]) -> f64 {
     let p = cols.len();
     let n = rows.len();
@@ -109,42 +110,33 @@ pub fn sse_fast(cols: &[Vec<f64>], y: &[f64], rows: &[usize]) -> f64 {
         prev = r;
     }
     runs.push((start, prev + 1));
-    // Column p of the accumulation is the centred pressure.
+    // Column p is the centred pressure. The Gram matrix XᵀX is one matrix product (nalgebra hands
+    // it to `matrixmultiply`, whose kernels are register-blocked and use the CPU's vector units).
     let q = p + 1;
-    let mut acc = vec![0.0; q * q];
-    let mut yc = [0.0; BLOCK];
-    const BLOCK: usize = 128;
-    for &(a, b) in &runs {
-        let mut lo = a;
-        while lo < b {
-            let hi = (lo + BLOCK).min(b);
-            let len = hi - lo;
-            for (k, v) in yc[..len].iter_mut().enumerate() {
-                *v = y[lo + k] - mean;
-            }
-            let col = |i: usize| -> &[f64] {
-                if i < p {
-                    &cols[i][lo..hi]
-                } else {
-                    &yc[..len]
-                }
-            };
-            for i in 0..q {
-                let ci = col(i);
-                for j in 0..=i {
-                    acc[i * q + j] += dot(ci, col(j));
+    let mut data = vec![0.0; n * q];
+    for (c, dst) in data.chunks_exact_mut(n).enumerate() {
+        let mut k = 0;
+        for &(a, b) in &runs {
+            let len = b - a;
+            if c < p {
+                dst[k..k + len].copy_from_slice(&cols[c][a..b]);
+            } else {
+                for (d, &yv) in dst[k..k + len].iter_mut().zip(&y[a..b]) {
+                    *d = yv - mean;
                 }
             }
-            lo = hi;
+            k += len;
         }
     }
-    let g = |i: usize, j: usize| {
-        if i >= j {
-            acc[i * q + j]
-        } else {
-            acc[j * q + i]
-        }
-    };
+    let gram = at_b(&data, n, q, &data, q);
+    let g = |i: usize, j: usize| gram[(i, j)];
+    sse_from_gram(p, g)
+}
+
+/// `SSE = ‖y − ȳ‖² − bᵀG⁻¹b` from the Gram matrix of `p` columns augmented with the centred
+/// pressure as column `p` (`g(i, j)`, symmetric): Jacobi scaling, Cholesky, and the rank test
+/// shared by [`sse_fast`] and [`sse_fast_poly`].
+fn sse_from_gram(p: usize, g: impl Fn(usize, usize) -> f64) -> f64 {
     let d: Vec<f64> = (0..p)
         .map(|i| 1.0 / g(i, i).max(f64::MIN_POSITIVE).sqrt())
         .collect();
@@ -160,6 +152,112 @@ pub fn sse_fast(cols: &[Vec<f64>], y: &[f64], rows: &[usize]) -> f64 {
     }
     let c = chol.solve(&bs);
     (yy - c.dot(&bs)).max(0.0)
+}
+
+/// [`sse_fast`] for a design whose leading columns are the tensor Chebyshev basis
+/// `T_i(x)·T_j(y)`, i ≤ n, j ≤ m (column `i·(m+1) + j`, as `PolyBasis::columns`), followed by
+/// `extra` columns. Everything is given on the fitted rows only: `tx[a] = T_a(x)` for a ≤ 2n,
+/// `ty[b] = T_b(y)` for b ≤ 2m, `extra` and the centred pressure `yc`.
+///
+/// The baseline block of the Gram matrix comes from the moments `M_ab = Σ_r T_a(x_r) T_b(y_r)` by
+/// the product rule `T_i T_k = ½(T_{i+k} + T_{|i−k|})`:
+/// `Σ T_i(x)T_j(y)·T_k(x)T_l(y) = ¼(M_{i+k,j+l} + M_{i+k,|j−l|} + M_{|i−k|,j+l} + M_{|i−k|,|j−l|})`,
+/// so a (7, 7) baseline's 2,080 distinct Gram entries cost 225 sums over the rows instead of
+/// 2,080 (an identity of the polynomials, exact up to rounding). Its cross terms with a column z
+/// are `Σ T_i(x)·(T_j(y) z)`. The tail is [`sse_fast`]'s.
+pub fn sse_fast_poly(
+    tx: &[Vec<f64>],
+    ty: &[Vec<f64>],
+    n: usize,
+    m: usize,
+    extra: &[Vec<f64>],
+    yc: &[f64],
+) -> f64 {
+    let len = yc.len();
+    let nb = (n + 1) * (m + 1);
+    let p = nb + extra.len();
+    if len <= p || tx.len() < 2 * n + 1 || ty.len() < 2 * m + 1 {
+        return f64::INFINITY;
+    }
+    let mm = 2 * m + 1;
+    let flat =
+        |vs: &[Vec<f64>]| -> Vec<f64> { vs.iter().flat_map(|v| v.iter().copied()).collect() };
+    // Column-major len × k matrices; the products go to `matrixmultiply` (see `sse_fast`).
+    let txd = flat(&tx[..=2 * n]);
+    let tyd = flat(&ty[..mm]);
+    let mom = at_b(&txd, len, 2 * n + 1, &tyd, mm);
+    let mo = |a: usize, b: usize| mom[(a, b)];
+    // Columns after the baseline block: the extra columns, then the centred pressure.
+    let tail: Vec<&[f64]> = extra
+        .iter()
+        .map(Vec::as_slice)
+        .chain(std::iter::once(yc))
+        .collect();
+    let nt = tail.len();
+    // Cross terms Σ T_i(x)·(T_j(y) z_t): T_x(0..=n)ᵀ times W, W's column t·(m+1) + j = T_j(y) z_t.
+    let mut wd = vec![0.0; len * (m + 1) * nt];
+    for (t, z) in tail.iter().enumerate() {
+        for j in 0..=m {
+            let dst = &mut wd[(t * (m + 1) + j) * len..(t * (m + 1) + j + 1) * len];
+            for ((d, a), b) in dst.iter_mut().zip(&ty[j]).zip(z.iter()) {
+                *d = a * b;
+            }
+        }
+    }
+    let cw = at_b(&txd[..(n + 1) * len], len, n + 1, &wd, (m + 1) * nt);
+    let cross = |t: usize, idx: usize| cw[(idx / (m + 1), t * (m + 1) + idx % (m + 1))];
+    let mut tt = vec![0.0; nt * nt];
+    for a in 0..nt {
+        for b in 0..=a {
+            let v = dot(tail[a], tail[b]);
+            tt[a * nt + b] = v;
+            tt[b * nt + a] = v;
+        }
+    }
+    let g = |r: usize, c: usize| match (r < nb, c < nb) {
+        (true, true) => {
+            let (i, j, k, l) = (r / (m + 1), r % (m + 1), c / (m + 1), c % (m + 1));
+            let (ip, im, jp, jm) = (i + k, i.abs_diff(k), j + l, j.abs_diff(l));
+            0.25 * (mo(ip, jp) + mo(ip, jm) + mo(im, jp) + mo(im, jm))
+        }
+        (true, false) => cross(c - nb, r),
+        (false, true) => cross(r - nb, c),
+        (false, false) => tt[(r - nb) * nt + (c - nb)],
+    };
+    sse_from_gram(p, g)
+}
+
+/// `AᵀB` for column-major `len × ka` and `len × kb` matrices given as slices, by
+/// `matrixmultiply` (register-blocked kernels on the CPU's vector units), reading `A` through
+/// strides, without a transposed copy.
+fn at_b(a: &[f64], len: usize, ka: usize, b: &[f64], kb: usize) -> DMatrix<f64> {
+    assert!(
+        a.len() >= len * ka && b.len() >= len * kb,
+        "at_b: slices too short"
+    );
+    let mut c = DMatrix::zeros(ka, kb);
+    // SAFETY: Aᵀ (ka × len) has element (i, r) at a[i·len + r] (row stride len, column stride 1),
+    // B (len × kb) has (r, j) at b[r + j·len], C (ka × kb, column-major, owned) has (i, j) at
+    // i + j·ka; every index is within the slices, checked above, and C does not alias A or B.
+    unsafe {
+        matrixmultiply::dgemm(
+            ka,
+            len,
+            kb,
+            1.0,
+            a.as_ptr(),
+            len as isize,
+            1,
+            b.as_ptr(),
+            1,
+            len as isize,
+            0.0,
+            c.as_mut_ptr(),
+            1,
+            ka as isize,
+        );
+    }
+    c
 }
 
 /// Dot product with four independent accumulators (the chains overlap in the pipeline).
@@ -231,6 +329,44 @@ mod tests {
         let a = fit(&long, &yl, &rows).unwrap().sse;
         let b = sse_fast(&long, &yl, &rows);
         assert!((a - b).abs() < 1e-9 * a, "{a} vs {b}");
+    }
+
+    #[test]
+    fn chebyshev_moment_sse_agrees_with_qr() {
+        // A (3, 2) tensor Chebyshev design on scattered points, with two extra columns and a gap in
+        // the rows: the moment route must give the SSE of the QR fit of the explicit design.
+        let (n, m) = (3, 2);
+        let len = 400;
+        let x: Vec<f64> = (0..len).map(|k| (0.37 * k as f64).sin()).collect();
+        let yv: Vec<f64> = (0..len).map(|k| (0.11 * k as f64).cos() * 0.9).collect();
+        let cheb = |s: f64, d: usize| (d as f64 * s.acos()).cos();
+        let mut cols: Vec<Vec<f64>> = Vec::new();
+        for i in 0..=n {
+            for j in 0..=m {
+                cols.push((0..len).map(|k| cheb(x[k], i) * cheb(yv[k], j)).collect());
+            }
+        }
+        let e1: Vec<f64> = (0..len).map(|k| (0.05 * k as f64).sin()).collect();
+        let e2: Vec<f64> = (0..len).map(|k| (k as f64 / len as f64).powi(2)).collect();
+        cols.push(e1.clone());
+        cols.push(e2.clone());
+        let p: Vec<f64> = (0..len)
+            .map(|k| 1.0 + x[k].powi(3) - 2.0 * x[k] * yv[k] + (1.3 * k as f64).sin())
+            .collect();
+        let rows: Vec<usize> = (0..150).chain(200..len).collect();
+        let qr = fit(&cols, &p, &rows).unwrap().sse;
+        let g = |s: &[f64]| -> Vec<f64> { rows.iter().map(|&r| s[r]).collect() };
+        let tx: Vec<Vec<f64>> = (0..=2 * n)
+            .map(|d| rows.iter().map(|&r| cheb(x[r], d)).collect())
+            .collect();
+        let ty: Vec<Vec<f64>> = (0..=2 * m)
+            .map(|d| rows.iter().map(|&r| cheb(yv[r], d)).collect())
+            .collect();
+        let pr = g(&p);
+        let mean = pr.iter().sum::<f64>() / pr.len() as f64;
+        let yc: Vec<f64> = pr.iter().map(|v| v - mean).collect();
+        let fast = sse_fast_poly(&tx, &ty, n, m, &[g(&e1), g(&e2)], &yc);
+        assert!((fast - qr).abs() < 1e-9 * qr, "{fast} vs {qr}");
     }
 
     #[test]

@@ -102,6 +102,9 @@ pub fn fit_stage(prep: &Prepared, effects: &[Effect]) -> Option<Stage> {
 }
 
 fn sse_of(prep: &Prepared, effects: &[Effect]) -> f64 {
+    if let Some(sse) = super::effects::sse_structured(prep, effects) {
+        return sse;
+    }
     let design = build(prep, effects);
     lsq::sse_fast(&design.cols, &prep.series.p, &prep.train_rows)
 }
