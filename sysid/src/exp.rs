@@ -615,11 +615,7 @@ impl Projected {
             let x = 2.0 * red.u[j] - 1.0;
             let n = red.w[j] * red.w[j];
             let (q, p) = (red.vdot[j], red.p[j]);
-            t[0] = 1.0;
-            t[1] = x;
-            for d in 2..=2 * D {
-                t[d] = 2.0 * x * t[d - 1] - t[d - 2];
-            }
+            crate::poly::chebyshev(x, &mut t);
             for d in 0..=2 * D {
                 m[d] += n * t[d];
             }
