@@ -24,6 +24,13 @@
 //!   `τ(t) = c(v, v̇)·V_a·P_atm/(P_atm + P)²` — the line resistance `c = ∂P/∂v̇` (paper's damping,
 //!   Section V-A) charging the gas spring `dV/dP`, so an air pocket lags most at low pressure.
 //!
+//! A log's frame is the mean of the sensor's conversions over its interval, and an effect acts
+//! inside it. The filters therefore lag each column's Akima interpolant between frames exactly
+//! (`signal::lag_cubic_coeffs`; a mean commutes with a linear filter, so this is the lag of the
+//! frame-averaged signal), and backlash runs its play operator on the nut's motion rebuilt at
+//! eight instants per frame and averages the plunger back (`signal::play_frames`): a dead band
+//! shorter than a frame is then neither all-or-nothing nor placed at a frame instant.
+//!
 //! Where a transform needs the pressure itself (leak, air compliance) it uses the measured
 //! pressure unfiltered; it only schedules or integrates it, never differentiates it, so the
 //! sensor noise does not leak into the regressors. A prediction with these effects therefore uses
@@ -470,21 +477,17 @@ fn transformed_inputs(prep: &Prepared, effects: &[Effect]) -> (Vec<f64>, Vec<f64
                     (v, f) = signal::delay_hermite(t, &v, &f, e.theta);
                 }
                 EffectKind::DeliveryLag => {
-                    let c = signal::lag_coeffs(t, |_| e.theta);
-                    v = signal::lag_apply(&c, &signal::lag_apply(&c, &v));
-                    f = signal::lag_apply(&c, &signal::lag_apply(&c, &f));
+                    // Each stage lags the volume with the flow as its exact slopes (the lag of a
+                    // derivative is the derivative of the lag), the flow with Akima slopes.
+                    let c = signal::lag_cubic_coeffs(t, |_| e.theta);
+                    for _ in 0..2 {
+                        let fv = signal::lag_cubic(&c, &f, &signal::akima_slopes(t, &f));
+                        v = signal::lag_cubic(&c, &v, &f);
+                        f = fv;
+                    }
                 }
                 EffectKind::Backlash => {
-                    let z = signal::play(&v, e.theta);
-                    let h = 0.5 * e.theta;
-                    for k in 0..v.len() {
-                        let gap = v[k] - z[k];
-                        let engaged = gap.abs() >= h - 1e-9 * (1.0 + h) && gap * f[k] > 0.0;
-                        if !engaged {
-                            f[k] = 0.0;
-                        }
-                    }
-                    v = z;
+                    (v, f) = signal::play_frames(t, &v, &f, e.theta);
                 }
                 EffectKind::VolumeDrift => {
                     for k in 0..v.len() {
@@ -573,12 +576,12 @@ fn added_and_filters(
                 c * e.theta * P_ATM_KPA / (P_ATM_KPA + p).powi(2)
             })
             .collect();
-        let coeffs = signal::lag_coeffs(t, |k| tau[k]);
-        signal::lag_apply_all(&coeffs, cols);
+        let coeffs = signal::lag_cubic_coeffs(t, |k| tau[k]);
+        signal::lag_cubic_apply_all(t, &coeffs, cols);
     }
     for e in effects.iter().filter(|e| e.kind == EffectKind::SensorLag) {
-        let coeffs = signal::lag_coeffs(t, |_| e.theta);
-        signal::lag_apply_all(&coeffs, cols);
+        let coeffs = signal::lag_cubic_coeffs(t, |_| e.theta);
+        signal::lag_cubic_apply_all(t, &coeffs, cols);
     }
 }
 

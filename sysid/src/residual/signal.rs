@@ -44,17 +44,16 @@ pub fn duhem(x: &[f64], w: f64) -> Vec<f64> {
 /// y_k = a·y_{k−1} + (1 − a)·x_{k−1} + (1 − g)·(x_k − x_{k−1}),   y_0 = x_0 (at rest).
 /// ```
 ///
-/// The hold matters: a zero-order hold would add a spurious half-sample delay that a delay or lag
-/// candidate would then have to explain.
-///
-/// [`lag_coeffs`] computes the per-sample `(a, 1 − g)` once, [`lag_apply`] applies them to each of
-/// many columns (the exponentials would dominate otherwise).
+/// The library's lags use the cubic input of [`lag_cubic_coeffs`] instead (a straight line
+/// between frames puts every corner of the motion at a frame instant); this first-order hold is
+/// kept as the tests' reference, which the cubic must reproduce when its slopes are the secants.
 #[cfg(test)]
 pub fn lag_foh(t: &[f64], x: &[f64], tau: impl Fn(usize) -> f64) -> Vec<f64> {
     lag_apply(&lag_coeffs(t, tau), x)
 }
 
 /// Per-sample coefficients `(a, 1 − g)` of the first-order-hold lag (see [`lag_foh`]).
+#[cfg(test)]
 pub fn lag_coeffs(t: &[f64], tau: impl Fn(usize) -> f64) -> Vec<(f64, f64)> {
     let mut c = Vec::with_capacity(t.len());
     c.push((0.0, 1.0));
@@ -87,6 +86,7 @@ pub fn lag_coeffs(t: &[f64], tau: impl Fn(usize) -> f64) -> Vec<(f64, f64)> {
 }
 
 /// Applies precomputed lag coefficients: `y_k = a y_{k−1} + (1 − a) x_{k−1} + (1 − g)(x_k − x_{k−1})`.
+#[cfg(test)]
 pub fn lag_apply(coeffs: &[(f64, f64)], x: &[f64]) -> Vec<f64> {
     let mut y = Vec::with_capacity(x.len());
     if x.is_empty() {
@@ -101,29 +101,227 @@ pub fn lag_apply(coeffs: &[(f64, f64)], x: &[f64]) -> Vec<f64> {
     y
 }
 
-/// [`lag_apply`] on many columns at once, in place. The recurrence is a serial chain per column
-/// (latency-bound); stepping all columns together at each sample lets their independent chains
-/// overlap in the pipeline, several times faster than one column after another.
-pub fn lag_apply_all(coeffs: &[(f64, f64)], cols: &mut [Vec<f64>]) {
-    let n = cols.first().map_or(0, Vec::len);
-    if n == 0 || cols.iter().any(|c| c.len() != n) {
-        for c in cols.iter_mut() {
-            *c = lag_apply(coeffs, c);
-        }
-        return;
+/// Akima's slopes (1970) for a piecewise-cubic interpolant through `(t_k, x_k)`: at each sample
+/// the mean of the neighbouring secants `d_{k−1}`, `d_k` weighted by how much the *other* side's
+/// secants change,
+///
+/// ```text
+/// m_k = (|d_{k+1} − d_k|·d_{k−1} + |d_{k−1} − d_{k−2}|·d_k) / (|d_{k+1} − d_k| + |d_{k−1} − d_{k−2}|),
+/// ```
+///
+/// the plain mean where both weights vanish, with Akima's linear extrapolation of the secants past
+/// each end. Unlike a spline or Catmull–Rom it does not overshoot at a corner: where a signal is
+/// straight on one side of a sample (a constant flow phase), the slope there is that side's. That
+/// is why it reconstructs a frame-averaged signal between frames: a flow ramp's corner inside a
+/// frame stays a corner instead of ringing into the neighbouring frames.
+pub fn akima_slopes(t: &[f64], x: &[f64]) -> Vec<f64> {
+    let n = x.len();
+    if n < 2 {
+        return vec![0.0; n];
     }
-    // Per column: (previous output, previous input).
-    let mut state: Vec<(f64, f64)> = cols.iter().map(|c| (c[0], c[0])).collect();
-    for k in 1..n {
-        let (a, h) = coeffs[k];
-        let b = 1.0 - a;
-        for (c, st) in cols.iter_mut().zip(state.iter_mut()) {
+    // Secants with two extrapolated on each side: d[j + 2] is the secant of interval j.
+    let mut d = Vec::with_capacity(n + 3);
+    d.extend([0.0, 0.0]);
+    d.extend((0..n - 1).map(|j| (x[j + 1] - x[j]) / (t[j + 1] - t[j])));
+    let last = d[n];
+    let before_last = if n >= 3 { d[n - 1] } else { last };
+    let first = d[2];
+    let second = if n >= 3 { d[3] } else { first };
+    d[1] = 2.0 * first - second;
+    d[0] = 2.0 * d[1] - first;
+    d.push(2.0 * last - before_last);
+    let end = d[n + 1];
+    d.push(2.0 * end - last);
+    (0..n)
+        .map(|k| {
+            // Sample k sits between d[k + 1] (left secant) and d[k + 2] (right secant).
+            let (d0, d1, d2, d3) = (d[k], d[k + 1], d[k + 2], d[k + 3]);
+            let (w_left, w_right) = ((d3 - d2).abs(), (d1 - d0).abs());
+            let sum = w_left + w_right;
+            if sum > 1e-12 * (d1.abs() + d2.abs()) && sum > 0.0 {
+                (w_left * d1 + w_right * d2) / sum
+            } else {
+                0.5 * (d1 + d2)
+            }
+        })
+        .collect()
+}
+
+/// `I_q = ∫₀¹ r e^{−r(1−s)} s^q ds`, q = 0..3: the response at the end of an interval of a
+/// first-order lag (r = Δt/τ) to the input `s^q`. By parts `I_q = 1 − (q/r) I_{q−1}`,
+/// `I_0 = 1 − e^{−r}`; for r < 1/2 that recurrence cancels, so the series
+/// `I_q = r Σ_k (−r)^k q!/(q + k + 1)!` is summed instead.
+fn lag_moments(r: f64) -> [f64; 4] {
+    let mut out = [0.0; 4];
+    if r >= 0.5 {
+        out[0] = -(-r).exp_m1();
+        for q in 1..4 {
+            out[q] = 1.0 - (q as f64 / r) * out[q - 1];
+        }
+    } else {
+        for (q, o) in out.iter_mut().enumerate() {
+            let mut term = r / (q as f64 + 1.0);
+            let mut sum = 0.0;
+            for k in 0..60 {
+                sum += term;
+                if term.abs() <= 1e-17 * sum.abs() {
+                    break;
+                }
+                term *= -r / (q as f64 + k as f64 + 2.0);
+            }
+            *o = sum;
+        }
+    }
+    out
+}
+
+/// Per-interval weights `[a, w_x0, w_x1, w_m0, w_m1]` of the exact response of `τ ẏ + y = u` to
+/// an input that is a cubic Hermite interpolant on each interval (values x, slopes m at the ends):
+///
+/// ```text
+/// y_k = a·y_{k−1} + w_x0·x_{k−1} + w_x1·x_k + w_m0·m_{k−1} + w_m1·m_k,
+/// a = e^{−r}, r = Δt/τ,  w_x0 = 2I₃ − 3I₂ + I₀,  w_x1 = 3I₂ − 2I₃,
+/// w_m0 = Δt(I₃ − 2I₂ + I₁),  w_m1 = Δt(I₃ − I₂)
+/// ```
+///
+/// (the Hermite basis functions weighted by the lag's impulse response, [`lag_moments`]). With
+/// the slopes equal to each interval's secant it is exactly [`lag_foh`]'s first-order hold.
+pub fn lag_cubic_coeffs(t: &[f64], tau: impl Fn(usize) -> f64) -> Vec<[f64; 5]> {
+    let mut c = Vec::with_capacity(t.len());
+    c.push([0.0, 0.0, 1.0, 0.0, 0.0]);
+    let mut last = (f64::NAN, f64::NAN, [0.0; 5]);
+    for k in 1..t.len() {
+        let dt = t[k] - t[k - 1];
+        let tk = tau(k);
+        if dt == last.0 && tk == last.1 {
+            c.push(last.2);
+            continue;
+        }
+        let ck = if tk <= 1e-9 * dt {
+            // No lag: the output is the input.
+            [0.0, 0.0, 1.0, 0.0, 0.0]
+        } else {
+            let r = dt / tk;
+            let i = lag_moments(r);
+            [
+                (-r).exp(),
+                2.0 * i[3] - 3.0 * i[2] + i[0],
+                3.0 * i[2] - 2.0 * i[3],
+                dt * (i[3] - 2.0 * i[2] + i[1]),
+                dt * (i[3] - i[2]),
+            ]
+        };
+        last = (dt, tk, ck);
+        c.push(ck);
+    }
+    c
+}
+
+/// The lag of [`lag_cubic_coeffs`] on one signal `x` with known slopes `m` (e.g. a volume whose
+/// flow is logged), started at rest.
+pub fn lag_cubic(coeffs: &[[f64; 5]], x: &[f64], m: &[f64]) -> Vec<f64> {
+    let mut out = Vec::with_capacity(x.len());
+    let Some(&x0) = x.first() else {
+        return out;
+    };
+    let mut y = x0;
+    out.push(y);
+    for k in 1..x.len() {
+        let [a, wx0, wx1, wm0, wm1] = coeffs[k];
+        y = a * y + wx0 * x[k - 1] + wx1 * x[k] + wm0 * m[k - 1] + wm1 * m[k];
+        out.push(y);
+    }
+    out
+}
+
+/// The lag of [`lag_cubic_coeffs`] applied to every column in place, each column reconstructed
+/// between samples by its Akima interpolant ([`akima_slopes`]), started at rest (`y_0 = x_0`).
+///
+/// Why a cubic and not a first-order hold: a frame is the mean of the sensor's conversions over
+/// its interval, and a mean commutes with any linear time-invariant filter, so the lagged frame is
+/// the lag of the frame-averaged signal, which is smooth between frames except at a motion's
+/// corners. Joining frames by straight lines puts every corner at a frame instant; the Akima cubic
+/// places it within the frame and keeps the flat side flat.
+pub fn lag_cubic_apply_all(t: &[f64], coeffs: &[[f64; 5]], cols: &mut [Vec<f64>]) {
+    for c in cols.iter_mut() {
+        if c.len() != t.len() || c.is_empty() {
+            continue;
+        }
+        let m = akima_slopes(t, c);
+        let (mut y, mut x_prev) = (c[0], c[0]);
+        for k in 1..c.len() {
+            let [a, wx0, wx1, wm0, wm1] = coeffs[k];
             let x = c[k];
-            let y = a * st.0 + b * st.1 + h * (x - st.1);
+            y = a * y + wx0 * x_prev + wx1 * x + wm0 * m[k - 1] + wm1 * m[k];
             c[k] = y;
-            *st = (y, x);
+            x_prev = x;
         }
     }
+}
+
+/// Sub-samples per frame at which [`play_frames`] runs the play operator.
+pub const SUB_SAMPLES: usize = 8;
+
+/// Lead-screw backlash of width `w` on frame-averaged signals: the frame means of the plunger's
+/// position and flow when the nut follows the logged volume `v` and flow `f`.
+///
+/// A frame is the mean over its interval, and the dead band after a reversal lasts a fraction of
+/// a frame, so the play operator cannot act on the frame values themselves (a whole frame would be
+/// either engaged or not). Instead the nut's motion is reconstructed at [`SUB_SAMPLES`] instants
+/// spread evenly over each frame's interval (centred on its time stamp): position by the cubic
+/// Hermite interpolant of v with slopes f, flow by the Akima interpolant of f (no overshoot where
+/// the flow is flat); the play operator runs on those instants (started at rest), the plunger's
+/// flow is the nut's while the screw bears on it and zero in the dead band, and both are averaged
+/// back over each frame.
+pub fn play_frames(t: &[f64], v: &[f64], f: &[f64], w: f64) -> (Vec<f64>, Vec<f64>) {
+    let n = t.len();
+    if n < 2 {
+        return (play(v, w), f.to_vec());
+    }
+    let h = 0.5 * w.max(0.0);
+    let fm = akima_slopes(t, f);
+    let mut z = v[0];
+    let (mut vo, mut fo) = (Vec::with_capacity(n), Vec::with_capacity(n));
+    for k in 0..n {
+        // The frame's interval: half the gap to each neighbour on either side.
+        let left = if k > 0 { t[k] - t[k - 1] } else { t[1] - t[0] };
+        let right = if k + 1 < n { t[k + 1] - t[k] } else { left };
+        let (mut zs, mut fs) = (0.0, 0.0);
+        for j in 0..SUB_SAMPLES {
+            let off = (j as f64 + 0.5) / SUB_SAMPLES as f64 - 0.5;
+            // Interval [i, i + 1] holding the sub-sample, and its position s in it.
+            let (i, s) = if off < 0.0 {
+                if k == 0 {
+                    (0, 0.0)
+                } else {
+                    (k - 1, 1.0 + 0.5 * off * (left + right) / left)
+                }
+            } else if k + 1 == n {
+                (n - 2, 1.0)
+            } else {
+                (k, 0.5 * off * (left + right) / right)
+            };
+            let s = s.clamp(0.0, 1.0);
+            let dt = t[i + 1] - t[i];
+            let (s2, s3) = (s * s, s * s * s);
+            let (h00, h10, h01, h11) = (
+                2.0 * s3 - 3.0 * s2 + 1.0,
+                s3 - 2.0 * s2 + s,
+                3.0 * s2 - 2.0 * s3,
+                s3 - s2,
+            );
+            let x = h00 * v[i] + h10 * dt * f[i] + h01 * v[i + 1] + h11 * dt * f[i + 1];
+            let q = h00 * f[i] + h10 * dt * fm[i] + h01 * f[i + 1] + h11 * dt * fm[i + 1];
+            z = z.clamp(x - h, x + h);
+            let gap = x - z;
+            let engaged = gap.abs() >= h - 1e-9 * (1.0 + h) && gap * q > 0.0;
+            zs += z;
+            fs += if engaged { q } else { 0.0 };
+        }
+        vo.push(zs / SUB_SAMPLES as f64);
+        fo.push(fs / SUB_SAMPLES as f64);
+    }
+    (vo, fo)
 }
 
 /// Volume and flow delayed by `d`, `(v(t − d), v̇(t − d))`, reconstructed between samples by the
@@ -295,12 +493,111 @@ mod tests {
         let cols: Vec<Vec<f64>> = (0..5)
             .map(|j| t.iter().map(|&s| (s * (j + 1) as f64).sin()).collect())
             .collect();
-        let c = lag_coeffs(&t, |k| 0.05 + 0.001 * k as f64);
+        let c = lag_cubic_coeffs(&t, |k| 0.05 + 0.001 * k as f64);
         let mut all = cols.clone();
-        lag_apply_all(&c, &mut all);
+        lag_cubic_apply_all(&t, &c, &mut all);
         for (x, y) in cols.iter().zip(&all) {
-            assert_eq!(&lag_apply(&c, x), y);
+            assert_eq!(&lag_cubic(&c, x, &akima_slopes(&t, x)), y);
         }
+    }
+
+    #[test]
+    fn akima_reproduces_a_line_and_keeps_a_corner_flat() {
+        let t: Vec<f64> = (0..8).map(|k| 0.5 * k as f64).collect();
+        let line: Vec<f64> = t.iter().map(|&s| 3.0 - 2.0 * s).collect();
+        assert!(akima_slopes(&t, &line)
+            .iter()
+            .all(|m| (m + 2.0).abs() < 1e-12));
+        // Flat, then a ramp of slope 4 from t = 1.5: the slope stays 0 on the flat side of the
+        // corner (a spline would dip there) and is 4 once two secants on each side are straight.
+        let x: Vec<f64> = t.iter().map(|&s| 4.0 * (s - 1.5).max(0.0)).collect();
+        let m = akima_slopes(&t, &x);
+        assert_eq!(&m[..3], &[0.0, 0.0, 0.0]);
+        assert!((m[5] - 4.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn lag_moments_series_and_recurrence_agree() {
+        // Both routes at the switch-over point, and each against the closed forms
+        // I_0 = 1 − e^{−r}, I_1 = 1 − (1 − e^{−r})/r.
+        for r in [0.49999, 0.5, 0.05, 3.0] {
+            let i = lag_moments(r);
+            assert!((i[0] + (-r).exp_m1()).abs() < 1e-15);
+            assert!((i[1] - (1.0 - (-(-r).exp_m1()) / r)).abs() < 1e-13, "r {r}");
+        }
+        let (a, b) = (lag_moments(0.4999999), lag_moments(0.5));
+        for q in 0..4 {
+            assert!((a[q] - b[q]).abs() < 1e-6, "q {q}: {} vs {}", a[q], b[q]);
+        }
+    }
+
+    #[test]
+    fn cubic_lag_with_secant_slopes_is_the_first_order_hold() {
+        // Identity: a Hermite interval whose end slopes both equal its secant is the straight line.
+        let t: Vec<f64> = (0..400).map(|k| k as f64 * 0.04).collect();
+        let x: Vec<f64> = t.iter().map(|&s| (1.3 * s).sin() + 0.2 * s).collect();
+        for tau in [0.002, 0.02, 0.3, 5.0] {
+            let foh = lag_foh(&t, &x, |_| tau);
+            let c = lag_cubic_coeffs(&t, |_| tau);
+            let mut y = x[0];
+            for k in 1..x.len() {
+                let sec = (x[k] - x[k - 1]) / (t[k] - t[k - 1]);
+                let [a, w0, w1, m0, m1] = c[k];
+                y = a * y + w0 * x[k - 1] + w1 * x[k] + (m0 + m1) * sec;
+                assert!(
+                    (y - foh[k]).abs() < 1e-12,
+                    "tau {tau} k {k}: {y} vs {}",
+                    foh[k]
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn cubic_lag_of_a_sampled_quadratic_is_exact() {
+        // A cubic Hermite with the true slopes is the parabola itself, so the weights must give the
+        // analytic response of τẏ + y = s² from rest: y = s² − 2τs + 2τ²(1 − e^{−s/τ}).
+        let tau: f64 = 0.07;
+        let t: Vec<f64> = (0..100).map(|k| k as f64 * 0.04).collect();
+        let c = lag_cubic_coeffs(&t, |_| tau);
+        let exact =
+            |s: f64| s * s - 2.0 * tau * s + 2.0 * tau * tau - 2.0 * tau * tau * (-s / tau).exp();
+        let mut y = 0.0;
+        for k in 1..t.len() {
+            let [a, w0, w1, m0, m1] = c[k];
+            let (s0, s1) = (t[k - 1], t[k]);
+            y = a * y + w0 * s0 * s0 + w1 * s1 * s1 + m0 * 2.0 * s0 + m1 * 2.0 * s1;
+            assert!((y - exact(s1)).abs() < 1e-12, "k {k}: {y} vs {}", exact(s1));
+        }
+    }
+
+    #[test]
+    fn play_frames_of_a_slow_signal_is_the_play_operator() {
+        // Known answer: a triangle wave sampled so finely that a frame is a point: plunger lags the
+        // nut by w/2 and stands still for w of nut travel after each reversal.
+        let dt = 0.001;
+        let t: Vec<f64> = (0..4000).map(|k| k as f64 * dt).collect();
+        let tri = |s: f64| 10.0 - (10.0 - 10.0 * s).abs();
+        let v: Vec<f64> = t.iter().map(|&s| tri(s)).collect();
+        let f: Vec<f64> = t
+            .iter()
+            .map(|&s| if s < 1.0 { 10.0 } else { -10.0 })
+            .collect();
+        let w = 0.5;
+        let (z, q) = play_frames(&t, &v, &f, w);
+        let exact = play(&v, w);
+        for k in (0..4000).step_by(37) {
+            assert!(
+                (z[k] - exact[k]).abs() < 0.02,
+                "k {k}: {} vs {}",
+                z[k],
+                exact[k]
+            );
+        }
+        // Rising (after the first w/2): engaged; just after the top: in the dead band.
+        assert!((q[500] - 10.0).abs() < 1e-9, "{}", q[500]);
+        assert!(q[1010].abs() < 1e-9);
+        assert!((q[1200] + 10.0).abs() < 1e-9);
     }
 
     #[test]
