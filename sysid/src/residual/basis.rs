@@ -132,6 +132,14 @@ impl PolyBasis {
         s
     }
 
+    /// Stiffness `∂P/∂v` of `Σ β T_i T_j` at one point (central difference over 10⁻⁴ of the
+    /// volume half-range: the model is a polynomial of degree ≤ 15, so the truncation error,
+    /// ~h²·P‴/6, is far below any noise).
+    pub fn stiffness(&self, beta: &[f64], v: f64, vdot: f64) -> f64 {
+        let h = 1e-4 * self.v_scale;
+        (self.eval(beta, v + h, vdot) - self.eval(beta, v - h, vdot)) / (2.0 * h)
+    }
+
     /// Damping `∂P/∂v̇` of `Σ β T_i T_j` at one point (central difference over 10⁻⁴ of the flow
     /// half-range: exact to rounding for a polynomial of degree ≤ 2 in v̇, and far below noise above).
     pub fn damping(&self, beta: &[f64], v: f64, vdot: f64) -> f64 {

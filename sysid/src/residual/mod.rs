@@ -378,6 +378,8 @@ pub fn diagnose(series: Series, cfg: &Config) -> Result<Diagnosis, DiagnoseError
     let mut reports: Vec<(EffectKind, f64, f64, f64, f64, NestedTest)> = Vec::new();
     let mut rejected = Vec::new();
     let mut unphysical_left: Vec<Signature> = Vec::new();
+    // Each candidate's search time in the previous round, to schedule the next (`search_all`).
+    let mut costs = std::collections::HashMap::new();
     while cur.effects.len() < cfg.max_effects {
         let todo: Vec<EffectKind> = cfg
             .candidates
@@ -385,7 +387,7 @@ pub fn diagnose(series: Series, cfg: &Config) -> Result<Diagnosis, DiagnoseError
             .copied()
             .filter(|k| !cur.effects.iter().any(|e| e.kind == *k))
             .collect();
-        let found = search_all(&prep, &cur, &todo, cfg.threads);
+        let found = search_all(&prep, &cur, &todo, cfg.threads, &mut costs);
         let mut ranked: Vec<(select::Candidate, NestedTest)> = found
             .into_iter()
             .map(|c| {
@@ -534,30 +536,55 @@ pub fn diagnose(series: Series, cfg: &Config) -> Result<Diagnosis, DiagnoseError
     })
 }
 
-/// Searches every candidate, spread over `threads` workers.
+/// Searches every candidate on `threads` workers. Each worker takes the next candidate from a
+/// shared queue, costliest first (longest-processing-time-first scheduling), with each
+/// candidate's cost its search time in the previous round (`costs`, updated here; before the first
+/// round the output filters, which rebuild and filter the whole design at every trial θ, are
+/// guessed costliest). Dealing the candidates out in a fixed order had left one worker with both
+/// filters while the other idled. Each search is independent of the schedule, so the results are
+/// too.
 fn search_all(
     prep: &effects::Prepared,
     cur: &Stage,
     todo: &[EffectKind],
     threads: usize,
+    costs: &mut std::collections::HashMap<EffectKind, f64>,
 ) -> Vec<select::Candidate> {
     let threads = threads.max(1).min(todo.len().max(1));
+    let guess = |k: EffectKind| match k {
+        EffectKind::AirCompliance => 1e3,
+        EffectKind::SensorLag => 1e2,
+        _ => 1.0,
+    };
+    let mut order: Vec<usize> = (0..todo.len()).collect();
+    // Stable sort: ties keep the library's order.
+    order.sort_by(|&a, &b| {
+        let cost = |i: usize| costs.get(&todo[i]).copied().unwrap_or(guess(todo[i]));
+        cost(b).total_cmp(&cost(a))
+    });
+    let next = std::sync::atomic::AtomicUsize::new(0);
     let mut out: Vec<Option<select::Candidate>> = vec![None; todo.len()];
     std::thread::scope(|s| {
         let handles: Vec<_> = (0..threads)
-            .map(|w| {
-                s.spawn(move || {
-                    (w..todo.len())
-                        .step_by(threads)
-                        .map(|i| (i, select::search(prep, cur, todo[i])))
-                        .collect::<Vec<_>>()
+            .map(|_| {
+                s.spawn(|| {
+                    let mut mine = Vec::new();
+                    loop {
+                        let j = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                        let Some(&i) = order.get(j) else { break };
+                        let start = std::time::Instant::now();
+                        let found = select::search(prep, cur, todo[i]);
+                        mine.push((i, found, start.elapsed().as_secs_f64()));
+                    }
+                    mine
                 })
             })
             .collect();
         for h in handles {
             if let Ok(results) = h.join() {
-                for (i, c) in results {
+                for (i, c, secs) in results {
                     out[i] = c;
+                    costs.insert(todo[i], secs);
                 }
             }
         }

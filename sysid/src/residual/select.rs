@@ -138,6 +138,18 @@ fn golden(mut a: f64, mut b: f64, iters: usize, mut f: impl FnMut(f64) -> f64) -
     }
 }
 
+/// Stiffness `k = ∂P/∂v` of a stage's baseline part on the raw inputs, per sample.
+fn stiffness_of(prep: &Prepared, stage: &Stage) -> Arc<Vec<f64>> {
+    let nb = prep.basis.len();
+    let beta = &stage.fit.beta[..nb];
+    let s = &prep.series;
+    Arc::new(
+        (0..s.len())
+            .map(|k| prep.basis.stiffness(beta, s.v[k], s.vdot[k]))
+            .collect(),
+    )
+}
+
 /// Damping `c = ∂P/∂v̇` of a stage's baseline part on the raw inputs, per sample.
 fn damping_of(prep: &Prepared, stage: &Stage) -> Arc<Vec<f64>> {
     let nb = prep.basis.len();
@@ -182,13 +194,26 @@ fn with(base: &[Effect], e: Effect) -> Vec<Effect> {
 /// Searches the nonlinear parameter of `kind` added to `cur`, returning the best augmented model.
 pub fn search(prep: &Prepared, cur: &Stage, kind: EffectKind) -> Option<Candidate> {
     let base = &cur.effects;
-    let damping = (kind == EffectKind::AirCompliance).then(|| damping_of(prep, cur));
+    let damping = matches!(kind, EffectKind::AirCompliance | EffectKind::PumpRipple)
+        .then(|| damping_of(prep, cur));
+    let stiffness = (kind == EffectKind::PumpRipple).then(|| stiffness_of(prep, cur));
+    // Backlash, transport delay: whether the samples are instants rather than frame means (tried
+    // both ways).
+    let point = std::cell::Cell::new(false);
     let make = |theta: f64| Effect {
-        kind,
-        theta,
         damping: damping.clone(),
+        stiffness: stiffness.clone(),
+        point_sampled: point.get(),
+        ..Effect::new(kind, theta)
     };
-    let objective = |theta: f64| sse_of(prep, &with(base, make(theta)));
+    // Sensor lag only filters the current design (it is the last step of `build`).
+    let lag_base = (kind == EffectKind::SensorLag
+        && !base.iter().any(|e| e.kind == EffectKind::SensorLag))
+    .then(|| super::effects::LagBase::new(prep, &cur.design.cols));
+    let objective = |theta: f64| match &lag_base {
+        Some(lb) => lb.sse(prep, theta),
+        None => sse_of(prep, &with(base, make(theta))),
+    };
     let theta = match kind.search(&prep.scales) {
         Search::None => {
             if kind.has_nonlinear() {
@@ -209,12 +234,50 @@ pub fn search(prep: &Prepared, cur: &Stage, kind: EffectKind) -> Option<Candidat
             }
             best.1
         }
+        Search::Log(lo, hi)
+            if matches!(kind, EffectKind::Backlash | EffectKind::TransportDelay) =>
+        {
+            // Each form's parameter by its training SSE; between the two forms, like between
+            // candidates, the held-out error decides (the forms have the same parameter count).
+            let averaged = grid_search(Coord::Log, log_grid(lo, hi, 8), &objective);
+            let heldout = |theta: f64| {
+                fit_stage(prep, &with(base, make(theta))).map_or(f64::INFINITY, |s| s.rmse_heldout)
+            };
+            let h_averaged = heldout(averaged);
+            point.set(true);
+            let instants = grid_search(Coord::Log, log_grid(lo, hi, 8), &objective);
+            if heldout(instants) < h_averaged {
+                instants
+            } else {
+                point.set(false);
+                averaged
+            }
+        }
         Search::Log(lo, hi) => grid_search(Coord::Log, log_grid(lo, hi, 8), &objective),
         Search::Signed(lo, hi) => {
             let mags = log_grid(lo, hi, 5);
             let mut g: Vec<f64> = mags.iter().rev().map(|m| -m).collect();
             g.extend(mags);
             grid_search(Coord::Lin, g, &objective)
+        }
+        Search::VolumeSpectral => {
+            let (Some(k), Some(c)) = (&stiffness, &damping) else {
+                return None;
+            };
+            let mut best = (f64::INFINITY, f64::NAN);
+            let (periods, dk) = super::effects::pump_ripple_periods(prep, &cur.resid, k, c);
+            for lambda in periods {
+                // Refine in spatial frequency within one periodogram bin either side.
+                let kappa = 1.0 / lambda;
+                let (kb, s) = golden(kappa - dk, kappa + dk, 12, |x| objective(1.0 / x));
+                if s < best.0 {
+                    best = (s, 1.0 / kb);
+                }
+            }
+            if !best.1.is_finite() {
+                return None;
+            }
+            best.1
         }
         Search::Spectral => {
             let fs = 1.0 / prep.scales.dt;
@@ -239,14 +302,37 @@ pub fn search(prep: &Prepared, cur: &Stage, kind: EffectKind) -> Option<Candidat
         }
     };
     let mut stage = fit_stage(prep, &with(base, make(theta)))?;
+    if kind == EffectKind::PumpRipple {
+        // The two columns fit the volume error to first order (stiffness × δ + damping × δ̇);
+        // apply what they found exactly, as an input transform, and fit what is left: a few
+        // Gauss–Newton steps, kept while the training SSE falls by more than 0.1 %.
+        for _ in 0..4 {
+            let last = stage.effects.len() - 1;
+            let cols: Vec<usize> = (0..stage.design.owner.len())
+                .filter(|&c| stage.design.owner[c] == Some(last))
+                .collect();
+            let mut e = stage.effects[last].clone();
+            e.ripple_offset.0 += stage.fit.beta[cols[0]];
+            e.ripple_offset.1 += stage.fit.beta[cols[1]];
+            match fit_stage(prep, &with(base, e)) {
+                Some(next) if next.fit.sse < stage.fit.sse => {
+                    let small = next.fit.sse > (1.0 - 1e-3) * stage.fit.sse;
+                    stage = next;
+                    if small {
+                        break;
+                    }
+                }
+                _ => break,
+            }
+        }
+    }
     if kind == EffectKind::AirCompliance {
         // The damping came from a model fitted without the air pocket (which lowers the apparent
         // damping); take it once more from the augmented model and re-tune the air volume.
         let d2 = damping_of(prep, &stage);
         let remake = |th: f64| Effect {
-            kind,
-            theta: th,
             damping: Some(d2.clone()),
+            ..Effect::new(kind, th)
         };
         let (u, _) = golden(theta.ln() - 0.7, theta.ln() + 0.7, 10, |x| {
             sse_of(prep, &with(base, remake(x.exp())))
@@ -436,7 +522,9 @@ fn theta_se(prep: &Prepared, stage: &Stage, i: usize, inflate: f64) -> f64 {
     let (coord, u0, h) = match e.kind.search(&prep.scales) {
         Search::Log(..) => (Coord::Log, e.theta.ln(), 0.05),
         Search::Signed(..) => (Coord::Lin, e.theta, 0.05 * e.theta.abs().max(1e-12)),
-        Search::Spectral => (Coord::Lin, e.theta, 1e-3 * e.theta.abs().max(1e-6)),
+        Search::Spectral | Search::VolumeSpectral => {
+            (Coord::Lin, e.theta, 1e-3 * e.theta.abs().max(1e-6))
+        }
         _ => return f64::NAN,
     };
     let at = |u: f64| {
@@ -492,7 +580,15 @@ pub fn effect_params(prep: &Prepared, stage: &Stage, i: usize) -> Vec<Param> {
             ]
         }
         EffectKind::SensorLag => vec![param("time_constant", e.theta, tse, "s")],
-        EffectKind::TransportDelay => vec![param("delay", e.theta, tse, "s")],
+        EffectKind::TransportDelay => vec![
+            param("delay", e.theta, tse, "s"),
+            param(
+                "frame_averaged",
+                if e.point_sampled { 0.0 } else { 1.0 },
+                f64::NAN,
+                "1",
+            ),
+        ],
         EffectKind::DeliveryLag => vec![
             param("time_constant", e.theta, tse, "s"),
             param("effective_delay", 2.0 * e.theta, 2.0 * tse, "s"),
@@ -524,9 +620,19 @@ pub fn effect_params(prep: &Prepared, stage: &Stage, i: usize) -> Vec<Param> {
                 "mm3",
             ),
         ],
-        EffectKind::Backlash => vec![param("play", e.theta, tse, "mm3")],
-        EffectKind::Ripple => {
-            let (a, c) = (b(0), b(1));
+        EffectKind::Backlash => vec![
+            param("play", e.theta, tse, "mm3"),
+            // 1: the samples fitted best as frame means (an averaging sensor), 0: as instants.
+            param(
+                "frame_averaged",
+                if e.point_sampled { 0.0 } else { 1.0 },
+                f64::NAN,
+                "1",
+            ),
+        ],
+        EffectKind::Ripple | EffectKind::PumpRipple => {
+            // A pump ripple's columns carry the correction to the error already applied.
+            let (a, c) = (b(0) + e.ripple_offset.0, b(1) + e.ripple_offset.1);
             let amp = a.hypot(c);
             let (saa, scc, sac) = (
                 stage.fit.xtx_inv[(cols[0], cols[0])],
@@ -535,10 +641,18 @@ pub fn effect_params(prep: &Prepared, stage: &Stage, i: usize) -> Vec<Param> {
             );
             let var =
                 s2 * (a * a * saa + c * c * scc + 2.0 * a * c * sac) / (amp * amp).max(1e-300);
-            vec![
-                param("frequency", e.theta, tse, "Hz"),
-                param("amplitude", amp, var.sqrt(), "kPa"),
-            ]
+            if e.kind == EffectKind::PumpRipple {
+                // The columns carry the volume error δ itself: a and b are in mm³.
+                vec![
+                    param("period", e.theta, tse, "mm3"),
+                    param("amplitude", amp, var.sqrt(), "mm3"),
+                ]
+            } else {
+                vec![
+                    param("frequency", e.theta, tse, "Hz"),
+                    param("amplitude", amp, var.sqrt(), "kPa"),
+                ]
+            }
         }
         EffectKind::Leak => vec![
             param("conductance", e.theta, tse, "mm3/(kPa*s)"),

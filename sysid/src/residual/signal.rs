@@ -115,6 +115,12 @@ pub fn lag_apply(coeffs: &[(f64, f64)], x: &[f64]) -> Vec<f64> {
 /// is why it reconstructs a frame-averaged signal between frames: a flow ramp's corner inside a
 /// frame stays a corner instead of ringing into the neighbouring frames.
 pub fn akima_slopes(t: &[f64], x: &[f64]) -> Vec<f64> {
+    let inv: Vec<f64> = t.windows(2).map(|w| 1.0 / (w[1] - w[0])).collect();
+    akima_slopes_inv(&inv, x)
+}
+
+/// [`akima_slopes`] with the reciprocal sample intervals given (shared by many columns).
+fn akima_slopes_inv(inv_dt: &[f64], x: &[f64]) -> Vec<f64> {
     let n = x.len();
     if n < 2 {
         return vec![0.0; n];
@@ -122,7 +128,7 @@ pub fn akima_slopes(t: &[f64], x: &[f64]) -> Vec<f64> {
     // Secants with two extrapolated on each side: d[j + 2] is the secant of interval j.
     let mut d = Vec::with_capacity(n + 3);
     d.extend([0.0, 0.0]);
-    d.extend((0..n - 1).map(|j| (x[j + 1] - x[j]) / (t[j + 1] - t[j])));
+    d.extend((0..n - 1).map(|j| (x[j + 1] - x[j]) * inv_dt[j]));
     let last = d[n];
     let before_last = if n >= 3 { d[n - 1] } else { last };
     let first = d[2];
@@ -132,16 +138,15 @@ pub fn akima_slopes(t: &[f64], x: &[f64]) -> Vec<f64> {
     d.push(2.0 * last - before_last);
     let end = d[n + 1];
     d.push(2.0 * end - last);
-    (0..n)
-        .map(|k| {
-            // Sample k sits between d[k + 1] (left secant) and d[k + 2] (right secant).
-            let (d0, d1, d2, d3) = (d[k], d[k + 1], d[k + 2], d[k + 3]);
-            let (w_left, w_right) = ((d3 - d2).abs(), (d1 - d0).abs());
+    d.windows(4)
+        .map(|w| {
+            // Sample k sits between w[1] (left secant) and w[2] (right secant).
+            let (w_left, w_right) = ((w[3] - w[2]).abs(), (w[1] - w[0]).abs());
             let sum = w_left + w_right;
-            if sum > 1e-12 * (d1.abs() + d2.abs()) && sum > 0.0 {
-                (w_left * d1 + w_right * d2) / sum
+            if sum > 1e-12 * (w[1].abs() + w[2].abs()) && sum > 0.0 {
+                (w_left * w[1] + w_right * w[2]) / sum
             } else {
-                0.5 * (d1 + d2)
+                0.5 * (w[1] + w[2])
             }
         })
         .collect()
@@ -243,18 +248,43 @@ pub fn lag_cubic(coeffs: &[[f64; 5]], x: &[f64], m: &[f64]) -> Vec<f64> {
 /// corners. Joining frames by straight lines puts every corner at a frame instant; the Akima cubic
 /// places it within the frame and keeps the flat side flat.
 pub fn lag_cubic_apply_all(t: &[f64], coeffs: &[[f64; 5]], cols: &mut [Vec<f64>]) {
-    for c in cols.iter_mut() {
-        if c.len() != t.len() || c.is_empty() {
-            continue;
-        }
-        let m = akima_slopes(t, c);
-        let (mut y, mut x_prev) = (c[0], c[0]);
-        for k in 1..c.len() {
-            let [a, wx0, wx1, wm0, wm1] = coeffs[k];
+    let n = t.len();
+    if n == 0 || cols.iter().any(|c| c.len() != n) {
+        return;
+    }
+    let slopes = akima_slopes_all(t, cols);
+    lag_cubic_apply_with(coeffs, cols, &slopes);
+}
+
+/// [`akima_slopes`] of every column (the reciprocal intervals computed once).
+pub fn akima_slopes_all(t: &[f64], cols: &[Vec<f64>]) -> Vec<Vec<f64>> {
+    let inv: Vec<f64> = t.windows(2).map(|w| 1.0 / (w[1] - w[0])).collect();
+    cols.iter().map(|c| akima_slopes_inv(&inv, c)).collect()
+}
+
+/// [`lag_cubic_apply_all`] with each column's slopes given (they do not depend on τ, so a search
+/// over τ computes them once).
+pub fn lag_cubic_apply_with(coeffs: &[[f64; 5]], cols: &mut [Vec<f64>], slopes: &[Vec<f64>]) {
+    let n = coeffs.len();
+    if n == 0
+        || slopes.len() != cols.len()
+        || cols
+            .iter()
+            .zip(slopes)
+            .any(|(c, m)| c.len() != n || m.len() != n)
+    {
+        return;
+    }
+    // Every column's recurrence is a serial chain (latency-bound); stepping all columns together
+    // at each sample lets the independent chains overlap in the pipeline.
+    let mut state: Vec<(f64, f64)> = cols.iter().map(|c| (c[0], c[0])).collect();
+    for k in 1..n {
+        let [a, wx0, wx1, wm0, wm1] = coeffs[k];
+        for ((c, m), st) in cols.iter_mut().zip(slopes).zip(state.iter_mut()) {
             let x = c[k];
-            y = a * y + wx0 * x_prev + wx1 * x + wm0 * m[k - 1] + wm1 * m[k];
+            let y = a * st.0 + wx0 * st.1 + wx1 * x + wm0 * m[k - 1] + wm1 * m[k];
             c[k] = y;
-            x_prev = x;
+            *st = (y, x);
         }
     }
 }
@@ -274,44 +304,19 @@ pub const SUB_SAMPLES: usize = 8;
 /// flow is the nut's while the screw bears on it and zero in the dead band, and both are averaged
 /// back over each frame.
 pub fn play_frames(t: &[f64], v: &[f64], f: &[f64], w: f64) -> (Vec<f64>, Vec<f64>) {
-    let n = t.len();
-    if n < 2 {
-        return (play(v, w), f.to_vec());
-    }
+    play_instants(&frame_instants(t, v, f), w)
+}
+
+/// [`play_frames`] on motion already rebuilt by [`frame_instants`] (it does not depend on the
+/// play, so a search computes it once).
+pub fn play_instants((x, q): &(Vec<f64>, Vec<f64>), w: f64) -> (Vec<f64>, Vec<f64>) {
     let h = 0.5 * w.max(0.0);
-    let fm = akima_slopes(t, f);
-    let mut z = v[0];
+    let n = x.len() / SUB_SAMPLES;
+    let mut z = x.first().copied().unwrap_or(0.0);
     let (mut vo, mut fo) = (Vec::with_capacity(n), Vec::with_capacity(n));
-    for k in 0..n {
-        // The frame's interval: half the gap to each neighbour on either side.
-        let left = if k > 0 { t[k] - t[k - 1] } else { t[1] - t[0] };
-        let right = if k + 1 < n { t[k + 1] - t[k] } else { left };
+    for (xs, qs) in x.chunks(SUB_SAMPLES).zip(q.chunks(SUB_SAMPLES)) {
         let (mut zs, mut fs) = (0.0, 0.0);
-        for j in 0..SUB_SAMPLES {
-            let off = (j as f64 + 0.5) / SUB_SAMPLES as f64 - 0.5;
-            // Interval [i, i + 1] holding the sub-sample, and its position s in it.
-            let (i, s) = if off < 0.0 {
-                if k == 0 {
-                    (0, 0.0)
-                } else {
-                    (k - 1, 1.0 + 0.5 * off * (left + right) / left)
-                }
-            } else if k + 1 == n {
-                (n - 2, 1.0)
-            } else {
-                (k, 0.5 * off * (left + right) / right)
-            };
-            let s = s.clamp(0.0, 1.0);
-            let dt = t[i + 1] - t[i];
-            let (s2, s3) = (s * s, s * s * s);
-            let (h00, h10, h01, h11) = (
-                2.0 * s3 - 3.0 * s2 + 1.0,
-                s3 - 2.0 * s2 + s,
-                3.0 * s2 - 2.0 * s3,
-                s3 - s2,
-            );
-            let x = h00 * v[i] + h10 * dt * f[i] + h01 * v[i + 1] + h11 * dt * f[i + 1];
-            let q = h00 * f[i] + h10 * dt * fm[i] + h01 * f[i + 1] + h11 * dt * fm[i + 1];
+        for (&x, &q) in xs.iter().zip(qs) {
             z = z.clamp(x - h, x + h);
             let gap = x - z;
             let engaged = gap.abs() >= h - 1e-9 * (1.0 + h) && gap * q > 0.0;
@@ -324,15 +329,107 @@ pub fn play_frames(t: &[f64], v: &[f64], f: &[f64], w: f64) -> (Vec<f64>, Vec<f6
     (vo, fo)
 }
 
+/// Piecewise-parabolic reconstruction of cell averages (Colella & Woodward's PPM, 1984): for each
+/// cell the values `(left, right)` at its edges of the parabola `q(x) = left + x(Δ + c(1 − x))`,
+/// `x ∈ [0, 1]`, `Δ = right − left`, `c = 6(mean − (left + right)/2)`, whose average over the cell
+/// is the given mean.
+///
+/// Edge values are the fourth-order interpolant of the neighbouring means,
+/// `q_{k+½} = 7/12 (q̄_k + q̄_{k+1}) − 1/12 (q̄_{k−1} + q̄_{k+2})` (ends extended by repetition),
+/// clamped between the two adjacent means; then the monotonicity limiter: a cell that is a local
+/// extremum becomes flat, and a parabola that would overshoot inside its cell has the far edge
+/// moved so that it does not. The grid is taken as uniform (frames at a fixed rate).
+pub fn ppm_edges(mean: &[f64]) -> Vec<(f64, f64)> {
+    let n = mean.len();
+    let at = |i: isize| mean[i.clamp(0, n as isize - 1) as usize];
+    // edge[k] is the value between cells k − 1 and k.
+    let edge: Vec<f64> = (0..=n as isize)
+        .map(|k| {
+            let e = 7.0 / 12.0 * (at(k - 1) + at(k)) - 1.0 / 12.0 * (at(k - 2) + at(k + 1));
+            let (lo, hi) = (at(k - 1).min(at(k)), at(k - 1).max(at(k)));
+            e.clamp(lo, hi)
+        })
+        .collect();
+    (0..n)
+        .map(|k| {
+            let (mut l, mut r, a) = (edge[k], edge[k + 1], mean[k]);
+            if (r - a) * (a - l) <= 0.0 {
+                (l, r) = (a, a);
+            } else {
+                let d = r - l;
+                let c = 6.0 * (a - 0.5 * (l + r));
+                if d * c > d * d {
+                    l = 3.0 * a - 2.0 * r;
+                } else if -d * d > d * c {
+                    r = 3.0 * a - 2.0 * l;
+                }
+            }
+            (l, r)
+        })
+        .collect()
+}
+
+/// The motion rebuilt at [`SUB_SAMPLES`] instants spread evenly over each frame's interval
+/// `[t_k − Δ/2, t_k + Δ/2]` (Δ the local frame spacing), treating each logged value as what it
+/// is, the mean over that interval: flow by the piecewise-parabolic reconstruction of the frame
+/// means ([`ppm_edges`]: flat where the flow is flat, no overshoot at a ramp's corner), position
+/// by integrating that flow exactly within the frame, placed so that its mean over the frame's
+/// instants is the logged volume. Frame k's instants are `k·SUB_SAMPLES ..`, in time order.
+pub fn frame_instants(t: &[f64], v: &[f64], f: &[f64]) -> (Vec<f64>, Vec<f64>) {
+    let n = t.len();
+    let edges = ppm_edges(f);
+    let (mut xo, mut qo) = (
+        Vec::with_capacity(n * SUB_SAMPLES),
+        Vec::with_capacity(n * SUB_SAMPLES),
+    );
+    let mut pos = [0.0; SUB_SAMPLES];
+    for k in 0..n {
+        let span = match (k.checked_sub(1), (k + 1 < n).then_some(k + 1)) {
+            (Some(a), Some(b)) => 0.5 * (t[b] - t[a]),
+            (None, Some(b)) => t[b] - t[k],
+            (Some(a), None) => t[k] - t[a],
+            (None, None) => 0.0,
+        };
+        let (l, r) = edges[k];
+        let (d, c) = (r - l, 6.0 * (f[k] - 0.5 * (l + r)));
+        let mut mean_pos = 0.0;
+        for (j, p) in pos.iter_mut().enumerate() {
+            let x = (j as f64 + 0.5) / SUB_SAMPLES as f64;
+            qo.push(l + x * (d + c * (1.0 - x)));
+            // ∫₀ˣ q = l x + Δ x²/2 + c (x²/2 − x³/3), in units of the frame's span.
+            *p = span * (l * x + 0.5 * d * x * x + c * (0.5 * x * x - x * x * x / 3.0));
+            mean_pos += *p / SUB_SAMPLES as f64;
+        }
+        xo.extend(pos.iter().map(|p| v[k] + p - mean_pos));
+    }
+    (xo, qo)
+}
+
 /// Volume and flow delayed by `d`, `(v(t − d), v̇(t − d))`, reconstructed between samples by the
-/// cubic Hermite interpolant of v with slopes v̇ (flow is then the interpolant's derivative, a
-/// quadratic that matches both sample flows *and* the volume increment, so a trapezoid's corner
-/// inside an interval is placed far better than by linear interpolation of the flow). Before the
-/// first sample the first values are held (at rest before the log started).
-pub fn delay_hermite(t: &[f64], v: &[f64], f: &[f64], d: f64) -> (Vec<f64>, Vec<f64>) {
+/// cubic Hermite interpolant of v with slopes v̇. The flow depends on what a sample is:
+///
+/// * `frame_means` (an averaging sensor, as our firmware's frames): flow by its own cubic with
+///   Akima's slopes ([`akima_slopes`]): the frame-averaged flow of a move is flat between ramps and
+///   smooth at the corners, and the volume cubic's derivative would ring into the flat part;
+/// * instants: flow as the volume cubic's derivative, a quadratic that matches both sample flows
+///   *and* the volume increment, which places a trapezoid's corner inside the interval.
+///
+/// Before the first sample the first values are held (at rest before the log started).
+pub fn delay_hermite(
+    t: &[f64],
+    v: &[f64],
+    f: &[f64],
+    d: f64,
+    frame_means: bool,
+) -> (Vec<f64>, Vec<f64>) {
     let n = t.len();
     let mut vo = Vec::with_capacity(n);
     let mut fo = Vec::with_capacity(n);
+    let fm = if frame_means {
+        akima_slopes(t, f)
+    } else {
+        Vec::new()
+    };
     let mut j = 0usize;
     for &tk in t {
         let ts = tk - d;
@@ -358,11 +455,16 @@ pub fn delay_hermite(t: &[f64], v: &[f64], f: &[f64], d: f64) -> (Vec<f64>, Vec<
                 + (-2.0 * s3 + 3.0 * s2) * v[j + 1]
                 + (s3 - s2) * h * f[j + 1],
         );
-        fo.push(
+        fo.push(if frame_means {
+            (2.0 * s3 - 3.0 * s2 + 1.0) * f[j]
+                + (s3 - 2.0 * s2 + s) * h * fm[j]
+                + (-2.0 * s3 + 3.0 * s2) * f[j + 1]
+                + (s3 - s2) * h * fm[j + 1]
+        } else {
             ((6.0 * s2 - 6.0 * s) * v[j] + (-6.0 * s2 + 6.0 * s) * v[j + 1]) / h
                 + (3.0 * s2 - 4.0 * s + 1.0) * f[j]
-                + (3.0 * s2 - 2.0 * s) * f[j + 1],
-        );
+                + (3.0 * s2 - 2.0 * s) * f[j + 1]
+        });
     }
     (vo, fo)
 }
@@ -601,6 +703,50 @@ mod tests {
     }
 
     #[test]
+    fn ppm_keeps_each_mean_and_is_exact_for_a_line() {
+        // Identity: each parabola's mean over its cell is the cell's mean (it is by construction
+        // of c; checked through the edges the limiter produced). A line's cell means give back
+        // the line's own edge values.
+        let line: Vec<f64> = (0..10).map(|k| 2.0 + 3.0 * k as f64).collect();
+        let e = ppm_edges(&line);
+        for k in 2..8 {
+            assert!((e[k].0 - (line[k] - 1.5)).abs() < 1e-12);
+            assert!((e[k].1 - (line[k] + 1.5)).abs() < 1e-12);
+        }
+        // A ramp starting from rest: no undershoot below 0 in the flat part or the corner cell.
+        let ramp: Vec<f64> = (0..10).map(|k| (k as f64 - 3.0).max(0.0)).collect();
+        for (k, &(l, r)) in ppm_edges(&ramp).iter().enumerate() {
+            assert!(l >= 0.0 && r >= 0.0, "cell {k}: {l} {r}");
+            let c = 6.0 * (ramp[k] - 0.5 * (l + r));
+            // Mean of the parabola: l + Δ/2 + c/6 = mean.
+            assert!((l + 0.5 * (r - l) + c / 6.0 - ramp[k]).abs() < 1e-12);
+        }
+    }
+
+    #[test]
+    fn frame_instants_keep_the_logged_means() {
+        let t: Vec<f64> = (0..50).map(|k| 0.04 * k as f64).collect();
+        let f: Vec<f64> = t
+            .iter()
+            .map(|&s| 20.0 * (s - 0.5).clamp(0.0, 1.0))
+            .collect();
+        let v: Vec<f64> = t.iter().map(|&s| 10.0 * s * s).collect();
+        let (x, q) = frame_instants(&t, &v, &f);
+        for k in 0..t.len() {
+            let xs = &x[k * SUB_SAMPLES..(k + 1) * SUB_SAMPLES];
+            let mx = xs.iter().sum::<f64>() / SUB_SAMPLES as f64;
+            assert!((mx - v[k]).abs() < 1e-12);
+        }
+        // On the flat parts of the flow the instants' flow is exactly the logged flow.
+        assert!(q[5 * SUB_SAMPLES..6 * SUB_SAMPLES]
+            .iter()
+            .all(|&q| q == 0.0));
+        assert!(q[45 * SUB_SAMPLES..46 * SUB_SAMPLES]
+            .iter()
+            .all(|&q| (q - 20.0).abs() < 1e-12));
+    }
+
+    #[test]
     fn lag_matches_exponential_step_response() {
         let dt = 0.01;
         let t: Vec<f64> = (0..200).map(|k| k as f64 * dt).collect();
@@ -620,10 +766,13 @@ mod tests {
         // Cubic volume, exact flow: the Hermite interpolant reproduces both exactly.
         let v: Vec<f64> = t.iter().map(|&s| s * s * s - s).collect();
         let f: Vec<f64> = t.iter().map(|&s| 3.0 * s * s - 1.0).collect();
-        let (vd, fd) = delay_hermite(&t, &v, &f, 0.25);
         let ts = t[10] - 0.25;
-        assert!((vd[10] - (ts * ts * ts - ts)).abs() < 1e-12);
-        assert!((fd[10] - (3.0 * ts * ts - 1.0)).abs() < 1e-12);
+        for frame_means in [false, true] {
+            let (vd, fd) = delay_hermite(&t, &v, &f, 0.25, frame_means);
+            assert!((vd[10] - (ts * ts * ts - ts)).abs() < 1e-12);
+            // Akima's slopes are exact for a uniformly sampled quadratic too.
+            assert!((fd[10] - (3.0 * ts * ts - 1.0)).abs() < 1e-12);
+        }
         let a = acceleration_hermite(&t, &v, &f);
         assert!((a[20] - 6.0 * t[20]).abs() < 1e-9);
         let _ = x;
