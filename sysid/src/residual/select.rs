@@ -301,7 +301,24 @@ pub fn search(prep: &Prepared, cur: &Stage, kind: EffectKind) -> Option<Candidat
             best.1
         }
     };
-    let mut stage = fit_stage(prep, &with(base, make(theta)))?;
+    let mut stage = match fit_stage(prep, &with(base, make(theta))) {
+        Some(stage) => stage,
+        // The searches' SSE tolerates a rank-deficient design, the reported QR fit does not
+        // (e.g. a lag so long that the lagged flow is nearly constant): take the best grid point
+        // the QR accepts, so the candidate is still tested and reported.
+        None => {
+            let Search::Log(lo, hi) = kind.search(&prep.scales) else {
+                return None;
+            };
+            let mut grid: Vec<(f64, f64)> = log_grid(lo, hi, 8)
+                .into_iter()
+                .map(|g| (objective(g), g))
+                .collect();
+            grid.sort_by(|a, b| a.0.total_cmp(&b.0));
+            grid.iter()
+                .find_map(|&(_, g)| fit_stage(prep, &with(base, make(g))))?
+        }
+    };
     if kind == EffectKind::PumpRipple {
         // The two columns fit the volume error to first order (stiffness × δ + damping × δ̇);
         // apply what they found exactly, as an input transform, and fit what is left: a few
