@@ -835,15 +835,10 @@ fn added_and_filters(
 mod tests {
     use super::*;
 
-    #[test]
-    fn structured_sse_equals_qr_fit_of_the_built_design() {
-        // Identity: the moment route (rescaled onto the transformed inputs' own range) and the QR
-        // fit of the explicitly built design minimise the same SSE — here with a leak large enough
-        // to carry the volume far outside the baseline's [−1, 1], plus added columns.
-        let len = 3000;
+    /// `len` frames at 25 Hz of two incommensurate tones, so (v, v̇) fills an area (one tone traces
+    /// an ellipse, on which the tensor basis is rank-deficient), prepared for a (3, 2) baseline.
+    fn two_tones(len: usize) -> Prepared {
         let t: Vec<f64> = (0..len).map(|k| 0.04 * k as f64).collect();
-        // Two incommensurate tones, so (v, v̇) fills an area (one tone traces an ellipse, on which
-        // the tensor basis is rank-deficient).
         let v: Vec<f64> = t
             .iter()
             .map(|&t| 275.0 + 150.0 * (0.3 * t).sin() + 80.0 * (0.71 * t).sin())
@@ -856,8 +851,15 @@ mod tests {
             .map(|k| 2.0 + 0.01 * v[k] + 0.002 * f[k] + 0.05 * (1.7 * t[k]).sin())
             .collect();
         let train: Vec<bool> = (0..len).map(|k| (k / 300) % 5 != 4).collect();
-        let series = Series::new(t, v, f, p, train).unwrap();
-        let prep = Prepared::new(series, 3, 2);
+        Prepared::new(Series::new(t, v, f, p, train).unwrap(), 3, 2)
+    }
+
+    #[test]
+    fn structured_sse_equals_qr_fit_of_the_built_design() {
+        // Identity: the moment route (rescaled onto the transformed inputs' own range) and the QR
+        // fit of the explicitly built design minimise the same SSE — here with a leak large enough
+        // to carry the volume far outside the baseline's [−1, 1], plus added columns.
+        let prep = two_tones(3000);
         let lam = 2.0 * prep.scales.v_range / prep.scales.p_integral;
         for effects in [
             vec![Effect::new(EffectKind::Leak, lam)],
@@ -883,20 +885,7 @@ mod tests {
         // Identity: sensor lag is build's last step, so LagBase's SSE is the SSE of the design
         // built with the lag, for a model with input transforms, added columns and air.
         let len = 1500;
-        let t: Vec<f64> = (0..len).map(|k| 0.04 * k as f64).collect();
-        let v: Vec<f64> = t
-            .iter()
-            .map(|&t| 275.0 + 150.0 * (0.3 * t).sin() + 80.0 * (0.71 * t).sin())
-            .collect();
-        let f: Vec<f64> = t
-            .iter()
-            .map(|&t| 45.0 * (0.3 * t).cos() + 56.8 * (0.71 * t).cos())
-            .collect();
-        let p: Vec<f64> = (0..len)
-            .map(|k| 2.0 + 0.01 * v[k] + 0.002 * f[k] + 0.05 * (1.7 * t[k]).sin())
-            .collect();
-        let train: Vec<bool> = (0..len).map(|k| (k / 300) % 5 != 4).collect();
-        let prep = Prepared::new(Series::new(t, v, f, p, train).unwrap(), 3, 2);
+        let prep = two_tones(len);
         let air = Effect {
             damping: Some(std::sync::Arc::new(vec![0.01; len])),
             ..Effect::new(EffectKind::AirCompliance, 10.0)

@@ -35,6 +35,7 @@ use serde::Serialize;
 use statrs::distribution::{ContinuousCDF, FisherSnedecor};
 
 use super::analysis::{self, lag1, n_eff};
+use super::basis::PolyBasis;
 use super::effects::{build, Design, Effect, EffectKind, Prepared, Search, P_ATM_KPA};
 use super::lsq::{self, LsFit};
 
@@ -140,24 +141,26 @@ fn golden(mut a: f64, mut b: f64, iters: usize, mut f: impl FnMut(f64) -> f64) -
 
 /// Stiffness `k = ∂P/∂v` of a stage's baseline part on the raw inputs, per sample.
 fn stiffness_of(prep: &Prepared, stage: &Stage) -> Arc<Vec<f64>> {
-    let nb = prep.basis.len();
-    let beta = &stage.fit.beta[..nb];
-    let s = &prep.series;
-    Arc::new(
-        (0..s.len())
-            .map(|k| prep.basis.stiffness(beta, s.v[k], s.vdot[k]))
-            .collect(),
-    )
+    baseline_derivative(prep, stage, PolyBasis::stiffness)
 }
 
 /// Damping `c = ∂P/∂v̇` of a stage's baseline part on the raw inputs, per sample.
 fn damping_of(prep: &Prepared, stage: &Stage) -> Arc<Vec<f64>> {
-    let nb = prep.basis.len();
-    let beta = &stage.fit.beta[..nb];
+    baseline_derivative(prep, stage, PolyBasis::damping)
+}
+
+/// A partial derivative (`PolyBasis::stiffness` or `damping`) of a stage's baseline part on the
+/// raw inputs, per sample.
+fn baseline_derivative(
+    prep: &Prepared,
+    stage: &Stage,
+    d: fn(&PolyBasis, &[f64], f64, f64) -> f64,
+) -> Arc<Vec<f64>> {
+    let beta = &stage.fit.beta[..prep.basis.len()];
     let s = &prep.series;
     Arc::new(
         (0..s.len())
-            .map(|k| prep.basis.damping(beta, s.v[k], s.vdot[k]))
+            .map(|k| d(&prep.basis, beta, s.v[k], s.vdot[k]))
             .collect(),
     )
 }
