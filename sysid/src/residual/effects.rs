@@ -283,6 +283,11 @@ pub struct Effect {
     /// transform, `u = v + a sin φ + b cos φ`; the two columns then fit the remaining correction
     /// to first order (the search iterates this Gauss–Newton step).
     pub ripple_offset: (f64, f64),
+    /// Pump ripple: how far (mm³) the logged volume trails the plunger while it moves. A step
+    /// count trails the continuous motion by up to a step (our rig's frames average the count
+    /// over the frame: about half a step behind), which shifts the ripple's phase one way on
+    /// inflation and the other on deflation.
+    pub count_lag: f64,
 }
 
 impl Effect {
@@ -295,6 +300,7 @@ impl Effect {
             stiffness: None,
             point_sampled: false,
             ripple_offset: (0.0, 0.0),
+            count_lag: 0.0,
         }
     }
 }
@@ -547,7 +553,7 @@ fn transformed_inputs(prep: &Prepared, effects: &[Effect]) -> (Vec<f64>, Vec<f64
                         fresh = signal::frame_instants(t, &v, &f);
                         &fresh
                     };
-                    (v, f) = pump_ripple_inputs(sub, e.theta, e.ripple_offset);
+                    (v, f) = pump_ripple_inputs(sub, e.theta, e.ripple_offset, e.count_lag);
                 }
                 EffectKind::PumpRipple => continue,
                 EffectKind::VolumeDrift => {
@@ -586,6 +592,7 @@ pub fn pump_ripple_columns(
     k: &[f64],
     c: &[f64],
     lambda: f64,
+    count_lag: f64,
 ) -> (Vec<f64>, Vec<f64>) {
     let w = std::f64::consts::TAU / lambda;
     let ns = signal::SUB_SAMPLES;
@@ -594,7 +601,7 @@ pub fn pump_ripple_columns(
     for f in 0..n {
         let (mut sa, mut sb) = (0.0, 0.0);
         for j in f * ns..(f + 1) * ns {
-            let (sin, cos) = (w * sub.0[j]).sin_cos();
+            let (sin, cos) = (w * plunger(sub.0[j], sub.1[j], count_lag)).sin_cos();
             let q = c[f] * w * sub.1[j];
             sa += k[f] * sin + q * cos;
             sb += k[f] * cos - q * sin;
@@ -605,6 +612,16 @@ pub fn pump_ripple_columns(
     (a, b)
 }
 
+/// The plunger's position where the logged volume `x` trails it by `count_lag` in the direction
+/// of motion `q`.
+fn plunger(x: f64, q: f64, count_lag: f64) -> f64 {
+    if q == 0.0 {
+        x
+    } else {
+        x + count_lag * q.signum()
+    }
+}
+
 /// Frame means of the displaced volume `u = x + a sin φ + b cos φ`, `φ = 2π x/Λ`, and its rate
 /// `u̇ = ẋ (1 + (2π/Λ)(a cos φ − b sin φ))`, over the instants of each frame
 /// (`signal::frame_instants`): at 100 mm³/s an 8 mm³ period is 12.5 Hz, and the flow ripple
@@ -613,6 +630,7 @@ fn pump_ripple_inputs(
     (x, q): &(Vec<f64>, Vec<f64>),
     lambda: f64,
     (a, b): (f64, f64),
+    count_lag: f64,
 ) -> (Vec<f64>, Vec<f64>) {
     let w = std::f64::consts::TAU / lambda;
     let ns = signal::SUB_SAMPLES as f64;
@@ -621,7 +639,7 @@ fn pump_ripple_inputs(
         .map(|(xs, qs)| {
             let (mut u, mut ud) = (0.0, 0.0);
             for (&x, &q) in xs.iter().zip(qs) {
-                let (sin, cos) = (w * x).sin_cos();
+                let (sin, cos) = (w * plunger(x, q, count_lag)).sin_cos();
                 u += x + a * sin + b * cos;
                 ud += q * (1.0 + w * (a * cos - b * sin));
             }
@@ -791,7 +809,7 @@ fn added_and_filters(
                 let zero = std::sync::Arc::new(vec![0.0; t.len()]);
                 let k = e.stiffness.as_ref().unwrap_or(&zero);
                 let c = e.damping.as_ref().unwrap_or(&zero);
-                let (a, b) = pump_ripple_columns(&prep.subframe, k, c, e.theta);
+                let (a, b) = pump_ripple_columns(&prep.subframe, k, c, e.theta, e.count_lag);
                 cols.push(a);
                 cols.push(b);
                 labels.push("pump ripple in phase".into());

@@ -323,26 +323,23 @@ pub fn search(prep: &Prepared, cur: &Stage, kind: EffectKind) -> Option<Candidat
         }
     };
     if kind == EffectKind::PumpRipple {
-        // The two columns fit the volume error to first order (stiffness × δ + damping × δ̇);
-        // apply what they found exactly, as an input transform, and fit what is left: a few
-        // Gauss–Newton steps, kept while the training SSE falls by more than 0.1 %.
-        for _ in 0..4 {
-            let last = stage.effects.len() - 1;
-            let cols: Vec<usize> = (0..stage.design.owner.len())
-                .filter(|&c| stage.design.owner[c] == Some(last))
-                .collect();
-            let mut e = stage.effects[last].clone();
-            e.ripple_offset.0 += stage.fit.beta[cols[0]];
-            e.ripple_offset.1 += stage.fit.beta[cols[1]];
-            match fit_stage(prep, &with(base, e)) {
-                Some(next) if next.fit.sse < stage.fit.sse => {
-                    let small = next.fit.sse > (1.0 - 1e-3) * stage.fit.sse;
-                    stage = next;
-                    if small {
-                        break;
-                    }
+        stage = ripple_gauss_newton(prep, base, stage);
+        // Then how far the logged count trails the plunger (it shifts the ripple's phase with the
+        // direction of motion), searched within a twentieth of the period, and the amplitude
+        // refitted once more.
+        let last = stage.effects.len() - 1;
+        let e0 = stage.effects[last].clone();
+        let at = |d: f64| Effect {
+            count_lag: d,
+            ..e0.clone()
+        };
+        let span = 0.05 * e0.theta;
+        let (d, sse) = golden(-span, span, 12, |d| sse_of(prep, &with(base, at(d))));
+        if sse < sse_of(prep, &with(base, e0.clone())) {
+            if let Some(next) = fit_stage(prep, &with(base, at(d))) {
+                if next.fit.sse < stage.fit.sse {
+                    stage = ripple_gauss_newton(prep, base, next);
                 }
-                _ => break,
             }
         }
     }
@@ -364,6 +361,32 @@ pub fn search(prep: &Prepared, cur: &Stage, kind: EffectKind) -> Option<Candidat
         }
     }
     Some(Candidate { stage })
+}
+
+/// The pump ripple's two columns fit the volume error to first order (stiffness × δ + damping ×
+/// δ̇); apply what they found exactly, as an input transform, and fit what is left: a few
+/// Gauss–Newton steps, kept while the training SSE falls by more than 0.1 %.
+fn ripple_gauss_newton(prep: &Prepared, base: &[Effect], mut stage: Stage) -> Stage {
+    for _ in 0..4 {
+        let last = stage.effects.len() - 1;
+        let cols: Vec<usize> = (0..stage.design.owner.len())
+            .filter(|&c| stage.design.owner[c] == Some(last))
+            .collect();
+        let mut e = stage.effects[last].clone();
+        e.ripple_offset.0 += stage.fit.beta[cols[0]];
+        e.ripple_offset.1 += stage.fit.beta[cols[1]];
+        match fit_stage(prep, &with(base, e)) {
+            Some(next) if next.fit.sse < stage.fit.sse => {
+                let small = next.fit.sse > (1.0 - 1e-3) * stage.fit.sse;
+                stage = next;
+                if small {
+                    break;
+                }
+            }
+            _ => break,
+        }
+    }
+    stage
 }
 
 fn log_grid(lo: f64, hi: f64, n: usize) -> Vec<f64> {
@@ -666,6 +689,7 @@ pub fn effect_params(prep: &Prepared, stage: &Stage, i: usize) -> Vec<Param> {
                 vec![
                     param("period", e.theta, tse, "mm3"),
                     param("amplitude", amp, var.sqrt(), "mm3"),
+                    param("count_lag", e.count_lag, f64::NAN, "mm3"),
                 ]
             } else {
                 vec![
