@@ -133,7 +133,7 @@ fn assert_named(o: &Outcome, expect: &str, param: &str, truth: f64, rel: f64) {
 fn assert_within_15pct(o: &Outcome) {
     assert!(
         o.d.final_model.rmse_heldout <= 1.15 * o.sigma,
-        "held-out RMSE after {:.4} kPa exceeds 1.15 σ = {:.4} kPa",
+        "held-out RMSE after {:.5} kPa exceeds 1.15 σ = {:.5} kPa",
         o.d.final_model.rmse_heldout,
         1.15 * o.sigma
     );
@@ -279,7 +279,7 @@ fn backlash_is_named() {
 }
 
 #[test]
-#[ignore = "known gap, at the line: air_compliance named (V = 20.2 mm³ of 20) and held-out RMSE 0.0208 kPa = 1.155 σ against 1.15 σ: the linearised pocket (a pressure-scheduled first-order lag) on 25 Hz frames"]
+#[ignore = "known gap, at the line: air_compliance named (V = 20.18 mm³ of 20) and held-out RMSE 0.02070 kPa against 1.15 σ = 0.02069 kPa: the linearised pocket (a pressure-scheduled first-order lag); with the true frame-mean chamber volume and flow the same polynomial reaches 1.0 σ"]
 fn air_pocket_within_15pct() {
     assert_within_15pct(&ideal("air", preset("air"), 7));
 }
