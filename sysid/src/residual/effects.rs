@@ -840,7 +840,9 @@ fn added_and_filters(
                 c * e.theta * P_ATM_KPA / (P_ATM_KPA + p).powi(2)
             })
             .collect();
-        let coeffs = signal::lag_cubic_coeffs(t, |k| tau[k]);
+        // Over each interval the time constant at its midpoint (the mean of its ends): second-order
+        // accurate where τ changes fast, at the reversals.
+        let coeffs = signal::lag_cubic_coeffs(t, |k| 0.5 * (tau[k] + tau[k.saturating_sub(1)]));
         signal::lag_cubic_apply_all(t, &coeffs, cols);
     }
     for e in effects.iter().filter(|e| e.kind == EffectKind::SensorLag) {
