@@ -312,7 +312,7 @@ fn ripple_is_named() {
 }
 
 #[test]
-#[ignore = "known gap: pump_ripple named (period 8.000 of 8 mm³, amplitude 0.200 of 0.2 mm³, count lag 0.013 mm³: a third of a 0.04 mm³ step), held-out RMSE 1.34 → 0.022 kPa, but that is 1.20 σ: the ±16 % flow ripple at 80–100 mm³/s (10–12.5 Hz, near half the frame rate) is averaged over motion rebuilt from frame means; with the true frame-mean displaced volume and flow the same polynomial reaches 1.0 σ"]
+#[ignore = "known gap: pump_ripple named (period 8.000 of 8 mm³, amplitude 0.200 of 0.2 mm³, count lag 0.013 mm³), held-out RMSE 1.34 → 0.022 kPa = 1.20 σ. The rest is at 80 mm³/s: there the 0.5 ms step period divides the 5 ms conversion period, so the logged count trails the plunger by the same fraction of a step at every conversion (~0.03 mm³, against ~0.01 at the other rates), which one count lag cannot follow; with the true frame-mean displaced volume and flow the same polynomial reaches 1.0 σ"]
 fn ripple_within_15pct() {
     assert_within_15pct(&ideal("ripple", preset("ripple"), 12));
 }
