@@ -613,6 +613,14 @@ pub fn effect_params(prep: &Prepared, stage: &Stage, i: usize) -> Vec<Param> {
     let se = |k: usize| (s2 * stage.fit.xtx_inv[(cols[k], cols[k])]).sqrt();
     let e = &stage.effects[i];
     let tse = theta_se(prep, stage, i, inflate);
+    // Backlash, transport delay: 1 when the samples fitted best as frame means (an averaging
+    // sensor), 0 as instants.
+    let frame_averaged = param(
+        "frame_averaged",
+        if e.point_sampled { 0.0 } else { 1.0 },
+        f64::NAN,
+        "1",
+    );
     match e.kind {
         EffectKind::Hysteresis => vec![
             // Volume over which 63 % of the switch happens after a reversal.
@@ -636,15 +644,7 @@ pub fn effect_params(prep: &Prepared, stage: &Stage, i: usize) -> Vec<Param> {
             ]
         }
         EffectKind::SensorLag => vec![param("time_constant", e.theta, tse, "s")],
-        EffectKind::TransportDelay => vec![
-            param("delay", e.theta, tse, "s"),
-            param(
-                "frame_averaged",
-                if e.point_sampled { 0.0 } else { 1.0 },
-                f64::NAN,
-                "1",
-            ),
-        ],
+        EffectKind::TransportDelay => vec![param("delay", e.theta, tse, "s"), frame_averaged],
         EffectKind::DeliveryLag => vec![
             param("time_constant", e.theta, tse, "s"),
             param("effective_delay", 2.0 * e.theta, 2.0 * tse, "s"),
@@ -676,16 +676,7 @@ pub fn effect_params(prep: &Prepared, stage: &Stage, i: usize) -> Vec<Param> {
                 "mm3",
             ),
         ],
-        EffectKind::Backlash => vec![
-            param("play", e.theta, tse, "mm3"),
-            // 1: the samples fitted best as frame means (an averaging sensor), 0: as instants.
-            param(
-                "frame_averaged",
-                if e.point_sampled { 0.0 } else { 1.0 },
-                f64::NAN,
-                "1",
-            ),
-        ],
+        EffectKind::Backlash => vec![param("play", e.theta, tse, "mm3"), frame_averaged],
         EffectKind::Ripple | EffectKind::PumpRipple => {
             // A pump ripple's columns carry the correction to the error already applied.
             let (a, c) = (b(0) + e.ripple_offset.0, b(1) + e.ripple_offset.1);
