@@ -203,6 +203,8 @@ pub fn search(prep: &Prepared, cur: &Stage, kind: EffectKind) -> Option<Candidat
     // Backlash, transport delay: whether the samples are instants rather than frame means (tried
     // both ways).
     let point = std::cell::Cell::new(false);
+    // The fit at the searched parameter, when the search already made it.
+    let mut prefit: Option<Stage> = None;
     let make = |theta: f64| Effect {
         damping: damping.clone(),
         stiffness: stiffness.clone(),
@@ -242,17 +244,19 @@ pub fn search(prep: &Prepared, cur: &Stage, kind: EffectKind) -> Option<Candidat
         {
             // Each form's parameter by its training SSE; between the two forms, like between
             // candidates, the held-out error decides (the forms have the same parameter count).
+            // The winner's fit is kept for below.
             let averaged = grid_search(Coord::Log, log_grid(lo, hi, 8), &objective);
-            let heldout = |theta: f64| {
-                fit_stage(prep, &with(base, make(theta))).map_or(f64::INFINITY, |s| s.rmse_heldout)
-            };
-            let h_averaged = heldout(averaged);
+            let fit_averaged = fit_stage(prep, &with(base, make(averaged)));
             point.set(true);
             let instants = grid_search(Coord::Log, log_grid(lo, hi, 8), &objective);
-            if heldout(instants) < h_averaged {
+            let fit_instants = fit_stage(prep, &with(base, make(instants)));
+            let heldout = |s: &Option<Stage>| s.as_ref().map_or(f64::INFINITY, |s| s.rmse_heldout);
+            if heldout(&fit_instants) < heldout(&fit_averaged) {
+                prefit = fit_instants;
                 instants
             } else {
                 point.set(false);
+                prefit = fit_averaged;
                 averaged
             }
         }
@@ -304,7 +308,7 @@ pub fn search(prep: &Prepared, cur: &Stage, kind: EffectKind) -> Option<Candidat
             best.1
         }
     };
-    let mut stage = match fit_stage(prep, &with(base, make(theta))) {
+    let mut stage = match prefit.or_else(|| fit_stage(prep, &with(base, make(theta)))) {
         Some(stage) => stage,
         // The searches' SSE tolerates a rank-deficient design, the reported QR fit does not
         // (e.g. a lag so long that the lagged flow is nearly constant): take the best grid point

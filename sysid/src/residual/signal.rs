@@ -55,10 +55,31 @@ pub fn lag_foh(t: &[f64], x: &[f64], tau: impl Fn(usize) -> f64) -> Vec<f64> {
 /// Per-sample coefficients `(a, 1 − g)` of the first-order-hold lag (see [`lag_foh`]).
 #[cfg(test)]
 pub fn lag_coeffs(t: &[f64], tau: impl Fn(usize) -> f64) -> Vec<(f64, f64)> {
+    per_interval(t, tau, (0.0, 1.0), |dt, tk| {
+        let r = dt / tk;
+        // 1 − a = −expm1(−r) without cancellation; g = (1 − a)/r, by its series for tiny r.
+        let one_minus_a = -(-r).exp_m1();
+        let g = if r < 1e-6 {
+            1.0 - 0.5 * r
+        } else {
+            one_minus_a / r
+        };
+        (1.0 - one_minus_a, 1.0 - g)
+    })
+}
+
+/// Per-sample coefficients of a lag: `identity` at the first sample and wherever τ is negligible
+/// (the output is the input), `coeffs(Δt, τ)` elsewhere. A log's intervals repeat (a fixed frame
+/// rate), so the last coefficients are reused when Δt and τ repeat.
+fn per_interval<C: Copy>(
+    t: &[f64],
+    tau: impl Fn(usize) -> f64,
+    identity: C,
+    coeffs: impl Fn(f64, f64) -> C,
+) -> Vec<C> {
     let mut c = Vec::with_capacity(t.len());
-    c.push((0.0, 1.0));
-    // A log's intervals repeat (a fixed frame rate): reuse the last coefficients when Δt and τ do.
-    let mut last = (f64::NAN, f64::NAN, (0.0, 1.0));
+    c.push(identity);
+    let mut last = (f64::NAN, f64::NAN, identity);
     for k in 1..t.len() {
         let dt = t[k] - t[k - 1];
         let tk = tau(k);
@@ -67,17 +88,9 @@ pub fn lag_coeffs(t: &[f64], tau: impl Fn(usize) -> f64) -> Vec<(f64, f64)> {
             continue;
         }
         let ck = if tk <= 1e-9 * dt {
-            (0.0, 1.0)
+            identity
         } else {
-            let r = dt / tk;
-            // 1 − a = −expm1(−r) without cancellation; g = (1 − a)/r, by its series for tiny r.
-            let one_minus_a = -(-r).exp_m1();
-            let g = if r < 1e-6 {
-                1.0 - 0.5 * r
-            } else {
-                one_minus_a / r
-            };
-            (1.0 - one_minus_a, 1.0 - g)
+            coeffs(dt, tk)
         };
         last = (dt, tk, ck);
         c.push(ck);
@@ -192,34 +205,17 @@ fn lag_moments(r: f64) -> [f64; 4] {
 /// (the Hermite basis functions weighted by the lag's impulse response, [`lag_moments`]). With
 /// the slopes equal to each interval's secant it is exactly [`lag_foh`]'s first-order hold.
 pub fn lag_cubic_coeffs(t: &[f64], tau: impl Fn(usize) -> f64) -> Vec<[f64; 5]> {
-    let mut c = Vec::with_capacity(t.len());
-    c.push([0.0, 0.0, 1.0, 0.0, 0.0]);
-    let mut last = (f64::NAN, f64::NAN, [0.0; 5]);
-    for k in 1..t.len() {
-        let dt = t[k] - t[k - 1];
-        let tk = tau(k);
-        if dt == last.0 && tk == last.1 {
-            c.push(last.2);
-            continue;
-        }
-        let ck = if tk <= 1e-9 * dt {
-            // No lag: the output is the input.
-            [0.0, 0.0, 1.0, 0.0, 0.0]
-        } else {
-            let r = dt / tk;
-            let i = lag_moments(r);
-            [
-                (-r).exp(),
-                2.0 * i[3] - 3.0 * i[2] + i[0],
-                3.0 * i[2] - 2.0 * i[3],
-                dt * (i[3] - 2.0 * i[2] + i[1]),
-                dt * (i[3] - i[2]),
-            ]
-        };
-        last = (dt, tk, ck);
-        c.push(ck);
-    }
-    c
+    per_interval(t, tau, [0.0, 0.0, 1.0, 0.0, 0.0], |dt, tk| {
+        let r = dt / tk;
+        let i = lag_moments(r);
+        [
+            (-r).exp(),
+            2.0 * i[3] - 3.0 * i[2] + i[0],
+            3.0 * i[2] - 2.0 * i[3],
+            dt * (i[3] - 2.0 * i[2] + i[1]),
+            dt * (i[3] - i[2]),
+        ]
+    })
 }
 
 /// The lag of [`lag_cubic_coeffs`] on one signal `x` with known slopes `m` (e.g. a volume whose
