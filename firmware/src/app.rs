@@ -467,9 +467,13 @@ impl State {
             raw_kpa[ch] = board::counts_to_kpa(acc.counts[ch] as f32 / n);
             chambers[ch].v = (acc.steps[ch] as f64 / acc.n as f64) as f32 * step;
             chambers[ch].vdot = acc.flow[ch] / n;
+        }
+        // The frame that completes the zero is reported zeroed (its flags no longer say
+        // NOT_ZEROED, so its pressure must not be raw).
+        self.update_zero(raw_kpa, t_us);
+        for ch in 0..AXES {
             chambers[ch].p = raw_kpa[ch] - self.zero_kpa[ch];
         }
-        self.update_zero(raw_kpa, t_us);
         self.warnings &= !(Flags::MODEL_RANGE * 0b111);
         for (ch, c) in chambers.iter_mut().enumerate() {
             if let Err(flag) = self.estimate(ch, c, t_us) {

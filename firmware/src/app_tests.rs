@@ -75,6 +75,28 @@ fn boot_zero_is_the_mean_reading_and_is_subtracted() {
 }
 
 #[test]
+fn every_frame_not_flagged_not_zeroed_is_zeroed() {
+    // A sensor reading 2 kPa at rest: the frames that take the zero carry NOT_ZEROED, and every
+    // frame without it, the one completing the zero included, reads 0 (to one ADC code).
+    let mut s = State::new(Config::default());
+    let (mut t, mut flagged, mut clear) = (0, 0, 0);
+    for _ in 0..30 * K {
+        t += DT;
+        if let Some(f) = s.on_oversample([code(2.0); 3], t) {
+            if f.flags.has(Flags::NOT_ZEROED) {
+                flagged += 1;
+            } else {
+                clear += 1;
+                for c in &f.chambers {
+                    assert!(c.p.abs() < 0.04, "frame {} reads {} kPa", f.seq, c.p);
+                }
+            }
+        }
+    }
+    assert_eq!((flagged, clear), (24, 6));
+}
+
+#[test]
 fn motion_commands_are_refused_while_zeroing() {
     let mut s = State::new(Config::default());
     assert_eq!(cmd(&mut s, "move 0 10", 0), Err(CommandError::Busy));

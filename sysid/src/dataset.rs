@@ -25,8 +25,20 @@
 //! protocol that repeats k conditions in turn (five flow rates) has every condition represented
 //! in both sets. With fewer than k cycles
 //! the last 20 % of samples (by time) are held out instead; [`Split`] records which rule applied.
+//!
+//! # Frames before the pressure zero
+//! A log recorded from this project's firmware carries its status bits in a `flags` column (an
+//! extra column to the shared format, so other logs simply lack it). At boot the firmware averages
+//! the first frames at rest to take each sensor's zero, and those frames (flag `NOT_ZEROED`) read
+//! the sensor's raw offset, a few tenths of a kPa on the simulated rig: they are left out of the
+//! dataset ([`Dataset::not_zeroed`] counts them, and the commands report it). A `flags` cell that
+//! is not an unsigned integer is an error naming the sample.
 
 use crate::log::{Log, MAX_CHAMBERS};
+use firmware::telemetry::Flags;
+
+/// The firmware's status bit for frames whose pressure is not yet zeroed.
+const NOT_ZEROED: u32 = Flags::NOT_ZEROED;
 
 /// How to build datasets from a log.
 #[derive(Debug, Clone, PartialEq)]
@@ -120,6 +132,16 @@ pub enum DataError {
         /// Samples needed.
         needed: usize,
     },
+    /// A cell of the firmware's `flags` column is not an unsigned integer.
+    #[error("chamber {chamber}, sample at t = {time_s} s: flags column holds {cell:?}, not an unsigned integer (the firmware's status bits)")]
+    BadFlags {
+        /// Chamber.
+        chamber: u8,
+        /// The sample's time, s.
+        time_s: f64,
+        /// The cell as written.
+        cell: String,
+    },
 }
 
 /// One chamber's samples, ready for identification. All vectors have the same length.
@@ -151,6 +173,9 @@ pub struct Dataset {
     pub n_cycles: usize,
     /// Deadband used for the cycle split, mm³/s.
     pub deadband: f64,
+    /// Rows left out because the firmware's `flags` column marks their pressure as not yet
+    /// zeroed (`NOT_ZEROED`: the boot frames that take the sensor's zero read the raw offset).
+    pub not_zeroed: usize,
 }
 
 /// Owned columns of a subset of a dataset (training or held-out), in time order.
@@ -196,11 +221,27 @@ impl Dataset {
             chamber < MAX_CHAMBERS,
             "chamber index {chamber} out of range"
         );
-        let rows: Vec<_> = log
-            .samples
-            .iter()
-            .filter(|s| s.chamber == chamber)
-            .collect();
+        let flags_col = log.extra_columns.iter().position(|c| c == "flags");
+        let mut rows = Vec::new();
+        let mut not_zeroed = 0;
+        for (i, s) in log.samples.iter().enumerate() {
+            if s.chamber != chamber {
+                continue;
+            }
+            let cell = flags_col.and_then(|c| log.extra.get(i).and_then(|e| e.get(c)));
+            if let Some(cell) = cell.map(|c| c.trim()).filter(|c| !c.is_empty()) {
+                let bits: u32 = cell.parse().map_err(|_| DataError::BadFlags {
+                    chamber,
+                    time_s: s.time_s,
+                    cell: cell.to_string(),
+                })?;
+                if bits & NOT_ZEROED != 0 {
+                    not_zeroed += 1;
+                    continue;
+                }
+            }
+            rows.push(s);
+        }
         if rows.is_empty() {
             return Err(DataError::NoSamples(chamber));
         }
@@ -248,6 +289,7 @@ impl Dataset {
             split,
             n_cycles,
             deadband,
+            not_zeroed,
         })
     }
 
@@ -282,6 +324,18 @@ impl Dataset {
             split,
             n_cycles,
             deadband,
+            not_zeroed: 0,
+        }
+    }
+
+    /// The held-out rule in words, and the frames left out before the pressure zero if any.
+    pub fn split_description(&self) -> String {
+        match self.not_zeroed {
+            0 => self.split.to_string(),
+            n => format!(
+                "{}; {n} frames before the pressure zero (flag NOT_ZEROED) left out",
+                self.split
+            ),
         }
     }
 

@@ -341,7 +341,7 @@ pub fn identify(ds: &Dataset, opt: &Options) -> ChamberReport {
         train_samples: train.len(),
         heldout_samples: held.len(),
         cycles: ds.n_cycles,
-        split: ds.split.to_string(),
+        split: ds.split_description(),
         flow: match ds.flow_source {
             crate::dataset::FlowSource::Logged => "logged (flow_mm3_s column)".into(),
             crate::dataset::FlowSource::Derived { half_width } => format!(

@@ -52,7 +52,8 @@ fn sigma_from_truth(run: &SimRun, ds: &Dataset) -> f64 {
     let e: Vec<f64> = (0..ds.t.len())
         .filter(|&k| ds.heldout[k])
         .map(|k| {
-            let f = &run.truth[k];
+            // The frames before the pressure zero are not in the dataset; the rest line up.
+            let f = &run.truth[k + ds.not_zeroed];
             let t = f.t_us as f64 * 1e-6;
             let d = drift.map_or(0.0, |d| {
                 d.offset_change_kpa * (1.0 - (-t / d.time_constant_s).exp())
@@ -75,8 +76,10 @@ fn run(sc: &Scenario) -> Outcome {
     sim.write_log(&mut bytes).expect("in memory");
     let log = parse_log(&bytes[..], &sc.name).expect("the simulator's log parses");
     let ds = Dataset::from_log(&log, 0, &DatasetConfig::default()).expect("dataset");
-    // One row per frame, in order: the truth lines up by index.
-    assert_eq!(ds.t.len(), sim.truth.len());
+    // One row per frame, in order, after the boot frames that take the pressure zero: the truth
+    // lines up by index from there.
+    assert!(ds.not_zeroed > 0, "the log's flags mark the zeroing frames");
+    assert_eq!(ds.t.len() + ds.not_zeroed, sim.truth.len());
     let sigma = sigma_from_truth(&sim, &ds);
     let series = series_from_dataset(&ds).expect("series");
     let d = diagnose(series, &Config::default()).expect("diagnosis");

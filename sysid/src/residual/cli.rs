@@ -206,11 +206,14 @@ pub fn run(args: &DiagnoseArgs) -> Result<(), DiagnoseCliError> {
         if let Some(obj) = doc.as_object_mut() {
             obj.insert("log".into(), args.log.display().to_string().into());
             obj.insert("chamber".into(), chamber.into());
-            obj.insert("split".into(), ds.split.to_string().into());
+            obj.insert("split".into(), ds.split_description().into());
         }
         println!("{}", serde_json::to_string_pretty(&doc).unwrap_or_default());
     } else {
-        print!("{}", report(&args.log, chamber, &ds.split.to_string(), &d));
+        print!(
+            "{}",
+            report(&args.log, chamber, &ds.split_description(), &d)
+        );
     }
     Ok(())
 }
