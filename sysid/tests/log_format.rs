@@ -174,3 +174,40 @@ fn ventilator_breaths_are_the_cycles() {
     // 12 breaths/min for about 233 s.
     assert!((44..=49).contains(&ds.n_cycles), "{} cycles", ds.n_cycles);
 }
+
+#[test]
+fn frames_flagged_not_zeroed_are_left_out_and_bad_flags_are_named() {
+    // Our firmware's `flags` column: bit 16 (NOT_ZEROED) marks the boot frames whose pressure is
+    // still the raw sensor offset. Five such frames at 0.4 kPa, then a zeroed ramp.
+    let mut text = String::from("time_s,volume_mm3,pressure_kpa,flags\n");
+    for k in 0..30 {
+        let (v, p, flags) = if k < 5 {
+            (0.0, 0.4, 65536)
+        } else {
+            (k as f64, 0.1 * k as f64, 0)
+        };
+        text.push_str(&format!("{},{v},{p},{flags}\n", 0.04 * k as f64));
+    }
+    let log = parse(&text).unwrap();
+    let ds = Dataset::from_log(&log, 0, &DatasetConfig::default()).unwrap();
+    assert_eq!(ds.not_zeroed, 5);
+    assert_eq!(ds.len(), 25);
+    assert_eq!(ds.t[0], 0.2);
+    assert!(ds
+        .p
+        .iter()
+        .zip(&ds.v)
+        .all(|(p, v)| (p - 0.1 * v).abs() < 1e-12));
+    assert!(ds
+        .split_description()
+        .contains("5 frames before the pressure zero"));
+    // Other bits (a warning such as MODEL_RANGE) keep the row.
+    let kept = parse(&text.replace(",65536\n", &format!(",{}\n", 1 << 17))).unwrap();
+    let ds = Dataset::from_log(&kept, 0, &DatasetConfig::default()).unwrap();
+    assert_eq!((ds.not_zeroed, ds.len()), (0, 30));
+    // A cell that is not an unsigned integer is an error naming the sample.
+    let bad = parse(&text.replacen(",0.4,65536\n", ",0.4,zero\n", 1)).unwrap();
+    let err = Dataset::from_log(&bad, 0, &DatasetConfig::default()).unwrap_err();
+    let msg = err.to_string();
+    assert!(msg.contains("t = 0 s") && msg.contains("\"zero\""), "{msg}");
+}

@@ -283,11 +283,98 @@ pub struct Effect {
     /// transform, `u = v + a sin φ + b cos φ`; the two columns then fit the remaining correction
     /// to first order (the search iterates this Gauss–Newton step).
     pub ripple_offset: (f64, f64),
-    /// Pump ripple: how far (mm³) the logged volume trails the plunger while it moves. A step
-    /// count trails the continuous motion by up to a step (our rig's frames average the count
-    /// over the frame: about half a step behind), which shifts the ripple's phase one way on
-    /// inflation and the other on deflation.
-    pub count_lag: f64,
+    /// Pump ripple: how far the logged volume trails the plunger while it moves, by speed
+    /// ([`CountLag`]).
+    pub count_lag: CountLag,
+}
+
+/// How far (mm³) a logged step count trails the plunger while it moves, which shifts a pump
+/// ripple's phase one way on inflation and the other on deflation.
+///
+/// A count trails continuous motion by up to one step, and by how much depends on the step rate:
+/// the firmware reads the count at each of a frame's conversions, and where the step period
+/// divides the conversion period (2 000 steps/s against 200 conversions/s) every conversion reads
+/// the same fraction of a step; at other rates the fractions spread out and average to about
+/// half a step. So the lag is one number per speed the log dwells at (its cruise speeds,
+/// [`cruise_speeds`]), interpolated linearly in |v̇| between them and held beyond; a log without
+/// plateaus of speed gets one lag for all speeds.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct CountLag {
+    /// Speeds |v̇| (mm³/s, ascending) the lags are given at; empty: one lag for every speed.
+    pub speeds: std::sync::Arc<Vec<f64>>,
+    /// The lag at each speed (or the one lag), mm³; empty: no lag.
+    pub lags: Vec<f64>,
+    /// Standard error of each lag from the last linearised fit, mm³.
+    pub se: Vec<f64>,
+}
+
+impl CountLag {
+    /// No lag, to be fitted at `speeds` (one lag when `speeds` is empty).
+    pub fn zero(speeds: std::sync::Arc<Vec<f64>>) -> Self {
+        let n = speeds.len().max(1);
+        Self {
+            speeds,
+            lags: vec![0.0; n],
+            se: vec![f64::NAN; n],
+        }
+    }
+
+    /// Linear-interpolation weights of the lags at `speed`: `(i, j, f)` with the lag
+    /// `(1 − f)·lags[i] + f·lags[j]`.
+    pub fn weights(&self, speed: f64) -> (usize, usize, f64) {
+        let s = &self.speeds;
+        match s.iter().position(|&k| k >= speed) {
+            _ if s.len() <= 1 => (0, 0, 0.0),
+            Some(0) => (0, 0, 0.0),
+            None => (s.len() - 1, s.len() - 1, 0.0),
+            Some(j) => (j - 1, j, (speed - s[j - 1]) / (s[j] - s[j - 1])),
+        }
+    }
+
+    /// The lag at `speed`, mm³.
+    pub fn at(&self, speed: f64) -> f64 {
+        if self.lags.is_empty() {
+            return 0.0;
+        }
+        let (i, j, f) = self.weights(speed);
+        (1.0 - f) * self.lags[i] + f * self.lags[j]
+    }
+}
+
+/// The speeds |v̇| (mm³/s, ascending) a log dwells at: clusters of frames whose flow is flat
+/// (within 0.1 % of the top speed of both neighbours) and moving (above 2 % of it), clusters 1 %
+/// of the top speed wide holding at least 2 % of the flat frames (and 25). At most 8, the most
+/// populated; none when the flow has no plateaus (a ventilator's, say).
+pub fn cruise_speeds(vdot: &[f64]) -> Vec<f64> {
+    let top = vdot.iter().fold(0.0_f64, |m, x| m.max(x.abs()));
+    if top <= 0.0 || vdot.len() < 3 {
+        return Vec::new();
+    }
+    let mut flat: Vec<f64> = (1..vdot.len() - 1)
+        .filter(|&k| {
+            vdot[k].abs() > 0.02 * top
+                && (vdot[k] - vdot[k - 1]).abs() <= 1e-3 * top
+                && (vdot[k + 1] - vdot[k]).abs() <= 1e-3 * top
+        })
+        .map(|k| vdot[k].abs())
+        .collect();
+    flat.sort_by(f64::total_cmp);
+    let min_size = 25.max(flat.len() / 50);
+    let mut clusters: Vec<(usize, f64)> = Vec::new();
+    let mut start = 0;
+    for k in 1..=flat.len() {
+        if k == flat.len() || flat[k] - flat[k - 1] > 0.01 * top {
+            if k - start >= min_size {
+                clusters.push((k - start, flat[(start + k) / 2]));
+            }
+            start = k;
+        }
+    }
+    clusters.sort_by_key(|c| std::cmp::Reverse(c.0));
+    clusters.truncate(8);
+    let mut speeds: Vec<f64> = clusters.into_iter().map(|c| c.1).collect();
+    speeds.sort_by(f64::total_cmp);
+    speeds
 }
 
 impl Effect {
@@ -300,7 +387,7 @@ impl Effect {
             stiffness: None,
             point_sampled: false,
             ripple_offset: (0.0, 0.0),
-            count_lag: 0.0,
+            count_lag: CountLag::default(),
         }
     }
 }
@@ -322,6 +409,8 @@ pub struct Prepared {
     pub scales: Scales,
     /// The logged motion rebuilt at `signal::SUB_SAMPLES` instants per frame (position, flow).
     pub subframe: (Vec<f64>, Vec<f64>),
+    /// The speeds the log dwells at ([`cruise_speeds`]), where a pump ripple's count lag is fitted.
+    pub cruise_speeds: std::sync::Arc<Vec<f64>>,
     /// Training row indices.
     pub train_rows: Vec<usize>,
     /// Held-out row indices.
@@ -374,6 +463,7 @@ impl Prepared {
         let subframe = signal::frame_instants(&series.t, &series.v, &series.vdot);
         Self {
             subframe,
+            cruise_speeds: std::sync::Arc::new(cruise_speeds(&series.vdot)),
             basis,
             p_sched,
             p_int,
@@ -553,7 +643,7 @@ fn transformed_inputs(prep: &Prepared, effects: &[Effect]) -> (Vec<f64>, Vec<f64
                         fresh = signal::frame_instants(t, &v, &f);
                         &fresh
                     };
-                    (v, f) = pump_ripple_inputs(sub, e.theta, e.ripple_offset, e.count_lag);
+                    (v, f) = pump_ripple_inputs(sub, e.theta, e.ripple_offset, &e.count_lag);
                 }
                 EffectKind::PumpRipple => continue,
                 EffectKind::VolumeDrift => {
@@ -592,7 +682,7 @@ pub fn pump_ripple_columns(
     k: &[f64],
     c: &[f64],
     lambda: f64,
-    count_lag: f64,
+    count_lag: &CountLag,
 ) -> (Vec<f64>, Vec<f64>) {
     let w = std::f64::consts::TAU / lambda;
     let ns = signal::SUB_SAMPLES;
@@ -614,12 +704,48 @@ pub fn pump_ripple_columns(
 
 /// The plunger's position where the logged volume `x` trails it by `count_lag` in the direction
 /// of motion `q`.
-fn plunger(x: f64, q: f64, count_lag: f64) -> f64 {
+fn plunger(x: f64, q: f64, count_lag: &CountLag) -> f64 {
     if q == 0.0 {
         x
     } else {
-        x + count_lag * q.signum()
+        x + count_lag.at(q.abs()) * q.signum()
     }
+}
+
+/// The derivatives of a pump ripple's pressure `k δ + c δ̇` with respect to each of `count_lag`'s
+/// lags (one column each), for the volume error `δ = a sin φ + b cos φ`, `φ = 2π x/Λ` at the
+/// plunger, averaged over each frame's instants: shifting the plunger by `ℓ` in the direction of
+/// motion `s = sign q` gives `∂δ/∂ℓ = s w (a cos φ − b sin φ)` and
+/// `∂δ̇/∂ℓ = −s w² q (a sin φ + b cos φ)`, `w = 2π/Λ`, each weighted by the lag's share at the
+/// instant's speed. One Gauss–Newton step in the lags fits these columns with the model.
+pub fn count_lag_columns(
+    sub: &(Vec<f64>, Vec<f64>),
+    k: &[f64],
+    c: &[f64],
+    lambda: f64,
+    (a, b): (f64, f64),
+    count_lag: &CountLag,
+) -> Vec<Vec<f64>> {
+    let w = std::f64::consts::TAU / lambda;
+    let ns = signal::SUB_SAMPLES;
+    let n = k.len();
+    let mut cols = vec![vec![0.0; n]; count_lag.lags.len()];
+    for f in 0..n {
+        for j in f * ns..(f + 1) * ns {
+            let (x, q) = (sub.0[j], sub.1[j]);
+            if q == 0.0 {
+                continue;
+            }
+            let (sin, cos) = (w * plunger(x, q, count_lag)).sin_cos();
+            let d =
+                q.signum() * w * (k[f] * (a * cos - b * sin) - c[f] * w * q * (a * sin + b * cos))
+                    / ns as f64;
+            let (i0, i1, fr) = count_lag.weights(q.abs());
+            cols[i0][f] += (1.0 - fr) * d;
+            cols[i1][f] += fr * d;
+        }
+    }
+    cols
 }
 
 /// Frame means of the displaced volume `u = x + a sin φ + b cos φ`, `φ = 2π x/Λ`, and its rate
@@ -630,7 +756,7 @@ fn pump_ripple_inputs(
     (x, q): &(Vec<f64>, Vec<f64>),
     lambda: f64,
     (a, b): (f64, f64),
-    count_lag: f64,
+    count_lag: &CountLag,
 ) -> (Vec<f64>, Vec<f64>) {
     let w = std::f64::consts::TAU / lambda;
     let ns = signal::SUB_SAMPLES as f64;
@@ -674,7 +800,7 @@ impl LagBase {
     }
 }
 
-/// Candidate periods (mm³) of a pump ripple/// Candidate periods (mm³) of a pump ripple in `resid`, best first, with the spacing of the
+/// Candidate periods (mm³) of a pump ripple in `resid`, best first, with the spacing of the
 /// spatial-frequency grid they came from (1/mm³): a periodogram against volume over spatial
 /// frequencies `1/Λ` from `1/(0.1·range)` up to two periods per frame of median motion, on a
 /// uniform grid fine enough that the phase drifts by at most a quarter turn over the stroke (at
@@ -809,7 +935,7 @@ fn added_and_filters(
                 let zero = std::sync::Arc::new(vec![0.0; t.len()]);
                 let k = e.stiffness.as_ref().unwrap_or(&zero);
                 let c = e.damping.as_ref().unwrap_or(&zero);
-                let (a, b) = pump_ripple_columns(&prep.subframe, k, c, e.theta, e.count_lag);
+                let (a, b) = pump_ripple_columns(&prep.subframe, k, c, e.theta, &e.count_lag);
                 cols.push(a);
                 cols.push(b);
                 labels.push("pump ripple in phase".into());
@@ -854,6 +980,106 @@ fn added_and_filters(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn cruise_speeds_are_the_plateaus_of_the_flow() {
+        // 25 Hz: plateaus at +20, −20, +50 and −90 mm³/s joined by 500 mm³/s² ramps, dwell at 0.
+        let mut f = Vec::new();
+        let mut q: f64 = 0.0;
+        for target in [20.0, 0.0, -20.0, 0.0, 50.0, 0.0, -90.0, 0.0] {
+            while (q - target).abs() > 1e-9 {
+                q += (target - q).clamp(-20.0, 20.0);
+                f.push(q);
+            }
+            f.extend(std::iter::repeat_n(target, 100));
+        }
+        let s = cruise_speeds(&f);
+        assert_eq!(s.len(), 3, "{s:?}");
+        for (got, want) in s.iter().zip([20.0, 50.0, 90.0]) {
+            assert!((got - want).abs() < 1e-9, "{s:?}");
+        }
+        // A breathing flow has no plateaus.
+        let sine: Vec<f64> = (0..2000).map(|k| 80.0 * (0.05 * k as f64).sin()).collect();
+        assert!(cruise_speeds(&sine).is_empty());
+    }
+
+    #[test]
+    fn count_lag_interpolates_between_speeds_and_holds_beyond() {
+        let lag = CountLag {
+            speeds: std::sync::Arc::new(vec![20.0, 40.0, 80.0]),
+            lags: vec![0.01, 0.03, -0.01],
+            se: vec![f64::NAN; 3],
+        };
+        for (s, want) in [
+            (5.0, 0.01),
+            (20.0, 0.01),
+            (30.0, 0.02),
+            (60.0, 0.01),
+            (200.0, -0.01),
+        ] {
+            assert!((lag.at(s) - want).abs() < 1e-15, "{s}: {}", lag.at(s));
+        }
+        let one = CountLag {
+            lags: vec![0.02],
+            ..CountLag::zero(std::sync::Arc::new(Vec::new()))
+        };
+        assert_eq!((one.at(3.0), one.at(300.0)), (0.02, 0.02));
+        assert_eq!(CountLag::default().at(50.0), 0.0);
+    }
+
+    #[test]
+    fn count_lag_columns_are_the_derivatives_of_the_ripple_pressure() {
+        // Against central differences of the ripple's pressure a·A + b·B, (A, B) the columns of
+        // `pump_ripple_columns`, in each lag.
+        let n = 400;
+        let t: Vec<f64> = (0..n).map(|k| 0.04 * k as f64).collect();
+        let f: Vec<f64> = (0..n)
+            .map(|k| match k / 100 {
+                0 => 30.0,
+                1 => -60.0,
+                2 => 90.0,
+                _ => -30.0,
+            })
+            .collect();
+        let mut v = vec![100.0; n];
+        for k in 1..n {
+            v[k] = v[k - 1] + 0.02 * (f[k - 1] + f[k]);
+        }
+        let sub = signal::frame_instants(&t, &v, &f);
+        let k: Vec<f64> = (0..n).map(|i| 0.05 + 1e-4 * i as f64).collect();
+        let c: Vec<f64> = (0..n).map(|i| 0.1 - 1e-4 * i as f64).collect();
+        let (lambda, ab) = (8.0, (0.2, -0.07));
+        let lag = CountLag {
+            speeds: std::sync::Arc::new(vec![30.0, 60.0, 90.0]),
+            lags: vec![0.01, 0.02, 0.03],
+            se: vec![f64::NAN; 3],
+        };
+        let pressure = |lag: &CountLag| {
+            let (a, b) = pump_ripple_columns(&sub, &k, &c, lambda, lag);
+            a.iter()
+                .zip(&b)
+                .map(|(a, b)| ab.0 * a + ab.1 * b)
+                .collect::<Vec<f64>>()
+        };
+        let cols = count_lag_columns(&sub, &k, &c, lambda, ab, &lag);
+        let h = 1e-6;
+        for i in 0..3 {
+            let (mut up, mut down) = (lag.clone(), lag.clone());
+            up.lags[i] += h;
+            down.lags[i] -= h;
+            let (pu, pd) = (pressure(&up), pressure(&down));
+            let scale = cols[i].iter().fold(0.0_f64, |m, x| m.max(x.abs()));
+            assert!(scale > 0.1, "lag {i} moves the pressure");
+            for r in 0..n {
+                let fd = (pu[r] - pd[r]) / (2.0 * h);
+                assert!(
+                    (fd - cols[i][r]).abs() < 1e-6 * scale,
+                    "lag {i}, frame {r}: {fd} vs {}",
+                    cols[i][r]
+                );
+            }
+        }
+    }
 
     /// `len` frames at 25 Hz of two incommensurate tones, so (v, v̇) fills an area (one tone traces
     /// an ellipse, on which the tensor basis is rank-deficient), prepared for a (3, 2) baseline.

@@ -36,7 +36,7 @@ use statrs::distribution::{ContinuousCDF, FisherSnedecor};
 
 use super::analysis::{self, lag1, n_eff};
 use super::basis::PolyBasis;
-use super::effects::{build, Design, Effect, EffectKind, Prepared, Search, P_ATM_KPA};
+use super::effects::{build, CountLag, Design, Effect, EffectKind, Prepared, Search, P_ATM_KPA};
 use super::lsq::{self, LsFit};
 
 /// One fitted model: effects, design, coefficients and errors.
@@ -59,14 +59,15 @@ pub struct Stage {
 }
 
 impl Stage {
-    /// Parameters: coefficients plus one per searched nonlinear parameter.
+    /// Parameters: coefficients plus one per searched nonlinear parameter (a pump ripple's count
+    /// lags included).
     pub fn n_params(&self) -> usize {
         self.fit.beta.len()
             + self
                 .effects
                 .iter()
-                .filter(|e| e.kind.has_nonlinear())
-                .count()
+                .map(|e| usize::from(e.kind.has_nonlinear()) + e.count_lag.lags.len())
+                .sum::<usize>()
     }
 }
 
@@ -328,24 +329,7 @@ pub fn search(prep: &Prepared, cur: &Stage, kind: EffectKind) -> Option<Candidat
     };
     if kind == EffectKind::PumpRipple {
         stage = ripple_gauss_newton(prep, base, stage);
-        // Then how far the logged count trails the plunger (it shifts the ripple's phase with the
-        // direction of motion), searched within a twentieth of the period, and the amplitude
-        // refitted once more.
-        let last = stage.effects.len() - 1;
-        let e0 = stage.effects[last].clone();
-        let at = |d: f64| Effect {
-            count_lag: d,
-            ..e0.clone()
-        };
-        let span = 0.05 * e0.theta;
-        let (d, sse) = golden(-span, span, 12, |d| sse_of(prep, &with(base, at(d))));
-        if sse < sse_of(prep, &with(base, e0.clone())) {
-            if let Some(next) = fit_stage(prep, &with(base, at(d))) {
-                if next.fit.sse < stage.fit.sse {
-                    stage = ripple_gauss_newton(prep, base, next);
-                }
-            }
-        }
+        stage = count_lag_gauss_newton(prep, base, stage);
     }
     if kind == EffectKind::AirCompliance {
         // The damping came from a model fitted without the air pocket (which lowers the apparent
@@ -396,6 +380,58 @@ fn ripple_gauss_newton(prep: &Prepared, base: &[Effect], mut stage: Stage) -> St
             Some(next) if next.fit.sse < stage.fit.sse => {
                 let small = next.fit.sse > (1.0 - 1e-3) * stage.fit.sse;
                 stage = next;
+                if small {
+                    break;
+                }
+            }
+            _ => break,
+        }
+    }
+    stage
+}
+
+/// How far the logged count trails the plunger at each cruise speed ([`CountLag`]): Gauss–Newton
+/// steps on the lags, each fitting their derivative columns
+/// ([`super::effects::count_lag_columns`]) together with the model, applying the step, and
+/// refitting the ripple's amplitude; kept while the training SSE falls by more than 0.1 %. The
+/// last step's standard errors are the lags'.
+fn count_lag_gauss_newton(prep: &Prepared, base: &[Effect], mut stage: Stage) -> Stage {
+    let last = stage.effects.len() - 1;
+    if stage.effects[last].count_lag.lags.is_empty() {
+        stage.effects[last].count_lag = CountLag::zero(prep.cruise_speeds.clone());
+    }
+    for _ in 0..4 {
+        let e = stage.effects[last].clone();
+        let (Some(k), Some(c)) = (&e.stiffness, &e.damping) else {
+            break;
+        };
+        let own: Vec<usize> = (0..stage.design.owner.len())
+            .filter(|&c| stage.design.owner[c] == Some(last))
+            .collect();
+        let ab = (
+            e.ripple_offset.0 + stage.fit.beta[own[0]],
+            e.ripple_offset.1 + stage.fit.beta[own[1]],
+        );
+        let extra =
+            super::effects::count_lag_columns(&prep.subframe, k, c, e.theta, ab, &e.count_lag);
+        let mut cols = stage.design.cols.clone();
+        let p0 = cols.len();
+        cols.extend(extra);
+        let Some(fit) = lsq::fit(&cols, &prep.series.p, &prep.train_rows) else {
+            break;
+        };
+        let s2 = fit.sigma2();
+        let mut next = e.clone();
+        for (i, lag) in next.count_lag.lags.iter_mut().enumerate() {
+            *lag += fit.beta[p0 + i];
+        }
+        next.count_lag.se = (0..next.count_lag.lags.len())
+            .map(|i| (s2 * fit.xtx_inv[(p0 + i, p0 + i)]).sqrt())
+            .collect();
+        match fit_stage(prep, &with(base, next)) {
+            Some(next) if next.fit.sse < stage.fit.sse => {
+                let small = next.fit.sse > (1.0 - 1e-3) * stage.fit.sse;
+                stage = ripple_gauss_newton(prep, base, next);
                 if small {
                     break;
                 }
@@ -694,11 +730,18 @@ pub fn effect_params(prep: &Prepared, stage: &Stage, i: usize) -> Vec<Param> {
                 s2 * (a * a * saa + c * c * scc + 2.0 * a * c * sac) / (amp * amp).max(1e-300);
             if e.kind == EffectKind::PumpRipple {
                 // The columns carry the volume error δ itself: a and b are in mm³.
-                vec![
+                let mut ps = vec![
                     param("period", e.theta, tse, "mm3"),
                     param("amplitude", amp, var.sqrt(), "mm3"),
-                    param("count_lag", e.count_lag, f64::NAN, "mm3"),
-                ]
+                ];
+                let lag = &e.count_lag;
+                for (i, (&l, &se)) in lag.lags.iter().zip(&lag.se).enumerate() {
+                    ps.push(match lag.speeds.get(i) {
+                        Some(s) => param(&format!("count_lag_at_{s:.3}_mm3_s"), l, se, "mm3"),
+                        None => param("count_lag", l, se, "mm3"),
+                    });
+                }
+                ps
             } else {
                 vec![
                     param("frequency", e.theta, tse, "Hz"),
