@@ -1,6 +1,6 @@
 //! `vfp diagnose` on a ~20,000-sample log of the simulated rig (host-sim, the firmware's own tasks;
 //! the default lagged drive, a 20 ms sensor lag injected; six cycles of the paper's five-rate
-//! protocol: 19,386 frames, 13 min at 25 Hz): the whole loop with the paper's (3, 2) baseline —
+//! protocol: 19,386 frames, 19,362 after the boot frames that take the pressure zero, 13 min at 25 Hz): the whole loop with the paper's (3, 2) baseline —
 //! baseline, residual analysis, every candidate's parameter search, forward selection, final
 //! analysis — and with a (7, 7) baseline (64 columns, the shape the CLI's AICc default often
 //! picks). Simulating the log is not timed.

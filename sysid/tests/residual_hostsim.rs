@@ -83,7 +83,7 @@ fn run(sc: &Scenario) -> Outcome {
     let series = series_from_dataset(&ds).expect("series");
     let d = diagnose(series, &Config::default()).expect("diagnosis");
     eprintln!(
-        "{}: σ {:.4} kPa, baseline {:.4} → final {:.4} kPa ({:.2} σ), effects {:?}, remaining {:?}",
+        "{}: σ {:.4} kPa, baseline {:.4} → final {:.4} kPa ({:.3} σ), effects {:?}, remaining {:?}",
         sc.name,
         sigma,
         d.baseline.rmse_heldout,
