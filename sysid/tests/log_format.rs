@@ -113,6 +113,40 @@ proptest! {
             Err(e) => prop_assert!(e.to_string().starts_with("test.csv")),
         }
     }
+
+    #[test]
+    fn random_flags_cells_never_panic(cells in proptest::collection::vec("[-0-9a-z +.]{0,12}", 3..40)) {
+        // Whatever the flags column holds, the dataset is built or refused with an error naming
+        // the sample, and exactly the rows whose cell is an integer with NOT_ZEROED are left out.
+        let mut text = String::from("time_s,volume_mm3,pressure_kpa,flags\n");
+        for (k, c) in cells.iter().enumerate() {
+            text.push_str(&format!("{},{k},1.0,{c}\n", 0.04 * k as f64));
+        }
+        let Ok(log) = parse(&text) else { return Ok(()) };
+        let parsed: Vec<Option<u32>> = log
+            .extra
+            .iter()
+            .map(|e| {
+                let c = e[0].trim();
+                if c.is_empty() { Some(0) } else { c.parse().ok() }
+            })
+            .collect();
+        let dropped = parsed.iter().filter(|p| p.is_some_and(|b| b & (1 << 16) != 0)).count();
+        match Dataset::from_log(&log, 0, &DatasetConfig::default()) {
+            Ok(ds) => {
+                prop_assert!(parsed.iter().all(Option::is_some));
+                prop_assert_eq!(ds.not_zeroed, dropped);
+                prop_assert_eq!(ds.len() + dropped, cells.len());
+            }
+            Err(e) => {
+                let m = e.to_string();
+                prop_assert!(
+                    parsed.iter().any(Option::is_none) || cells.len() - dropped < 3,
+                    "{}", m
+                );
+            }
+        }
+    }
 }
 
 #[test]
