@@ -20,7 +20,9 @@
 //!   speed; w is the volume over which 63 % of the switch happens), with `H(v) = H₀ + H₁ x`; inertance `L·v̈`; offset drift `Σ_d c_d P_d(s)` (Legendre in scaled
 //!   time); ripple `a sin 2πft + b cos 2πft`; pump ripple, a volume error `δ = a sin 2πv/Λ +
 //!   b cos 2πv/Λ` once per screw turn entered to first order, `k δ + c δ̇` (k, c the model's
-//!   stiffness and damping);
+//!   stiffness and damping), its phase taken at the plunger, which the logged step count trails
+//!   by a lag fitted per cruise speed ([`CountLag`]), and then applied exactly as an input
+//!   transform by Gauss–Newton steps;
 //! * **output filter** on every column (exact because the model is linear in its coefficients):
 //!   sensor lag `τ Ṗ_m + P_m = P`; air compliance's dynamic part, `τ(t) Ṗ + P = P_static` with
 //!   `τ(t) = c(v, v̇)·V_a·P_atm/(P_atm + P)²` — the line resistance `c = ∂P/∂v̇` (paper's damping,
