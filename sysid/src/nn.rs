@@ -36,7 +36,7 @@
 //!
 //! Why not an ML framework: these nets have 5..105 parameters in 1-neuron layers, where a
 //! framework's per-operation overhead dominates and its dependency tree is large; the whole
-//! forward/backward pass is the twenty lines in [`Net::loss_grad`].
+//! forward/backward pass is the twenty lines in `Net::loss_grad`.
 
 use rand::rngs::StdRng;
 use rand::seq::SliceRandom;
