@@ -37,9 +37,6 @@
 use crate::log::{Log, MAX_CHAMBERS};
 use firmware::telemetry::Flags;
 
-/// The firmware's status bit for frames whose pressure is not yet zeroed.
-const NOT_ZEROED: u32 = Flags::NOT_ZEROED;
-
 /// How to build datasets from a log.
 #[derive(Debug, Clone, PartialEq)]
 pub struct DatasetConfig {
@@ -235,7 +232,7 @@ impl Dataset {
                     time_s: s.time_s,
                     cell: cell.to_string(),
                 })?;
-                if bits & NOT_ZEROED != 0 {
+                if Flags(bits).has(Flags::NOT_ZEROED) {
                     not_zeroed += 1;
                     continue;
                 }

@@ -325,8 +325,10 @@ impl CountLag {
     /// `(1 − f)·lags[i] + f·lags[j]`.
     pub fn weights(&self, speed: f64) -> (usize, usize, f64) {
         let s = &self.speeds;
+        if s.len() <= 1 {
+            return (0, 0, 0.0);
+        }
         match s.iter().position(|&k| k >= speed) {
-            _ if s.len() <= 1 => (0, 0, 0.0),
             Some(0) => (0, 0, 0.0),
             None => (s.len() - 1, s.len() - 1, 0.0),
             Some(j) => (j - 1, j, (speed - s[j - 1]) / (s[j] - s[j - 1])),
