@@ -69,6 +69,24 @@ impl Stage {
                 .map(|e| usize::from(e.kind.has_nonlinear()) + e.count_lag.lags.len())
                 .sum::<usize>()
     }
+
+    /// The design columns of effect `idx`, in order.
+    pub fn owned_columns(&self, idx: usize) -> Vec<usize> {
+        (0..self.design.owner.len())
+            .filter(|&c| self.design.owner[c] == Some(idx))
+            .collect()
+    }
+
+    /// The volume error `(a, b)` (mm³) of the pump ripple at `idx`: what is applied exactly as an
+    /// input transform plus the first-order correction its two columns fitted.
+    fn pump_ripple_error(&self, idx: usize) -> (f64, f64) {
+        let cols = self.owned_columns(idx);
+        let off = self.effects[idx].ripple_offset;
+        (
+            off.0 + self.fit.beta[cols[0]],
+            off.1 + self.fit.beta[cols[1]],
+        )
+    }
 }
 
 fn rms(x: &[f64], rows: &[usize]) -> f64 {
@@ -370,12 +388,8 @@ pub fn search(prep: &Prepared, cur: &Stage, kind: EffectKind) -> Option<Candidat
 fn ripple_gauss_newton(prep: &Prepared, base: &[Effect], mut stage: Stage) -> Stage {
     for _ in 0..4 {
         let last = stage.effects.len() - 1;
-        let cols: Vec<usize> = (0..stage.design.owner.len())
-            .filter(|&c| stage.design.owner[c] == Some(last))
-            .collect();
         let mut e = stage.effects[last].clone();
-        e.ripple_offset.0 += stage.fit.beta[cols[0]];
-        e.ripple_offset.1 += stage.fit.beta[cols[1]];
+        e.ripple_offset = stage.pump_ripple_error(last);
         match fit_stage(prep, &with(base, e)) {
             Some(next) if next.fit.sse < stage.fit.sse => {
                 let small = next.fit.sse > (1.0 - 1e-3) * stage.fit.sse;
@@ -405,13 +419,7 @@ fn count_lag_gauss_newton(prep: &Prepared, base: &[Effect], mut stage: Stage) ->
         let (Some(k), Some(c)) = (&e.stiffness, &e.damping) else {
             break;
         };
-        let own: Vec<usize> = (0..stage.design.owner.len())
-            .filter(|&c| stage.design.owner[c] == Some(last))
-            .collect();
-        let ab = (
-            e.ripple_offset.0 + stage.fit.beta[own[0]],
-            e.ripple_offset.1 + stage.fit.beta[own[1]],
-        );
+        let ab = stage.pump_ripple_error(last);
         let extra =
             super::effects::count_lag_columns(&prep.subframe, k, c, e.theta, ab, &e.count_lag);
         let mut cols = stage.design.cols.clone();
@@ -506,8 +514,9 @@ pub fn retune(prep: &Prepared, stage: &Stage) -> Stage {
 /// reason), or `None` when every effect is admissible (module docs).
 pub fn unphysical(stage: &Stage) -> Option<(usize, String)> {
     for (idx, e) in stage.effects.iter().enumerate() {
-        let cols: Vec<f64> = (0..stage.design.owner.len())
-            .filter(|&c| stage.design.owner[c] == Some(idx))
+        let cols: Vec<f64> = stage
+            .owned_columns(idx)
+            .into_iter()
             .map(|c| stage.fit.beta[c])
             .collect();
         match e.kind {
@@ -646,9 +655,7 @@ pub fn effect_params(prep: &Prepared, stage: &Stage, i: usize) -> Vec<Param> {
     let rho = lag1(&stage.resid, &prep.series.train);
     let inflate = n as f64 / n_eff(n, rho).max(1.0);
     let s2 = stage.fit.sigma2() * inflate;
-    let cols: Vec<usize> = (0..stage.design.owner.len())
-        .filter(|&c| stage.design.owner[c] == Some(i))
-        .collect();
+    let cols = stage.owned_columns(i);
     let b = |k: usize| stage.fit.beta[cols[k]];
     let se = |k: usize| (s2 * stage.fit.xtx_inv[(cols[k], cols[k])]).sqrt();
     let e = &stage.effects[i];
