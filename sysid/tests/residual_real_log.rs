@@ -1,4 +1,4 @@
-//! The residual loop on the real ventilator + test-lung log in `shared/data/` (recorded by others,
+//! The residual loop on the real ventilator + test-lung log in `data/real/` (recorded by others,
 //! not designed for this tool). It checks only what must hold on any data — the loop runs, every
 //! kept effect lowered held-out RMSE, and the report is honest about what remains — and prints the
 //! report (`cargo test --release -p sysid --test residual_real_log -- --ignored --nocapture`). The library is not tuned
@@ -11,17 +11,13 @@ use sysid::log::read_log;
 use sysid::residual::cli::{report, select_shape, series_from_dataset};
 use sysid::residual::{diagnose, Config};
 
-const LOG: &str = "../../shared/data/test-lung-pip15-peep5.csv";
+const LOG: &str = "../data/real/test-lung-pip15-peep5.csv";
 
 #[test]
 #[ignore = "minutes in the debug test profile (23,300 samples, 64-term baseline); run with --ignored --release"]
 fn ventilator_log_runs_and_every_kept_effect_helps() {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join(LOG);
-    if !path.exists() {
-        eprintln!("skipped: {} not present", path.display());
-        return;
-    }
-    let log = read_log(&path).expect("the shared log parses");
+    let log = read_log(&path).expect("the repository's real log parses");
     let ds = Dataset::from_log(&log, 0, &DatasetConfig::default()).expect("dataset");
     let (n, m) = select_shape(&ds).unwrap_or((3, 2));
     let series = series_from_dataset(&ds).expect("series");
