@@ -38,8 +38,10 @@
 //! # Ok::<(), model_core::ModelError>(())
 //! ```
 //!
-//! Equation and table numbers refer to the shared paper source
-//! (`shared/paper/volume-flow-pressure-modeling.tex`).
+//! Equation and table numbers refer to the paper this crate implements: S.-Y. Lee, L. Zamora
+//! Yañez, J. Rogatinsky, V. T. Vo, T. Shingade and T. Ranzani, *Simplifying Data-Driven Modeling
+//! of the Volume-Flow-Pressure Relationship in Hydraulic Soft Robotic Actuators* (IEEE), counting
+//! its numbered equations in order.
 #![no_std]
 #![forbid(unsafe_code)]
 #![warn(missing_docs)]
