@@ -194,12 +194,19 @@ impl Board {
         self.shared.lock(|s| s.flags().is_fault())
     }
 
-    /// Whether this frame updated every chamber's RLS (when RLS is on): the firmware updates a
-    /// chamber when |v̇| exceeds `rls_min_flow`, the pressure is finite and the model evaluates.
-    pub fn rls_updated_all(&self, frame: &FrameOut) -> bool {
-        frame.0.chambers.iter().all(|c| {
+    /// Which chambers' RLS this frame updated (when RLS is on): the firmware updates a chamber
+    /// when |v̇| exceeds `rls_min_flow`, the pressure is finite and the model evaluates.
+    pub fn rls_updated(&self, frame: &FrameOut) -> [bool; CHANNELS] {
+        frame.0.chambers.map(|c| {
             c.vdot.abs() > self.rls_min_flow && c.p.is_finite() && c.p_hat.is_finite()
         })
+    }
+}
+
+impl FrameOut {
+    /// The frame's mean flow of each chamber, mm³/s.
+    pub fn vdot(&self) -> [f32; CHANNELS] {
+        self.0.chambers.map(|c| c.vdot)
     }
 }
 

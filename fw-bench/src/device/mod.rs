@@ -49,6 +49,7 @@ pub(crate) mod marks {
         fwb_begin_calib_nop100,
         fwb_begin_calib_loop50,
         fwb_begin_calib_irq40,
+        fwb_begin_calib_cs40,
         // stepper task
         fwb_begin_step_accel,
         fwb_begin_step_cruise,
@@ -108,6 +109,32 @@ fn calibrate() {
     // counted), and a 42-instruction region.
     measure(marks::fwb_begin_calib_irq40, || unsafe {
         asm!("cpsid i", ".rept 40", "nop", ".endr", "cpsie i", options(nomem, nostack));
+    });
+    // Two nested critical sections the way cortex-m's `critical-section` implementation does
+    // them (save PRIMASK, `cpsid i`; restore PRIMASK by `msr`): interrupts are off from the
+    // outer `cpsid` to the outer `msr`, 1 + 20 + (1 + 1 + 5 + 1) + 10 + 1 = 40 instructions;
+    // the region also counts the outer `mrs`: 41.
+    measure(marks::fwb_begin_calib_cs40, || unsafe {
+        asm!(
+            "mrs {outer}, PRIMASK",
+            "cpsid i",
+            ".rept 20",
+            "nop",
+            ".endr",
+            "mrs {inner}, PRIMASK",
+            "cpsid i",
+            ".rept 5",
+            "nop",
+            ".endr",
+            "msr PRIMASK, {inner}",
+            ".rept 10",
+            "nop",
+            ".endr",
+            "msr PRIMASK, {outer}",
+            outer = out(reg) _,
+            inner = out(reg) _,
+            options(nomem, nostack),
+        );
     });
 }
 

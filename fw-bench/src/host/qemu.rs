@@ -132,13 +132,19 @@ fn run_with_fifo(
     // A watchdog: kill QEMU after the timeout.
     let watchdog = thread::spawn(move || {
         if done_rx.recv_timeout(timeout).is_err() {
-            let _ = Command::new("kill").arg(pid.to_string()).status();
+            let _ = Command::new("kill")
+                .arg(pid.to_string())
+                .stderr(Stdio::null())
+                .status();
             return true;
         }
         false
     });
     let counted = count(fifo, layout).inspect_err(|_| {
-        let _ = Command::new("kill").arg(pid.to_string()).status();
+        let _ = Command::new("kill")
+            .arg(pid.to_string())
+            .stderr(Stdio::null())
+            .status();
     });
     let status = waiter
         .join()
@@ -154,13 +160,13 @@ fn run_with_fifo(
     if timed_out {
         return Err(format!("QEMU did not finish within {timeout:?}"));
     }
-    let counts = counted?;
     if !status.success() {
         return Err(format!(
             "the bench program failed ({status}):\n{}",
             output.trim_end()
         ));
     }
+    let counts = counted?;
     Ok(Run {
         counts,
         messages,

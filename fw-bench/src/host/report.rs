@@ -33,11 +33,12 @@ fn sources(key: &str) -> &'static [&'static str] {
 }
 
 /// Calibration regions and their exact expected counts (region, interrupts-off window).
-const CALIBRATION: [(&str, u64, u64); 4] = [
+const CALIBRATION: [(&str, u64, u64); 5] = [
     ("calib_empty", 0, 0),
     ("calib_nop100", 100, 0),
     ("calib_loop50", 101, 0),
     ("calib_irq40", 42, 42),
+    ("calib_cs40", 41, 40),
 ];
 
 /// The JSON line: exactly the reported keys, numbers only.
@@ -282,6 +283,7 @@ mod tests {
             "calib_nop100",
             "calib_loop50",
             "calib_irq40",
+            "calib_cs40",
             "step_accel",
             "step_cruise",
             "oversample",
@@ -314,6 +316,7 @@ mod tests {
                 r("calib_nop100", 100, 0),
                 r("calib_loop50", 101, 0),
                 r("calib_irq40", 42, 42),
+                r("calib_cs40", 41, 40),
                 r("step_accel", 10, 5),
                 r("step_accel", 30, 5),
                 r("step_cruise", 20, 5),

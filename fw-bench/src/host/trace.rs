@@ -6,10 +6,13 @@
 //!   (the instruction just before it) is not counted either, so a region's count is exactly the
 //!   instructions the measured code executed.
 //! - `fwb_retag_<name>` renames the region closed last.
-//! - An interrupts-off window starts at a `cpsid i` executed with interrupts enabled and ends at
-//!   the next `cpsie i`; its length counts both. The cortex-m `critical-section` implementation
-//!   nests by not re-enabling in inner sections, so nesting needs no special case. A PRIMASK
-//!   or FAULTMASK write by `msr`, which the trace cannot follow, is an error.
+//! - The counter models PRIMASK. cortex-m's `critical-section` implementation acquires with
+//!   `mrs rX, PRIMASK; cpsid i` and releases with `msr PRIMASK, rX` (the saved value), strictly
+//!   nested; the trace has no register values, so each `mrs … PRIMASK` pushes the modelled PRIMASK
+//!   and each `msr PRIMASK, …` pops and restores it. A window starts when PRIMASK goes 0 → 1
+//!   (`cpsid i`) and ends when it goes back to 0 (`cpsie i` or the outermost `msr`); its length
+//!   counts both ends. An `msr` with nothing saved, a read left unpaired at the end, or a
+//!   FAULTMASK write (`msr FAULTMASK`, `cps… f`) is an error.
 
 use std::collections::HashMap;
 
@@ -24,9 +27,11 @@ pub enum Kind {
     IrqOn,
     /// A branch (B, BL, BX, BLX; any form): the way into a marker.
     Branch,
-    /// `msr` to PRIMASK or FAULTMASK: not countable from a trace.
-    MaskWrite,
-    /// `cpsid f` / `cpsie f` alone: also not countable.
+    /// `mrs rX, PRIMASK`: a critical section saves the mask.
+    PrimaskRead,
+    /// `msr PRIMASK, rX`: a critical section restores it.
+    PrimaskWrite,
+    /// `msr FAULTMASK, …`, `cpsid f`, `cpsie f`: not followed by the counter.
     FaultMask,
 }
 
@@ -67,18 +72,18 @@ pub fn decode(h0: u16, h1: u16) -> Kind {
         }
         // MSR (register), M profile: 1111 0011 1000 Rn | 1000 mask 00 SYSm.
         if h0 & 0xfff0 == 0xf380 && h1 & 0xf300 == 0x8000 {
-            let sysm = h1 & 0xff;
-            if sysm == 0x10 || sysm == 0x13 {
-                return Kind::MaskWrite;
+            match h1 & 0xff {
+                0x10 => return Kind::PrimaskWrite,
+                0x13 => return Kind::FaultMask,
+                _ => {}
             }
+        }
+        // MRS, M profile: 1111 0011 1110 1111 | 1000 Rd SYSm.
+        if h0 == 0xf3ef && h1 & 0xf000 == 0x8000 && h1 & 0xff == 0x10 {
+            return Kind::PrimaskRead;
         }
     }
     Kind::Other
-}
-
-/// Whether a halfword starts a 32-bit Thumb-2 instruction.
-pub fn is_wide(h0: u16) -> bool {
-    h0 >> 11 >= 0b11101
 }
 
 /// What a marker address does.
@@ -204,6 +209,8 @@ pub struct Counter<'a> {
     idx: u64,
     open: Option<Open>,
     irq_off_since: Option<(u64, u32)>,
+    /// PRIMASK values saved by `mrs` and not yet restored.
+    saved: Vec<bool>,
     script_start: Option<u64>,
     script_done: bool,
     out: Counts,
@@ -217,6 +224,7 @@ impl<'a> Counter<'a> {
             idx: 0,
             open: None,
             irq_off_since: None,
+            saved: Vec::new(),
             script_start: None,
             script_done: false,
             out: Counts::default(),
@@ -233,24 +241,18 @@ impl<'a> Counter<'a> {
         }
         let kind = self.layout.kind(pc);
         match kind {
-            Kind::IrqOff => {
-                if self.irq_off_since.is_none() {
-                    self.irq_off_since = Some((idx, pc));
-                }
+            Kind::IrqOff => self.set_primask(true, idx, pc),
+            Kind::IrqOn => self.set_primask(false, idx, pc),
+            Kind::PrimaskRead => self.saved.push(self.irq_off_since.is_some()),
+            Kind::PrimaskWrite => {
+                let v = self.saved.pop().ok_or_else(|| {
+                    format!("`msr PRIMASK` at {pc:#010x} restores a value no `mrs` saved")
+                })?;
+                self.set_primask(v, idx, pc);
             }
-            Kind::IrqOn => {
-                if let Some((start, start_pc)) = self.irq_off_since.take() {
-                    self.window(Window {
-                        len: idx - start + 1,
-                        start_pc,
-                        region: self.open.as_ref().map(|o| o.name),
-                    });
-                }
-            }
-            Kind::MaskWrite | Kind::FaultMask => {
+            Kind::FaultMask => {
                 return Err(format!(
-                    "an `msr PRIMASK/FAULTMASK` or `cps … f` executed at {pc:#010x}: the \
-                     trace cannot tell its effect on the interrupt mask"
+                    "a FAULTMASK write executed at {pc:#010x}: the counter does not follow it"
                 ));
             }
             Kind::Other | Kind::Branch => {}
@@ -260,6 +262,22 @@ impl<'a> Counter<'a> {
             o.last = kind;
         }
         Ok(())
+    }
+
+    /// PRIMASK set (interrupts off) or cleared by the instruction `idx` at `pc`.
+    fn set_primask(&mut self, off: bool, idx: u64, pc: u32) {
+        match (off, self.irq_off_since) {
+            (true, None) => self.irq_off_since = Some((idx, pc)),
+            (false, Some((start, start_pc))) => {
+                self.irq_off_since = None;
+                self.window(Window {
+                    len: idx - start + 1,
+                    start_pc,
+                    region: self.open.as_ref().map(|o| o.name),
+                });
+            }
+            _ => {}
+        }
     }
 
     fn window(&mut self, w: Window) {
@@ -356,6 +374,12 @@ impl<'a> Counter<'a> {
         if self.script_start.is_none() || !self.script_done {
             return Err("the scripted run did not complete".into());
         }
+        if !self.saved.is_empty() {
+            return Err(format!(
+                "{} `mrs … PRIMASK` never restored: the PRIMASK model does not hold",
+                self.saved.len()
+            ));
+        }
         self.out.total = self.idx;
         Ok(self.out)
     }
@@ -402,12 +426,14 @@ mod tests {
     const S_BEGIN: u32 = 0x110;
     const S_END: u32 = 0x114;
     // Code at 0x200..: an `Other` at 0x200, a branch at 0x202, cpsid at 0x204, cpsie at 0x206,
-    // an msr PRIMASK at 0x208.
+    // an msr PRIMASK at 0x208, an mrs PRIMASK at 0x20c, an msr FAULTMASK at 0x210.
     const OTHER: u32 = 0x200;
     const BRANCH: u32 = 0x202;
     const CPSID: u32 = 0x204;
     const CPSIE: u32 = 0x206;
     const MSR: u32 = 0x208;
+    const MRS: u32 = 0x20c;
+    const MSR_F: u32 = 0x210;
 
     fn layout() -> Layout {
         let mut l = Layout::default();
@@ -421,7 +447,10 @@ mod tests {
         l.roles.insert(S_BEGIN, Role::ScriptBegin);
         l.roles.insert(S_END, Role::ScriptEnd);
         // movs r0, #0 | bl (f000 f800) | cpsid i | cpsie i | msr PRIMASK, r0 (f380 8810)
-        let code: [u16; 7] = [0x2000, 0xf000, 0xf800, 0xb672, 0xb662, 0xf380, 0x8810];
+        // | mrs r0, PRIMASK (f3ef 8010) | msr FAULTMASK, r0 (f380 8813)
+        let code: [u16; 11] = [
+            0x2000, 0xf000, 0xf800, 0xb672, 0xb662, 0xf380, 0x8810, 0xf3ef, 0x8010, 0xf380, 0x8813,
+        ];
         let bytes: Vec<u8> = code.iter().flat_map(|h| h.to_le_bytes()).collect();
         // Lay them out so each starts where the constants say (the bl is 4 bytes).
         l.add_code(0x200, &bytes[0..2]);
@@ -429,6 +458,8 @@ mod tests {
         l.add_code(0x204, &bytes[6..8]);
         l.add_code(0x206, &bytes[8..10]);
         l.add_code(0x208, &bytes[10..14]);
+        l.add_code(0x20c, &bytes[14..18]);
+        l.add_code(0x210, &bytes[18..22]);
         l
     }
 
@@ -460,10 +491,13 @@ mod tests {
         assert_eq!(decode(0xb662, 0), Kind::IrqOn); // cpsie i
         assert_eq!(decode(0xb673, 0), Kind::IrqOff); // cpsid if
         assert_eq!(decode(0xb671, 0), Kind::FaultMask); // cpsid f
-        assert_eq!(decode(0xf380, 0x8810), Kind::MaskWrite); // msr PRIMASK, r0
-        assert_eq!(decode(0xf381, 0x8813), Kind::MaskWrite); // msr FAULTMASK, r1
+        assert_eq!(decode(0xf380, 0x8810), Kind::PrimaskWrite); // msr PRIMASK, r0
+        assert_eq!(decode(0xf386, 0x8810), Kind::PrimaskWrite); // msr PRIMASK, r6
+        assert_eq!(decode(0xf381, 0x8813), Kind::FaultMask); // msr FAULTMASK, r1
         assert_eq!(decode(0xf380, 0x8811), Kind::Other); // msr BASEPRI, r0
-        assert_eq!(decode(0xf3ef, 0x8010), Kind::Other); // mrs r0, PRIMASK
+        assert_eq!(decode(0xf3ef, 0x8010), Kind::PrimaskRead); // mrs r0, PRIMASK
+        assert_eq!(decode(0xf3ef, 0x8410), Kind::PrimaskRead); // mrs r4, PRIMASK
+        assert_eq!(decode(0xf3ef, 0x8009), Kind::Other); // mrs r0, PSP
         assert_eq!(decode(0xf3bf, 0x8f4f), Kind::Other); // dsb sy
         assert_eq!(decode(0xf000, 0xf800), Kind::Branch); // bl
         assert_eq!(decode(0xf7ff, 0xbffe), Kind::Branch); // b.w
@@ -475,7 +509,6 @@ mod tests {
         assert_eq!(decode(0xdf00, 0), Kind::Other); // svc 0
         assert_eq!(decode(0xbf00, 0), Kind::Other); // nop
         assert_eq!(decode(0x2032, 0), Kind::Other); // movs r0, #50
-        assert!(is_wide(0xf000) && is_wide(0xe92d) && !is_wide(0xb672) && !is_wide(0x4770));
     }
 
     #[test]
@@ -530,6 +563,23 @@ mod tests {
     }
 
     #[test]
+    fn critical_sections_restored_by_msr_nest() {
+        let l = layout();
+        // acquire (mrs, cpsid) · 3 · acquire (mrs, cpsid) · 2 · release (msr) · 4 · release (msr):
+        // interrupts go off at the first cpsid and on at the last msr only.
+        let mut v = vec![MRS, CPSID, OTHER, OTHER, OTHER, MRS, CPSID, OTHER, OTHER, MSR];
+        v.extend([OTHER, OTHER, OTHER, OTHER, MSR, OTHER]);
+        let c = run(&l, &scripted(v)).unwrap();
+        let w = c.script_max_irq_off.unwrap();
+        assert_eq!((w.len, w.start_pc), (14, CPSID));
+        assert_eq!(c.script_windows, 1);
+        // A critical section entered with interrupts already off restores "off".
+        let v = vec![CPSID, MRS, CPSID, OTHER, MSR, OTHER, CPSIE];
+        let c = run(&l, &scripted(v)).unwrap();
+        assert_eq!(c.script_max_irq_off.unwrap().len, 7);
+    }
+
+    #[test]
     fn windows_outside_the_script_are_not_reported() {
         let l = layout();
         let v = vec![CPSID, OTHER, OTHER, CPSIE, S_BEGIN, CPSID, CPSIE, S_END];
@@ -559,8 +609,10 @@ mod tests {
         // A region never closed, a script never ended.
         assert!(run(&l, &scripted(vec![BEGIN_A, OTHER])).is_err());
         assert!(run(&l, &[S_BEGIN, OTHER]).is_err());
-        // A PRIMASK write.
+        // A PRIMASK restore nothing saved, a save never restored, a FAULTMASK write.
         assert!(run(&l, &scripted(vec![CPSID, MSR])).unwrap_err().contains("PRIMASK"));
+        assert!(run(&l, &scripted(vec![MRS, CPSID, CPSIE])).unwrap_err().contains("PRIMASK"));
+        assert!(run(&l, &scripted(vec![MSR_F])).unwrap_err().contains("FAULTMASK"));
         // A retag before any region.
         assert!(run(&l, &scripted(vec![RETAG_C])).is_err());
     }
