@@ -14,6 +14,7 @@ pub fn layout(data: &[u8]) -> Result<Layout, String> {
     let file = object::File::parse(data).map_err(|e| format!("not an ELF: {e}"))?;
     let mut l = Layout::default();
     let mut by_addr: HashMap<u32, String> = HashMap::new();
+    let mut roles = Vec::new();
     for sym in file.symbols() {
         let Ok(name) = sym.name() else { continue };
         if !name.starts_with("fwb_") {
@@ -41,7 +42,7 @@ pub fn layout(data: &[u8]) -> Result<Layout, String> {
                 ));
             }
         }
-        l.roles.insert(addr, role);
+        roles.push((addr, role, name.to_owned()));
     }
     for req in REQUIRED {
         if !by_addr.values().any(|n| n == req) {
@@ -60,6 +61,11 @@ pub fn layout(data: &[u8]) -> Result<Layout, String> {
     }
     if l.kinds.is_empty() {
         return Err("no code in the ELF".into());
+    }
+    for (addr, role, name) in roles {
+        if !l.add_role(addr, role) {
+            return Err(format!("marker `{name}` ({addr:#010x}) is outside the code"));
+        }
     }
     Ok(l)
 }

@@ -33,6 +33,8 @@ pub enum Kind {
     PrimaskWrite,
     /// `msr FAULTMASK, …`, `cpsid f`, `cpsie f`: not followed by the counter.
     FaultMask,
+    /// The first instruction of a marker function (see [`Layout::roles`]).
+    Marker,
 }
 
 /// Decode the instruction that starts with halfword `h0` (followed by `h1`), Thumb-2.
@@ -123,6 +125,19 @@ impl Layout {
                 self.names.push(name.to_owned());
                 self.names.len() - 1
             }
+        }
+    }
+
+    /// A marker at `addr`, in code added before by [`Layout::add_code`]; `false` if outside.
+    pub fn add_role(&mut self, addr: u32, role: Role) -> bool {
+        let off = addr.wrapping_sub(self.base) as usize / 2;
+        match self.kinds.get_mut(off) {
+            Some(k) => {
+                *k = Kind::Marker;
+                self.roles.insert(addr, role);
+                true
+            }
+            None => false,
         }
     }
 
@@ -236,10 +251,12 @@ impl<'a> Counter<'a> {
         let pc = pc & !1;
         let idx = self.idx;
         self.idx += 1;
-        if let Some(&role) = self.layout.roles.get(&pc) {
-            return self.marker(role, pc);
-        }
         let kind = self.layout.kind(pc);
+        if kind == Kind::Marker {
+            if let Some(&role) = self.layout.roles.get(&pc) {
+                return self.marker(role, pc);
+            }
+        }
         match kind {
             Kind::IrqOff => self.set_primask(true, idx, pc),
             Kind::IrqOn => self.set_primask(false, idx, pc),
@@ -255,7 +272,7 @@ impl<'a> Counter<'a> {
                     "a FAULTMASK write executed at {pc:#010x}: the counter does not follow it"
                 ));
             }
-            Kind::Other | Kind::Branch => {}
+            Kind::Other | Kind::Branch | Kind::Marker => {}
         }
         if let Some(o) = &mut self.open {
             o.insns += 1;
@@ -440,12 +457,6 @@ mod tests {
         let a = l.name_index("a");
         let b = l.name_index("b");
         let c = l.name_index("c");
-        l.roles.insert(BEGIN_A, Role::Begin(a));
-        l.roles.insert(BEGIN_B, Role::Begin(b));
-        l.roles.insert(END, Role::End);
-        l.roles.insert(RETAG_C, Role::Retag(c));
-        l.roles.insert(S_BEGIN, Role::ScriptBegin);
-        l.roles.insert(S_END, Role::ScriptEnd);
         // movs r0, #0 | bl (f000 f800) | cpsid i | cpsie i | msr PRIMASK, r0 (f380 8810)
         // | mrs r0, PRIMASK (f3ef 8010) | msr FAULTMASK, r0 (f380 8813)
         let code: [u16; 11] = [
@@ -460,6 +471,22 @@ mod tests {
         l.add_code(0x208, &bytes[10..14]);
         l.add_code(0x20c, &bytes[14..18]);
         l.add_code(0x210, &bytes[18..22]);
+        // The markers: `bx lr` each.
+        l.add_code(0x100, &[0x70, 0x47].repeat(12));
+        for (addr, role) in [
+            (BEGIN_A, Role::Begin(a)),
+            (BEGIN_B, Role::Begin(b)),
+            (END, Role::End),
+            (RETAG_C, Role::Retag(c)),
+            (S_BEGIN, Role::ScriptBegin),
+            (S_END, Role::ScriptEnd),
+        ] {
+            assert!(l.add_role(addr, role));
+        }
+        assert!(!l.add_role(0x1000, Role::End));
+        assert_eq!(l.kind(0x200), Kind::Other);
+        assert_eq!(l.kind(0x116), Kind::Branch);
+        assert_eq!(l.kind(0x118), Kind::Other);
         l
     }
 
