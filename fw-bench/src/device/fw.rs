@@ -197,9 +197,10 @@ impl Board {
     /// Which chambers' RLS this frame updated (when RLS is on): the firmware updates a chamber
     /// when |v̇| exceeds `rls_min_flow`, the pressure is finite and the model evaluates.
     pub fn rls_updated(&self, frame: &FrameOut) -> [bool; CHANNELS] {
-        frame.0.chambers.map(|c| {
-            c.vdot.abs() > self.rls_min_flow && c.p.is_finite() && c.p_hat.is_finite()
-        })
+        frame
+            .0
+            .chambers
+            .map(|c| c.vdot.abs() > self.rls_min_flow && c.p.is_finite() && c.p_hat.is_finite())
     }
 }
 
@@ -209,4 +210,3 @@ impl FrameOut {
         self.0.chambers.map(|c| c.vdot)
     }
 }
-

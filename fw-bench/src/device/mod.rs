@@ -92,7 +92,12 @@ fn calibrate() {
     measure(marks::fwb_begin_calib_empty, || {});
     // 100 `nop`s: 100.
     measure(marks::fwb_begin_calib_nop100, || unsafe {
-        asm!(".rept 100", "nop", ".endr", options(nomem, nostack, preserves_flags));
+        asm!(
+            ".rept 100",
+            "nop",
+            ".endr",
+            options(nomem, nostack, preserves_flags)
+        );
     });
     // A loop of 50 trips: 1 (`movs`) + 50 × 2 (`subs`, `bne`) = 101.
     measure(marks::fwb_begin_calib_loop50, || unsafe {
@@ -108,7 +113,14 @@ fn calibrate() {
     // Interrupts off for `cpsid i`, 40 `nop`s, `cpsie i`: a 42-instruction window (both ends
     // counted), and a 42-instruction region.
     measure(marks::fwb_begin_calib_irq40, || unsafe {
-        asm!("cpsid i", ".rept 40", "nop", ".endr", "cpsie i", options(nomem, nostack));
+        asm!(
+            "cpsid i",
+            ".rept 40",
+            "nop",
+            ".endr",
+            "cpsie i",
+            options(nomem, nostack)
+        );
     });
     // Two nested critical sections the way cortex-m's `critical-section` implementation does
     // them (save PRIMASK, `cpsid i`; restore PRIMASK by `msr`): interrupts are off from the

@@ -189,7 +189,10 @@ impl Rig {
 
     fn next_dither(&mut self) -> u16 {
         // A 32-bit LCG (Numerical Recipes); the top bits give 0..=3 counts.
-        self.dither = self.dither.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+        self.dither = self
+            .dither
+            .wrapping_mul(1_664_525)
+            .wrapping_add(1_013_904_223);
         (self.dither >> 30) as u16
     }
 
@@ -271,7 +274,12 @@ impl Rig {
         let reply = measure(region, || b.command_bytes(bytes.as_bytes(), now));
         let mut out = Line::new();
         let _ = out.push_str(reply.unwrap_or("(no reply)"));
-        assert!(out.starts_with("ok"), "`{}` replied `{}`", line, out.trim_end());
+        assert!(
+            out.starts_with("ok"),
+            "`{}` replied `{}`",
+            line,
+            out.trim_end()
+        );
         self.s.commands += 1;
         // The command woke the stepper task: it re-plans now.
         self.wait = self.b.stepper_poll(self.now);

@@ -64,7 +64,9 @@ pub fn layout(data: &[u8]) -> Result<Layout, String> {
     }
     for (addr, role, name) in roles {
         if !l.add_role(addr, role) {
-            return Err(format!("marker `{name}` ({addr:#010x}) is outside the code"));
+            return Err(format!(
+                "marker `{name}` ({addr:#010x}) is outside the code"
+            ));
         }
     }
     Ok(l)

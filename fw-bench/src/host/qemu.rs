@@ -36,10 +36,9 @@ pub struct Run {
 
 /// QEMU's version, e.g. (7, 2).
 pub fn version(qemu: &str) -> Result<(u32, u32), String> {
-    let out = Command::new(qemu)
-        .arg("--version")
-        .output()
-        .map_err(|e| format!("cannot run `{qemu}`: {e} (install it: apt-get install qemu-system-arm)"))?;
+    let out = Command::new(qemu).arg("--version").output().map_err(|e| {
+        format!("cannot run `{qemu}`: {e} (install it: apt-get install qemu-system-arm)")
+    })?;
     let text = String::from_utf8_lossy(&out.stdout);
     parse_version(&text).ok_or_else(|| format!("cannot read the version of `{qemu}`: {text}"))
 }
@@ -91,7 +90,9 @@ fn run_with_fifo(
 ) -> Result<Run, String> {
     let started = Instant::now();
     let mut child = Command::new(qemu)
-        .args(["-M", MACHINE, "-display", "none", "-monitor", "none", "-serial", "none"])
+        .args([
+            "-M", MACHINE, "-display", "none", "-monitor", "none", "-serial", "none",
+        ])
         .args(["-semihosting-config", "enable=on,target=native"])
         .arg("-kernel")
         .arg(elf)
@@ -114,8 +115,18 @@ fn run_with_fifo(
             s
         })
     };
-    let out_t = collect(child.stdout.take().map(|r| Box::new(r) as Box<dyn Read + Send>));
-    let err_t = collect(child.stderr.take().map(|r| Box::new(r) as Box<dyn Read + Send>));
+    let out_t = collect(
+        child
+            .stdout
+            .take()
+            .map(|r| Box::new(r) as Box<dyn Read + Send>),
+    );
+    let err_t = collect(
+        child
+            .stderr
+            .take()
+            .map(|r| Box::new(r) as Box<dyn Read + Send>),
+    );
     // Wait for QEMU in a thread: when it exits without ever opening the FIFO, open it for
     // writing ourselves so the reader below gets its end of file instead of blocking forever.
     let (done_tx, done_rx) = mpsc::channel();
@@ -228,8 +239,14 @@ mod tests {
 
     #[test]
     fn picks_the_single_step_option_by_version() {
-        assert_eq!(parse_version("QEMU emulator version 7.2.22 (Debian 1:7.2+dfsg)\n"), Some((7, 2)));
-        assert_eq!(parse_version("QEMU emulator version 10.0.2\n"), Some((10, 0)));
+        assert_eq!(
+            parse_version("QEMU emulator version 7.2.22 (Debian 1:7.2+dfsg)\n"),
+            Some((7, 2))
+        );
+        assert_eq!(
+            parse_version("QEMU emulator version 10.0.2\n"),
+            Some((10, 0))
+        );
         assert_eq!(parse_version("something else"), None);
         assert!(trace_args((7, 2)).contains(&"-singlestep"));
         assert!(trace_args((8, 0)).contains(&"-singlestep"));

@@ -168,7 +168,8 @@ pub fn report(layout: &Layout, counts: &Counts) -> Result<Report, String> {
     let irq_off_at = format!(
         "{} (cpsid at {:#010x})",
         w.region
-            .map_or("between regions".to_owned(), |i| layout.names[i].clone()),
+            .and_then(|i| counts.regions.get(i))
+            .map_or("between regions", |r| layout.names[r.name].as_str()),
         w.start_pc
     );
     let figures = Figures {
@@ -184,7 +185,9 @@ pub fn report(layout: &Layout, counts: &Counts) -> Result<Report, String> {
     Ok(Report {
         figures,
         regions,
-        command_max_kind: command_max_kind.trim_start_matches("cmd_").replace('_', " "),
+        command_max_kind: command_max_kind
+            .trim_start_matches("cmd_")
+            .replace('_', " "),
         irq_off_at,
         script_insns: counts.script_insns,
         script_windows: counts.script_windows,
@@ -194,10 +197,12 @@ pub fn report(layout: &Layout, counts: &Counts) -> Result<Report, String> {
 
 /// Budgets from the checked-in TOML: `key = instructions`, only the reported keys.
 pub fn parse_budgets(text: &str) -> Result<BTreeMap<String, u64>, String> {
-    let b: BTreeMap<String, u64> =
-        toml::from_str(text).map_err(|e| format!("budgets: {e}"))?;
+    let b: BTreeMap<String, u64> = toml::from_str(text).map_err(|e| format!("budgets: {e}"))?;
     if let Some(k) = b.keys().find(|k| !KEYS.contains(&k.as_str())) {
-        return Err(format!("budgets: unknown key `{k}` (keys: {})", KEYS.join(", ")));
+        return Err(format!(
+            "budgets: unknown key `{k}` (keys: {})",
+            KEYS.join(", ")
+        ));
     }
     Ok(b)
 }
@@ -335,7 +340,7 @@ mod tests {
             script_max_irq_off: Some(Window {
                 len: 85,
                 start_pc: 0x0800_1000,
-                region: l.names.iter().position(|n| n == "frame_rls_drift"),
+                region: Some(11),
             }),
         }
     }
@@ -382,10 +387,14 @@ mod tests {
         assert!(e.contains("calib_nop100"), "{e}");
         let mut c = counts(&l);
         c.regions[3].max_irq_off = 41;
-        assert!(check_calibration(&l, &c).unwrap_err().contains("calib_irq40"));
+        assert!(check_calibration(&l, &c)
+            .unwrap_err()
+            .contains("calib_irq40"));
         let mut c = counts(&l);
         c.regions.remove(0);
-        assert!(check_calibration(&l, &c).unwrap_err().contains("calib_empty"));
+        assert!(check_calibration(&l, &c)
+            .unwrap_err()
+            .contains("calib_empty"));
     }
 
     #[test]
@@ -414,7 +423,10 @@ mod tests {
         };
         assert_eq!(
             over_budget(&f, &b),
-            ["step = 1,810 > budget 300", "max_irq_off = 118,000 > budget 2,000"]
+            [
+                "step = 1,810 > budget 300",
+                "max_irq_off = 118,000 > budget 2,000"
+            ]
         );
         assert!(parse_budgets("stepp = 3\n").is_err());
         assert!(parse_budgets("step = -3\n").is_err());

@@ -192,7 +192,7 @@ pub struct Window {
     pub len: u64,
     /// PC of the `cpsid i`.
     pub start_pc: u32,
-    /// The region it closed in (index into [`Layout::names`]), if any.
+    /// The region occurrence it closed in (index into [`Counts::regions`]), if any.
     pub region: Option<usize>,
 }
 
@@ -290,7 +290,7 @@ impl<'a> Counter<'a> {
                 self.window(Window {
                     len: idx - start + 1,
                     start_pc,
-                    region: self.open.as_ref().map(|o| o.name),
+                    region: self.open.as_ref().map(|_| self.out.regions.len()),
                 });
             }
             _ => {}
@@ -548,7 +548,11 @@ mod tests {
             assert_eq!(c.regions[0].name, 0);
         }
         // Instructions outside regions are not counted in any, but are in the total.
-        let c = run(&l, &scripted([region(3), vec![OTHER; 7], region(5)].concat())).unwrap();
+        let c = run(
+            &l,
+            &scripted([region(3), vec![OTHER; 7], region(5)].concat()),
+        )
+        .unwrap();
         let n: Vec<u64> = c.regions.iter().map(|r| r.insns).collect();
         assert_eq!(n, [3, 5]);
         // 2 + (1 + 3 + 2) + 7 + (1 + 5 + 2) + 2 fed instructions.
@@ -582,7 +586,9 @@ mod tests {
         let w = c.script_max_irq_off.unwrap();
         assert_eq!((w.len, w.start_pc, w.region), (42, CPSID, Some(0)));
         // Nested: the inner cpsid does not restart the window; a stray cpsie is ignored.
-        let v = vec![CPSIE, CPSID, OTHER, CPSID, OTHER, OTHER, CPSIE, OTHER, CPSID, CPSIE];
+        let v = vec![
+            CPSIE, CPSID, OTHER, CPSID, OTHER, OTHER, CPSIE, OTHER, CPSID, CPSIE,
+        ];
         let c = run(&l, &scripted(v)).unwrap();
         let w = c.script_max_irq_off.unwrap();
         assert_eq!((w.len, w.region), (6, None));
@@ -594,7 +600,9 @@ mod tests {
         let l = layout();
         // acquire (mrs, cpsid) · 3 · acquire (mrs, cpsid) · 2 · release (msr) · 4 · release (msr):
         // interrupts go off at the first cpsid and on at the last msr only.
-        let mut v = vec![MRS, CPSID, OTHER, OTHER, OTHER, MRS, CPSID, OTHER, OTHER, MSR];
+        let mut v = vec![
+            MRS, CPSID, OTHER, OTHER, OTHER, MRS, CPSID, OTHER, OTHER, MSR,
+        ];
         v.extend([OTHER, OTHER, OTHER, OTHER, MSR, OTHER]);
         let c = run(&l, &scripted(v)).unwrap();
         let w = c.script_max_irq_off.unwrap();
@@ -621,6 +629,15 @@ mod tests {
         let v = scripted([region(2), vec![RETAG_C]].concat());
         let c = run(&l, &v).unwrap();
         assert_eq!(l.names[c.regions[0].name], "c");
+        // A window inside the retagged region is reported in it under its new name.
+        let mut v = vec![
+            BEGIN_A, OTHER, BRANCH, END, BEGIN_A, CPSID, CPSIE, BRANCH, END, RETAG_C,
+        ];
+        v.extend(region(1));
+        let c = run(&l, &scripted(v)).unwrap();
+        let w = c.script_max_irq_off.unwrap();
+        assert_eq!(w.region, Some(1));
+        assert_eq!(l.names[c.regions[w.region.unwrap()].name], "c");
     }
 
     #[test]
@@ -637,9 +654,15 @@ mod tests {
         assert!(run(&l, &scripted(vec![BEGIN_A, OTHER])).is_err());
         assert!(run(&l, &[S_BEGIN, OTHER]).is_err());
         // A PRIMASK restore nothing saved, a save never restored, a FAULTMASK write.
-        assert!(run(&l, &scripted(vec![CPSID, MSR])).unwrap_err().contains("PRIMASK"));
-        assert!(run(&l, &scripted(vec![MRS, CPSID, CPSIE])).unwrap_err().contains("PRIMASK"));
-        assert!(run(&l, &scripted(vec![MSR_F])).unwrap_err().contains("FAULTMASK"));
+        assert!(run(&l, &scripted(vec![CPSID, MSR]))
+            .unwrap_err()
+            .contains("PRIMASK"));
+        assert!(run(&l, &scripted(vec![MRS, CPSID, CPSIE]))
+            .unwrap_err()
+            .contains("PRIMASK"));
+        assert!(run(&l, &scripted(vec![MSR_F]))
+            .unwrap_err()
+            .contains("FAULTMASK"));
         // A retag before any region.
         assert!(run(&l, &scripted(vec![RETAG_C])).is_err());
     }
