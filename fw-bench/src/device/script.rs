@@ -203,7 +203,7 @@ impl Rig {
         for ch in 0..CHANNELS {
             raw[ch] = (ZERO_COUNTS + COUNTS_PER_MM3 * v[ch]) as u16 + self.next_dither();
         }
-        let completes = (self.s.conversions + 1) % OVERSAMPLE == 0;
+        let completes = (self.s.conversions + 1).is_multiple_of(OVERSAMPLE);
         self.s.conversions += 1;
         let now = self.now;
         let b = &self.b;
@@ -227,7 +227,7 @@ impl Rig {
             for (ch, updated) in self.b.rls_updated(f).into_iter().enumerate() {
                 if updated && self.rls_on[ch] {
                     self.rls_updates[ch] += 1;
-                    if self.rls_updates[ch] % DRIFT_WINDOW == 0 {
+                    if self.rls_updates[ch].is_multiple_of(DRIFT_WINDOW) {
                         checks += 1;
                         later += u32::from(self.rls_updates[ch] > DRIFT_WINDOW);
                     }

@@ -92,10 +92,10 @@ fn build(locked: bool) -> Result<PathBuf, String> {
     }
     let text = String::from_utf8_lossy(&out.stdout);
     text.lines()
+        .rev()
         .filter_map(|l| serde_json::from_str::<serde_json::Value>(l).ok())
         .filter(|v| v["reason"] == "compiler-artifact" && v["target"]["name"] == "fw-bench")
-        .filter_map(|v| v["executable"].as_str().map(PathBuf::from))
-        .last()
+        .find_map(|v| v["executable"].as_str().map(PathBuf::from))
         .ok_or_else(|| "cargo did not report the bench program's ELF".into())
 }
 
