@@ -15,6 +15,10 @@
 //! - `telemetry::Frame::encode`, `telemetry::Event::encode`, the `hal::TelemetrySink` trait
 //!   (implemented here exactly as the binary's `DefmtSink`: one `defmt::println!` to RTT).
 //!
+//! Types and constants used: `app::{Config, Shared, StepperWait, REPLY_LEN}`, `hal::AXES`,
+//! `telemetry::{Frame (fields chambers[].vdot/p/p_hat), Event (field kind), EventKind, LineBuf}`.
+//! The rest of the crate sees only [`Board`], [`Wait`], [`FrameOut`], [`Events`], [`CHANNELS`].
+//!
 //! The ADC, the step pulses, the DIR pins, the watchdog and the UART are the binary's (Embassy)
 //! side and are not part of the measurement.
 
