@@ -502,7 +502,10 @@ mod tests {
         assert_eq!(cause(POWER_ON | 0b11, None), ResetCause::PowerOn);
         // RAM after power-on is noise: even a record that happens to decode is ignored.
         assert_eq!(cause(POWER_ON, panic), ResetCause::PowerOn);
-        assert_eq!(cause(ResetFlags::BOR | ResetFlags::PIN, None), ResetCause::BrownOut);
+        assert_eq!(
+            cause(ResetFlags::BOR | ResetFlags::PIN, None),
+            ResetCause::BrownOut
+        );
         assert_eq!(cause(WATCHDOG, None), ResetCause::Watchdog);
         // A crash record left by an earlier crash does not mask a later watchdog reset.
         assert_eq!(cause(WATCHDOG, panic), ResetCause::Watchdog);
@@ -511,8 +514,14 @@ mod tests {
         assert_eq!(cause(SOFTWARE, None), ResetCause::Software);
         assert_eq!(cause(ResetFlags::PIN, None), ResetCause::Pin);
         assert_eq!(cause(ResetFlags::PIN, panic), ResetCause::Pin);
-        assert_eq!(cause(ResetFlags::WWDG | ResetFlags::PIN, None), ResetCause::WindowWatchdog);
-        assert_eq!(cause(ResetFlags::LPWR | ResetFlags::PIN, None), ResetCause::LowPower);
+        assert_eq!(
+            cause(ResetFlags::WWDG | ResetFlags::PIN, None),
+            ResetCause::WindowWatchdog
+        );
+        assert_eq!(
+            cause(ResetFlags::LPWR | ResetFlags::PIN, None),
+            ResetCause::LowPower
+        );
         assert_eq!(cause(0, None), ResetCause::Unknown);
     }
 
@@ -532,8 +541,15 @@ mod tests {
         ];
         let trusted: std::vec::Vec<_> = all.iter().filter(|c| c.positions_trusted()).collect();
         assert_eq!(trusted, [&ResetCause::PowerOn, &ResetCause::BrownOut]);
-        let faults: std::vec::Vec<_> = all.iter().filter(|c| c.is_fault()).map(|c| c.name()).collect();
-        assert_eq!(faults, ["watchdog", "window-watchdog", "panic", "hardfault"]);
+        let faults: std::vec::Vec<_> = all
+            .iter()
+            .filter(|c| c.is_fault())
+            .map(|c| c.name())
+            .collect();
+        assert_eq!(
+            faults,
+            ["watchdog", "window-watchdog", "panic", "hardfault"]
+        );
         for c in all {
             let mut s = std::string::String::new();
             c.encode(&mut s).unwrap();

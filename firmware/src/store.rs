@@ -99,12 +99,13 @@ pub fn decode_model(b: &[u8]) -> Result<PolyModel, DecodeError> {
         .chunks_exact(4)
         .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]));
     let mut next = || floats.next().unwrap_or(f32::NAN);
-    let scaling =
-        Scaling::new(next(), next(), next(), next()).map_err(|_| DecodeError::Model)?;
+    let scaling = Scaling::new(next(), next(), next(), next()).map_err(|_| DecodeError::Model)?;
     let mut coef = [0.0f32; MAX_TERMS];
     coef[..terms].iter_mut().for_each(|c| *c = next());
     let mut ar = [[0.0f32; 2]; MAX_AR];
-    ar[..p as usize].iter_mut().for_each(|a| *a = [next(), next()]);
+    ar[..p as usize]
+        .iter_mut()
+        .for_each(|a| *a = [next(), next()]);
     PolyModel::from_scaled(shape, &coef[..terms], &ar[..p as usize], scaling)
         .map_err(|_| DecodeError::Model)
 }

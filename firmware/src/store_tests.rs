@@ -140,7 +140,11 @@ fn many_updates_keep_the_latest_of_every_channel() {
     let mut st = store(st.into_flash());
     let boot = block_on(st.load_all());
     for ch in 0..3 {
-        assert_eq!(boot[ch], (variant(57 + ch as u32), Loaded::Stored), "ch {ch}");
+        assert_eq!(
+            boot[ch],
+            (variant(57 + ch as u32), Loaded::Stored),
+            "ch {ch}"
+        );
     }
 }
 
@@ -194,11 +198,20 @@ fn a_power_cut_at_any_byte_leaves_the_old_or_the_new_model() {
                 saw_old |= got == Ok(old);
                 saw_new |= got == Ok(new);
             }
-            assert_eq!(block_on(st.load(1)), Ok(others[0]), "history {history} cut {cut}");
-            assert_eq!(block_on(st.load(2)), Ok(others[1]), "history {history} cut {cut}");
+            assert_eq!(
+                block_on(st.load(1)),
+                Ok(others[0]),
+                "history {history} cut {cut}"
+            );
+            assert_eq!(
+                block_on(st.load(2)),
+                Ok(others[1]),
+                "history {history} cut {cut}"
+            );
             // The store recovers: the next write succeeds and reads back after a reboot.
             let next = variant(200);
-            block_on(st.save(0, &next)).unwrap_or_else(|e| panic!("history {history} cut {cut}: {e:?}"));
+            block_on(st.save(0, &next))
+                .unwrap_or_else(|e| panic!("history {history} cut {cut}: {e:?}"));
             let mut st = small(st.into_flash());
             assert_eq!(block_on(st.load(0)), Ok(next));
             checked += 1;
@@ -272,7 +285,9 @@ fn cmd(s: &mut State, line: &str, now: u64) -> Result<String, CommandError> {
 }
 
 fn events(s: &mut State) -> Vec<crate::telemetry::EventKind> {
-    core::iter::from_fn(|| s.pop_event()).map(|e| e.kind).collect()
+    core::iter::from_fn(|| s.pop_event())
+        .map(|e| e.kind)
+        .collect()
 }
 
 /// A state past its pressure zero at `t`.

@@ -364,8 +364,7 @@ impl Event {
                         false => ResetCause::Unknown,
                     }
                 } else {
-                    ResetCause::decode(|| f.it.next())
-                        .ok_or(TelemetryError::BadNumber { index })?
+                    ResetCause::decode(|| f.it.next()).ok_or(TelemetryError::BadNumber { index })?
                 };
                 EventKind::Boot { cause }
             }
@@ -386,8 +385,8 @@ impl Event {
             "store" => {
                 let ch = f.num()?;
                 let index = f.index;
-                let what = StoreEvent::from_name(f.word()?)
-                    .ok_or(TelemetryError::BadNumber { index })?;
+                let what =
+                    StoreEvent::from_name(f.word()?).ok_or(TelemetryError::BadNumber { index })?;
                 let index = f.index;
                 let crc = f
                     .word()?

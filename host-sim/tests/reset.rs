@@ -18,14 +18,15 @@ fn sequence() -> Scenario {
     };
     Scenario {
         name: "reset".into(),
-        duration_s: 4.0,
+        duration_s: 5.0,
+        // 1 s between the moves: a 20 mm³ move at the default 50 mm³/s takes 0.5 s.
         commands: vec![
             cmd(1.5, "move 0 20"),
             cmd(1.6, "clear"),
-            cmd(1.7, "move 0 20"),
-            cmd(1.8, "origin all 5"),
-            cmd(1.9, "move 0 20"),
-            cmd(3.5, "status"),
+            cmd(2.5, "move 0 20"),
+            cmd(2.6, "origin all 5"),
+            cmd(2.7, "move 0 20"),
+            cmd(4.5, "status"),
         ],
         ..Scenario::default()
     }
@@ -113,7 +114,8 @@ fn after_power_on_motion_is_accepted_at_once() {
         assert_eq!(&replies(&r)[..5], &["ok"; 5], "{cause:?}");
         assert_eq!(boot_cause(&r), cause);
         assert!(r.frames.iter().all(|f| f.flags.0 & ORIGIN_NEEDED_ALL == 0));
-        // From 0 to 20, then (after `origin all 5`) from 5 to 20 mm³: 500 + 375 steps.
+        // From 0 to 20 (the second `move 0 20` finds it there), then, after `origin all 5`,
+        // from 5 to 20 mm³: 500 + 375 steps.
         assert_eq!(r.step_count[0], 875, "{cause:?}");
     }
 }
@@ -122,10 +124,7 @@ fn after_power_on_motion_is_accepted_at_once() {
 fn fault_resets_latch_flag_13_until_clear_and_the_others_do_not() {
     for (cause, latched) in [
         (ResetCause::Watchdog, true),
-        (
-            ResetCause::HardFault(FaultFrame::default()),
-            true,
-        ),
+        (ResetCause::HardFault(FaultFrame::default()), true),
         (ResetCause::Pin, false),
         (ResetCause::PowerOn, false),
     ] {

@@ -41,8 +41,8 @@ mod device {
     use firmware::app::{self, Config, Shared};
     use firmware::board::device::{self as board, DeviceAdc, DeviceSteppers, DeviceWatchdog};
     use firmware::hal;
-    use firmware::reset::{Crash, FaultFrame, FileTail, PanicSite, ResetCause, ResetFlags};
     use firmware::reset::RECORD_WORDS;
+    use firmware::reset::{Crash, FaultFrame, FileTail, PanicSite, ResetCause, ResetFlags};
     use firmware::store::{FlashGuard, ModelStore};
     use static_cell::StaticCell;
 
@@ -77,7 +77,9 @@ mod device {
     /// (one store, no read-modify-write, no lock, no HAL state). Harmless before GPIOA is
     /// clocked (the write is ignored; the pin is still an input then).
     fn drivers_off() {
-        embassy_stm32::pac::GPIOA.bsrr().write(|w| w.set_bs(9, true));
+        embassy_stm32::pac::GPIOA
+            .bsrr()
+            .write(|w| w.set_bs(9, true));
     }
 
     fn write_record(words: &[u32; RECORD_WORDS]) {
