@@ -221,6 +221,7 @@ fn a_power_cut_at_any_byte_leaves_the_old_or_the_new_model() {
             }
         }
     }
+    std::eprintln!("{checked} cut points; longest update {longest} bytes written or erased");
     // Cuts landed both before and after the update's commit point, and some update erased a
     // whole 512-byte page (and moved the live items) before it completed.
     assert!(saw_old && saw_new);
@@ -268,6 +269,33 @@ fn a_corrupt_or_foreign_store_boots_on_the_default() {
     assert_eq!(boot[0], (model_core::poly::sba1(), Loaded::Invalid));
     assert_eq!(boot[1], (ar_model(), Loaded::Stored));
     assert_eq!(boot[2], (model_core::poly::sba1(), Loaded::Empty));
+}
+
+#[test]
+fn an_erased_or_corrupt_store_boots_on_the_default_and_announces_it() {
+    // The boot path of the binary: load every channel, install, one `store` event each.
+    let mut garbage = flash();
+    garbage.as_bytes_mut()[..2048].fill(0x5A);
+    for f in [flash(), garbage] {
+        let mut st = store(f);
+        let models = block_on(st.load_all());
+        let mut s = State::new(Config::default());
+        events(&mut s);
+        s.restore_models(&models, 3);
+        let d = model_core::poly::sba1();
+        for (ch, ev) in events(&mut s).into_iter().enumerate() {
+            match ev {
+                crate::telemetry::EventKind::Store { ch: c, what, crc } => {
+                    assert_eq!(c as usize, ch);
+                    assert!(matches!(what, StoreEvent::Empty | StoreEvent::Invalid));
+                    assert_eq!(crc, model_crc(&d));
+                }
+                other => panic!("{other:?}"),
+            }
+            assert_eq!(*s.model(ch), d);
+            assert_eq!(s.store().saved(ch), Saved::Default);
+        }
+    }
 }
 
 #[test]
