@@ -33,6 +33,8 @@ use crate::command::{self, AxisSet, Command, LineAssembler, ModelCmd, ReadPart};
 use crate::hal::{PressureAdc, SerialPort, Steppers, TelemetrySink, Watchdog, AXES};
 use crate::motion::{Motion, MotionConfig, MotionError};
 use crate::protocol::{ProtocolPoll, ProtocolRun};
+use crate::reset::ResetCause;
+use crate::store::{Loaded, Persist};
 use crate::telemetry::{ChamberFrame, Event, EventKind, Flags, Frame, LineBuf};
 
 /// Number of parameters the online RLS identifies: the paper's n = 3, m = 2 model.
@@ -90,8 +92,9 @@ pub struct Config {
     pub drift_frac: f32,
     /// The watchdog is fed only while the stepper task ran within this many µs.
     pub stepper_stale_us: u64,
-    /// The last reset was a watchdog reset (set by the binary from the reset flags).
-    pub watchdog_reset: bool,
+    /// Why the board last reset (the binary reads it from the reset flags and the crash
+    /// record, [`crate::reset`]).
+    pub reset_cause: ResetCause,
 }
 
 impl Default for Config {
@@ -112,7 +115,7 @@ impl Default for Config {
             drift_window: 250,
             drift_frac: 0.2,
             stepper_stale_us: 500_000,
-            watchdog_reset: false,
+            reset_cause: ResetCause::PowerOn,
         }
     }
 }
@@ -148,6 +151,8 @@ pub enum CommandError {
     Model(ModelError),
     /// RLS needs a model with exactly [`RLS_PARAMS`] parameters.
     RlsShape,
+    /// The axis' position is unknown since the last reset: `origin` first.
+    OriginNeeded,
 }
 
 impl CommandError {
@@ -160,6 +165,7 @@ impl CommandError {
             Self::Incomplete => "incomplete-model",
             Self::Model(_) => "bad-model",
             Self::RlsShape => "rls-shape",
+            Self::OriginNeeded => "origin-needed",
         }
     }
 }
@@ -244,6 +250,8 @@ pub struct State {
     staged: Option<Staged>,
     events: Deque<Event, EVENT_QUEUE>,
     stepper_seen_us: u64,
+    /// The committed models against their flash copies.
+    store: Persist,
 }
 
 impl State {
@@ -257,12 +265,17 @@ impl State {
         let mut s = Self {
             motion: Motion::new(cfg.motion),
             protocol: None,
-            latched: if cfg.watchdog_reset {
-                Flags::WATCHDOG_RESET
+            latched: if cfg.reset_cause.is_fault() {
+                Flags::FAULT_RESET
             } else {
                 0
             },
-            warnings: Flags::NOT_ZEROED,
+            warnings: Flags::NOT_ZEROED
+                | if cfg.reset_cause.positions_trusted() {
+                    0
+                } else {
+                    Flags::ORIGIN_NEEDED * 0b111
+                },
             zero_kpa: [0.0; AXES],
             zeroing: Some((cfg.zero_frames, [0.0; AXES])),
             last_kpa: [None; AXES],
@@ -272,15 +285,52 @@ impl State {
             staged: None,
             events: Deque::new(),
             stepper_seen_us: 0,
+            store: Persist::new(),
             cfg,
         };
         s.event(
             0,
             EventKind::Boot {
-                watchdog: cfg.watchdog_reset,
+                cause: cfg.reset_cause,
             },
         );
         s
+    }
+
+    /// Boot: install the models found in flash (or the default, `how` saying why) and report
+    /// each channel on a `store` event.
+    pub fn restore_models(&mut self, models: &[(PolyModel, Loaded); AXES], now_us: u64) {
+        for (ch, (model, how)) in models.iter().enumerate() {
+            self.chambers[ch] = Chamber {
+                model: *model,
+                hist: ArHistory::new(),
+                online: None,
+            };
+            let what = self.store.booted(ch, model, *how);
+            let crc = self.store.crc(ch);
+            let ch = ch as u8;
+            self.event(now_us, EventKind::Store { ch, what, crc });
+        }
+    }
+
+    /// The model store's state (CRCs, flash status).
+    pub fn store(&self) -> &Persist {
+        &self.store
+    }
+
+    /// Start writing a pending committed model if the board is at rest ([`Persist::begin`]);
+    /// motion is refused until [`persist_end`](Self::persist_end).
+    pub fn persist_begin(&mut self, now_us: u64) -> Option<(u8, PolyModel)> {
+        let at_rest = self.motion.all_idle() && self.protocol.is_none() && self.zeroing.is_none();
+        self.store.begin(at_rest, now_us)
+    }
+
+    /// The write started by [`persist_begin`](Self::persist_begin) ended.
+    pub fn persist_end(&mut self, ch: usize, model: &PolyModel, ok: bool, now_us: u64) {
+        let what = self.store.end(ok);
+        let crc = crate::store::model_crc(model);
+        let ch = ch as u8;
+        self.event(now_us, EventKind::Store { ch, what, crc });
     }
 
     /// The configuration.
@@ -293,7 +343,7 @@ impl State {
     }
     /// Current flags: latched faults, STOPPED and warnings.
     pub fn flags(&self) -> Flags {
-        Flags(self.latched | self.warnings)
+        Flags(self.latched | self.warnings | self.store.flags())
     }
     /// The model of a chamber.
     pub fn model(&self, ch: usize) -> &PolyModel {
@@ -569,6 +619,7 @@ impl State {
         now_us: u64,
         out: &mut impl Write,
     ) -> Result<(), CommandError> {
+        self.store.note_command(now_us);
         match cmd {
             Command::Move {
                 axes,
@@ -655,6 +706,7 @@ impl State {
                 for a in axes.iter() {
                     self.motion.set_position(a, steps)?;
                     self.chambers[a].hist.clear();
+                    self.warnings &= !Flags::channel(Flags::ORIGIN_NEEDED, a);
                 }
             }
             Command::Model { ch, cmd } => self.model_cmd(*ch, cmd, now_us, out)?,
@@ -696,8 +748,14 @@ impl State {
         if !self.motion_allowed() {
             return Err(CommandError::Faulted);
         }
-        if self.zeroing.is_some() || self.protocol.is_some() {
+        if self.zeroing.is_some() || self.protocol.is_some() || self.store.writing() {
             return Err(CommandError::Busy);
+        }
+        if axes
+            .iter()
+            .any(|a| self.warnings & Flags::channel(Flags::ORIGIN_NEEDED, a) != 0)
+        {
+            return Err(CommandError::OriginNeeded);
         }
         if axes.iter().any(|a| !self.motion.is_idle(a)) {
             return Err(CommandError::Busy);
@@ -734,6 +792,14 @@ impl State {
         for l in &self.cfg.limits {
             let _ = write!(out, " {}", l.capacity_mm3);
         }
+        let _ = out.write_str(" crc");
+        for ch in 0..AXES {
+            let _ = write!(out, " {:#010x}", self.store.crc(ch));
+        }
+        let _ = out.write_str(" store");
+        for ch in 0..AXES {
+            let _ = write!(out, " {}", self.store.saved(ch).name());
+        }
     }
 
     /// `model <ch> read …`: the installed model's values, each printed so that it parses back
@@ -756,6 +822,11 @@ impl State {
             }
             ReadPart::Coef { start } => (model.scaled(), start as usize),
             ReadPart::Ar { start } => (model.ar().as_flattened(), start as usize),
+            ReadPart::Crc => {
+                let st = &self.store;
+                let _ = write!(out, " {:#010x} {}", st.crc(ch), st.saved(ch).name());
+                return Ok(());
+            }
         };
         // The index is word 4 of `model <ch> read coef|ar <index>`.
         let chunk = values
@@ -842,6 +913,7 @@ impl State {
     }
 
     fn install(&mut self, ch: usize, model: PolyModel, now_us: u64) {
+        self.store.committed(ch, &model);
         self.chambers[ch] = Chamber {
             model,
             hist: ArHistory::new(),
@@ -986,8 +1058,8 @@ impl Shared {
     }
 }
 
-/// Longest reply line.
-pub const REPLY_LEN: usize = 192;
+/// Longest reply line (the longest is `status` with every field at its widest, ≈ 230 bytes).
+pub const REPLY_LEN: usize = 256;
 
 /// Longest the stepper task sleeps with nothing to do (its heartbeat for the watchdog), µs.
 const STEPPER_IDLE_US: u64 = 50_000;

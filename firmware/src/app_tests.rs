@@ -60,7 +60,12 @@ fn boot_zero_is_the_mean_reading_and_is_subtracted() {
     let kinds: Vec<_> = std::iter::from_fn(|| s.pop_event())
         .map(|e| e.kind)
         .collect();
-    assert!(matches!(kinds[0], EventKind::Boot { watchdog: false }));
+    assert!(matches!(
+        kinds[0],
+        EventKind::Boot {
+            cause: ResetCause::PowerOn
+        }
+    ));
     assert!(matches!(kinds[1], EventKind::Zeroed { .. }));
     // 10 kPa above the zero reads as ~10 kPa (to one ADC code, 0.032 kPa).
     let mut f = None;
@@ -329,7 +334,8 @@ fn status_reports_state() {
         out.starts_with(" flags 0 seq 25 moving 0 run 0 v 0 0 12.5"),
         "{out}"
     );
-    assert!(out.ends_with("pmax 80 80 80 cap 550 550 550"), "{out}");
+    assert!(out.contains(" pmax 80 80 80 cap 550 550 550 crc "), "{out}");
+    assert!(out.ends_with(" store default default default"), "{out}");
 }
 
 #[test]

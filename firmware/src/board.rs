@@ -40,6 +40,19 @@ pub const ENABLE_PIN: &str = "PA9";
 /// Sensor inputs, by channel (ADC1).
 pub const SENSOR_PINS: [&str; CHANNELS] = ["PA0", "PA1", "PA4"];
 
+/// First byte of the model store ([`crate::store`]) in the address space: flash sectors 6 and
+/// 7 of the STM32F446RE (2 × 128 KiB). Sequential-storage needs at least two erase pages; the
+/// F446's sectors 0–3 are 16 KiB, 4 is 64 KiB and 5–7 are 128 KiB, so the last two sectors are
+/// the two pages, and the program keeps sectors 0–5 (256 KiB, `memory.x`'s FLASH). Smaller
+/// sectors would not spare the erase stall either: a 16 KiB erase takes 0.25–0.5 s, still far
+/// beyond the 50 ms watchdog (see [`crate::store`] for how the board handles it).
+pub const STORE_START: u32 = 0x0804_0000;
+/// One past the model store's last byte (the end of the 512 KiB flash).
+pub const STORE_END: u32 = 0x0808_0000;
+/// Start of the flash region embassy-stm32 calls `bank1_region3` (sectors 5–7): the store's
+/// offsets are counted from here.
+pub const REGION3_START: u32 = 0x0802_0000;
+
 /// ADC full-scale code (12-bit, right aligned).
 pub const ADC_MAX: u16 = 4095;
 /// ADC reference voltage (VDDA on the Nucleo), volts.
@@ -109,7 +122,7 @@ pub fn at_rail(counts: u16) -> bool {
 pub mod device {
     use embassy_stm32::adc::{Adc, AdcChannel, AnyAdcChannel, SampleTime};
     use embassy_stm32::gpio::{Level, Output, Speed};
-    use embassy_stm32::peripherals::{ADC1, IWDG};
+    use embassy_stm32::peripherals::{ADC1, FLASH, IWDG};
     use embassy_stm32::wdg::IndependentWatchdog;
     use embassy_stm32::{Peri, Peripherals};
     use embassy_time::Instant;
@@ -183,6 +196,8 @@ pub mod device {
         pub rx: Peri<'static, embassy_stm32::peripherals::PA3>,
         /// Watchdog.
         pub iwdg: Peri<'static, IWDG>,
+        /// Flash controller (the model store).
+        pub flash: Peri<'static, FLASH>,
     }
 
     /// Split the chip's peripherals by the pin map above: steppers (disabled), ADC, the rest.
@@ -216,6 +231,7 @@ pub mod device {
             tx: p.PA2,
             rx: p.PA3,
             iwdg: p.IWDG,
+            flash: p.FLASH,
         };
         (steppers, adc, rest)
     }
@@ -242,6 +258,24 @@ mod tests {
             assert_eq!(back.round() as u16, c, "code {c}");
             assert!((back - c as f32).abs() < 2e-3, "code {c}: {back}");
         }
+    }
+
+    #[test]
+    fn the_program_ends_where_the_model_store_begins() {
+        // memory.x must leave the store's sectors to the store.
+        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../memory.x");
+        let text = std::fs::read_to_string(path).unwrap();
+        let flash = text
+            .lines()
+            .find(|l| l.trim_start().starts_with("FLASH"))
+            .unwrap();
+        assert!(flash.contains("ORIGIN = 0x08000000"), "{flash}");
+        assert!(flash.contains("LENGTH = 256K"), "{flash}");
+        assert_eq!(0x0800_0000 + 256 * 1024, STORE_START);
+        // Two whole 128 KiB sectors (6 and 7), at offsets 128 KiB..384 KiB of region 3.
+        assert_eq!(STORE_END - STORE_START, 2 * 128 * 1024);
+        assert_eq!(STORE_START - REGION3_START, 128 * 1024);
+        assert_eq!(STORE_END, 0x0800_0000 + 512 * 1024);
     }
 
     #[test]

@@ -126,6 +126,9 @@ pub enum ReadPart {
         /// Index of the first value.
         start: u8,
     },
+    /// The committed model's CRC-32 and where it stands against flash
+    /// ([`crate::store`]): `<crc hex> flash|pending|failed|default`.
+    Crc,
 }
 
 /// A parsed command.
@@ -444,6 +447,7 @@ pub fn parse(line: &[u8]) -> Result<Command, ParseError> {
                     Some((_, "ar")) => ReadPart::Ar {
                         start: w.int(0u8, 2 * model_core::poly::MAX_AR as u8 - 1)?,
                     },
+                    Some((_, "crc")) => ReadPart::Crc,
                     Some((j, _)) => return Err(ParseError::Invalid { index: j }),
                 }),
                 _ => return Err(ParseError::Invalid { index: i }),
@@ -594,6 +598,7 @@ mod tests {
             ("model 1 read", ReadPart::Header),
             ("model 1 read coef 63", ReadPart::Coef { start: 63 }),
             ("model 1 read ar 9", ReadPart::Ar { start: 9 }),
+            ("model 1 read crc", ReadPart::Crc),
         ] {
             assert_eq!(
                 p(s),
@@ -816,7 +821,7 @@ mod tests {
                 Ok(Command::Model { ch, cmd: ModelCmd::Read(part) }) => {
                     prop_assert!((ch as usize) < AXES);
                     match part {
-                        ReadPart::Header => {}
+                        ReadPart::Header | ReadPart::Crc => {}
                         ReadPart::Coef { start } => {
                             prop_assert!((start as usize) < model_core::poly::MAX_TERMS)
                         }

@@ -5,6 +5,8 @@
 //! - [`motion`]: trapezoidal profiles → step instants; [`protocol`]: the characterisation cycles.
 //! - [`command`]: the serial line protocol; [`telemetry`]: frame and event lines.
 //! - [`board`]: pin map and pressure-sensor transfer function; [`hal`]: the hardware traits.
+//! - [`reset`]: why the board reset (reset flags + the crash record); [`store`]: the committed
+//!   models in flash.
 #![cfg_attr(not(test), no_std)]
 #![forbid(unsafe_code)]
 // Channel loops index several parallel per-channel arrays at once.
@@ -16,4 +18,6 @@ pub mod command;
 pub mod hal;
 pub mod motion;
 pub mod protocol;
+pub mod reset;
+pub mod store;
 pub mod telemetry;

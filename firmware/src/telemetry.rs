@@ -27,6 +27,8 @@ use core::fmt::{self, Write};
 use core::str::{FromStr, SplitAsciiWhitespace};
 
 use crate::hal::AXES;
+use crate::reset::ResetCause;
+use crate::store::StoreEvent;
 
 /// Fault and warning bits carried by every frame.
 ///
@@ -45,8 +47,11 @@ impl Flags {
     pub const SENSOR_JUMP: u32 = 1 << 9;
     /// Motion stopped by a `stop` command (cleared by the next motion command).
     pub const STOPPED: u32 = 1 << 12;
-    /// The last reset was caused by the watchdog (fault until cleared).
-    pub const WATCHDOG_RESET: u32 = 1 << 13;
+    /// The last reset was the firmware failing: the watchdog, a panic or a HardFault (fault
+    /// until cleared; the boot event says which).
+    pub const FAULT_RESET: u32 = 1 << 13;
+    /// Former name of [`FAULT_RESET`](Self::FAULT_RESET), from when only the watchdog set it.
+    pub const WATCHDOG_RESET: u32 = Self::FAULT_RESET;
     /// The pressure zero has not been taken yet (warning).
     pub const NOT_ZEROED: u32 = 1 << 16;
     /// Model evaluation failed (input outside the model's range) on a channel (bit 17 + channel).
@@ -56,6 +61,13 @@ impl Flags {
     pub const DRIFT: u32 = 1 << 20;
     /// Online RLS is active on a channel (bit 23 + channel).
     pub const RLS_ACTIVE: u32 = 1 << 23;
+    /// The axis' position is unknown after a reset other than power-on: motion is refused
+    /// until `origin` declares it (bit 26 + channel; `clear` does not lift it).
+    pub const ORIGIN_NEEDED: u32 = 1 << 26;
+    /// A committed model is not in flash yet (or its write failed): see [`crate::store`].
+    pub const MODEL_UNSAVED: u32 = 1 << 29;
+    /// Writing a committed model to flash failed.
+    pub const STORE_FAILED: u32 = 1 << 30;
 
     /// Bits that stop motion and latch.
     pub const FAULT_MASK: u32 = 0xFFFF & !Self::STOPPED;
@@ -240,10 +252,12 @@ impl Frame {
 /// Something that happened, reported once on an event line.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum EventKind {
-    /// Firmware started; `watchdog` says whether the watchdog caused the reset.
+    /// Firmware started, after a reset of this cause. The line is
+    /// `boot <watchdog 0|1> <cause> [<details>…]` (see [`ResetCause::encode`]); a line with
+    /// only the watchdog field (older firmware) reads as `watchdog` or `unknown`.
     Boot {
-        /// The reset was a watchdog reset.
-        watchdog: bool,
+        /// Why the board reset.
+        cause: ResetCause,
     },
     /// Fault bits newly latched (`flags` is the whole latched set).
     Fault {
@@ -277,6 +291,17 @@ pub enum EventKind {
         /// Channel.
         ch: u8,
     },
+    /// The model store ([`crate::store`]) for a channel: `store <ch> <what> <crc hex>`. At boot
+    /// `loaded`, or `empty` / `invalid` when the built-in default is used instead; after a
+    /// commit `saved` or `failed`. `crc` is the CRC-32 of the channel's committed model.
+    Store {
+        /// Channel.
+        ch: u8,
+        /// What happened.
+        what: StoreEvent,
+        /// CRC-32 of the committed model.
+        crc: u32,
+    },
 }
 
 /// An event line.
@@ -293,7 +318,11 @@ impl Event {
     pub fn encode(&self, out: &mut impl Write) -> fmt::Result {
         write!(out, "{EVENT_TAG} {} ", self.t_us)?;
         match self.kind {
-            EventKind::Boot { watchdog } => write!(out, "boot {}", u8::from(watchdog)),
+            EventKind::Boot { cause } => {
+                let watchdog = u8::from(cause == ResetCause::Watchdog);
+                write!(out, "boot {watchdog} ")?;
+                cause.encode(out)
+            }
             EventKind::Fault { flags } => write!(out, "fault {flags}"),
             EventKind::Cleared => out.write_str("cleared"),
             EventKind::Zeroed { offset_kpa: o } => {
@@ -314,6 +343,9 @@ impl Event {
             }
             EventKind::ProtocolDone => out.write_str("protocol-done"),
             EventKind::ModelLoaded { ch } => write!(out, "model {ch}"),
+            EventKind::Store { ch, what, crc } => {
+                write!(out, "store {ch} {} {crc:#010x}", what.name())
+            }
         }
     }
 
@@ -322,9 +354,20 @@ impl Event {
         let mut f = Fields::after_tag(line, EVENT_TAG)?;
         let t_us = f.num()?;
         let kind = match f.word()? {
-            "boot" => EventKind::Boot {
-                watchdog: f.num::<u8>()? != 0,
-            },
+            "boot" => {
+                let watchdog = f.num::<u8>()? != 0;
+                let index = f.index;
+                let cause = if f.it.clone().next().is_none() {
+                    // Older firmware: `boot <0|1>` only.
+                    match watchdog {
+                        true => ResetCause::Watchdog,
+                        false => ResetCause::Unknown,
+                    }
+                } else {
+                    ResetCause::decode(|| f.it.next()).ok_or(TelemetryError::BadNumber { index })?
+                };
+                EventKind::Boot { cause }
+            }
             "fault" => EventKind::Fault { flags: f.num()? },
             "cleared" => EventKind::Cleared,
             "zeroed" => EventKind::Zeroed {
@@ -339,6 +382,19 @@ impl Event {
             },
             "protocol-done" => EventKind::ProtocolDone,
             "model" => EventKind::ModelLoaded { ch: f.num()? },
+            "store" => {
+                let ch = f.num()?;
+                let index = f.index;
+                let what =
+                    StoreEvent::from_name(f.word()?).ok_or(TelemetryError::BadNumber { index })?;
+                let index = f.index;
+                let crc = f
+                    .word()?
+                    .strip_prefix("0x")
+                    .and_then(|h| u32::from_str_radix(h, 16).ok())
+                    .ok_or(TelemetryError::BadNumber { index })?;
+                EventKind::Store { ch, what, crc }
+            }
             _ => return Err(TelemetryError::UnknownEvent),
         };
         f.end()?;
@@ -481,7 +537,32 @@ mod tests {
     #[test]
     fn events_round_trip() {
         let kinds = [
-            EventKind::Boot { watchdog: true },
+            EventKind::Boot {
+                cause: ResetCause::Watchdog,
+            },
+            EventKind::Boot {
+                cause: ResetCause::PowerOn,
+            },
+            EventKind::Boot {
+                cause: ResetCause::Panic(crate::reset::PanicSite {
+                    file: crate::reset::FileTail::new("src/app.rs"),
+                    line: 42,
+                    column: 9,
+                }),
+            },
+            EventKind::Boot {
+                cause: ResetCause::HardFault(crate::reset::FaultFrame {
+                    pc: 0x0800_0400,
+                    cfsr: 1 << 17,
+                    hfsr: 1 << 30,
+                    ..Default::default()
+                }),
+            },
+            EventKind::Store {
+                ch: 2,
+                what: StoreEvent::Invalid,
+                crc: 0xCBF4_3926,
+            },
             EventKind::Fault { flags: 0x41 },
             EventKind::Cleared,
             EventKind::Zeroed {
@@ -507,6 +588,76 @@ mod tests {
             assert_eq!(Event::decode(&s), Ok(e), "{s}");
             assert_eq!(parse_line(&s), Some(Ok(Line::Event(e))));
         }
+    }
+
+    #[test]
+    fn boot_and_store_lines_by_hand() {
+        let ev = |s: &str| Event::decode(s).map(|e| e.kind);
+        assert_eq!(
+            ev("$E 5 boot 1 watchdog"),
+            Ok(EventKind::Boot {
+                cause: ResetCause::Watchdog
+            })
+        );
+        assert_eq!(
+            ev("$E 5 boot 0 panic app.rs 7 3"),
+            Ok(EventKind::Boot {
+                cause: ResetCause::Panic(crate::reset::PanicSite {
+                    file: crate::reset::FileTail::new("app.rs"),
+                    line: 7,
+                    column: 3
+                })
+            })
+        );
+        // Older firmware printed the watchdog field alone.
+        assert_eq!(
+            ev("$E 0 boot 0"),
+            Ok(EventKind::Boot {
+                cause: ResetCause::Unknown
+            })
+        );
+        assert_eq!(
+            ev("$E 0 boot 1"),
+            Ok(EventKind::Boot {
+                cause: ResetCause::Watchdog
+            })
+        );
+        assert_eq!(
+            ev("$E 0 boot 0 meteor"),
+            Err(TelemetryError::BadNumber { index: 3 })
+        );
+        assert_eq!(
+            ev("$E 0 boot 0 panic app.rs x 3"),
+            Err(TelemetryError::BadNumber { index: 3 })
+        );
+        assert_eq!(
+            ev("$E 9 store 1 empty 0x0000abcd"),
+            Ok(EventKind::Store {
+                ch: 1,
+                what: StoreEvent::Empty,
+                crc: 0xABCD
+            })
+        );
+        assert_eq!(
+            ev("$E 9 store 1 lost 0x0"),
+            Err(TelemetryError::BadNumber { index: 3 })
+        );
+        assert_eq!(
+            ev("$E 9 store 1 saved 12"),
+            Err(TelemetryError::BadNumber { index: 4 })
+        );
+        let mut s = LineBuf::new();
+        Event {
+            t_us: 1,
+            kind: EventKind::Store {
+                ch: 0,
+                what: StoreEvent::Saved,
+                crc: 0xAB,
+            },
+        }
+        .encode(&mut s)
+        .unwrap();
+        assert_eq!(s, "$E 1 store 0 saved 0x000000ab");
     }
 
     #[test]

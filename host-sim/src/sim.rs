@@ -115,6 +115,7 @@ fn kind_name(k: &EventKind) -> &'static str {
         EventKind::Drift { .. } => "drift",
         EventKind::ProtocolDone => "protocol-done",
         EventKind::ModelLoaded { .. } => "model",
+        EventKind::Store { .. } => "store",
     }
 }
 

@@ -9,12 +9,28 @@
 //! the 180 MHz M4 at 3 × 10 000 steps/s, leaving step jitter at the few-µs level against a
 //! 100 µs step interval. Timer-output (PWM) stepping would remove that jitter but cannot carry
 //! exact per-step instants of a trapezoid without DMA-fed period tables; not needed here.
+//!
+//! Faults: the panic and HardFault handlers below drive the drivers' EN high (disabled) with
+//! one store to GPIOA's BSRR, leave a crash record in `.uninit` RAM ([`firmware::reset`]) and
+//! reset; nothing in them can block (no defmt: with probe-rs attached the RTT channel may be in
+//! blocking mode, and a panic inside a defmt print would re-enter its logger). The next boot
+//! reports the cause on its boot event and refuses motion until `origin`.
+//!
+//! Board settings: flash prefetch and both caches on after `embassy_stm32::init` (its F4 clock
+//! set-up writes only the wait states); the time driver on TIM5 (32-bit); the watchdog frozen
+//! while a debugger halts the core; defmt timestamps in µs since boot.
 #![cfg_attr(target_os = "none", no_std)]
 #![cfg_attr(target_os = "none", no_main)]
 
 #[cfg(target_os = "none")]
 mod device {
+    use core::mem::MaybeUninit;
+    use core::sync::atomic::{AtomicBool, Ordering};
+
+    use cortex_m::peripheral::SCB;
+    use cortex_m_rt::{exception, ExceptionFrame};
     use defmt_rtt as _;
+    use embassy_embedded_hal::adapter::BlockingAsync;
     use embassy_executor::{InterruptExecutor, Spawner};
     use embassy_stm32::interrupt;
     use embassy_stm32::interrupt::{InterruptExt, Priority};
@@ -25,7 +41,9 @@ mod device {
     use firmware::app::{self, Config, Shared};
     use firmware::board::device::{self as board, DeviceAdc, DeviceSteppers, DeviceWatchdog};
     use firmware::hal;
-    use panic_probe as _;
+    use firmware::reset::RECORD_WORDS;
+    use firmware::reset::{Crash, FaultFrame, FileTail, PanicSite, ResetCause, ResetFlags};
+    use firmware::store::{FlashGuard, ModelStore};
     use static_cell::StaticCell;
 
     bind_interrupts!(struct Irqs {
@@ -42,6 +60,161 @@ mod device {
 
     /// Watchdog timeout: 10 oversampling periods missed in a row (sampler feeds every 5 ms).
     const WATCHDOG_TIMEOUT_US: u32 = 50_000;
+
+    defmt::timestamp!("{=u64:us}", embassy_time::Instant::now().as_micros());
+
+    // ------------------------------------------------------------------ crash record, handlers
+
+    /// The crash record: in `.uninit`, which cortex-m-rt neither zeroes nor initialises, so it
+    /// survives the system reset the handlers request (SRAM stays powered).
+    #[link_section = ".uninit.vfp_crash"]
+    static mut CRASH: MaybeUninit<[u32; RECORD_WORDS]> = MaybeUninit::uninit();
+
+    /// Set by the first panic: a panic inside the panic handler goes straight to the reset.
+    static PANICKING: AtomicBool = AtomicBool::new(false);
+
+    /// Disable every stepper driver: EN (PA9) is active low, so set it through GPIOA's BSRR
+    /// (one store, no read-modify-write, no lock, no HAL state). Harmless before GPIOA is
+    /// clocked (the write is ignored; the pin is still an input then).
+    fn drivers_off() {
+        embassy_stm32::pac::GPIOA
+            .bsrr()
+            .write(|w| w.set_bs(9, true));
+    }
+
+    fn write_record(words: &[u32; RECORD_WORDS]) {
+        // SAFETY: only the fault handlers write it, with interrupts masked or from HardFault
+        // (which nothing else preempts); a raw pointer, no reference to the static.
+        unsafe { core::ptr::write_volatile(core::ptr::addr_of_mut!(CRASH).cast(), *words) }
+    }
+
+    /// Read the record left by the last crash, and clear it so that it is reported once.
+    fn take_record() -> Option<Crash> {
+        let p = core::ptr::addr_of_mut!(CRASH).cast::<[u32; RECORD_WORDS]>();
+        // SAFETY: runs once at boot before anything else touches the record. The RAM holds
+        // whatever it held (noise after power-on); every bit pattern is a valid `[u32; N]`, and
+        // `Crash::decode` accepts only a record with the magic and a matching CRC.
+        let raw = unsafe { core::ptr::read_volatile(p) };
+        unsafe { core::ptr::write_volatile(p, [0; RECORD_WORDS]) };
+        Crash::decode(&raw)
+    }
+
+    #[panic_handler]
+    fn panic(info: &core::panic::PanicInfo) -> ! {
+        cortex_m::interrupt::disable();
+        drivers_off();
+        if !PANICKING.swap(true, Ordering::Relaxed) {
+            let site = match info.location() {
+                Some(l) => PanicSite {
+                    file: FileTail::new(l.file()),
+                    line: l.line(),
+                    column: l.column(),
+                },
+                None => PanicSite {
+                    file: FileTail::new(""),
+                    line: 0,
+                    column: 0,
+                },
+            };
+            write_record(&Crash::Panic(site).encode());
+        }
+        SCB::sys_reset()
+    }
+
+    #[exception]
+    unsafe fn HardFault(ef: &ExceptionFrame) -> ! {
+        drivers_off();
+        // SAFETY: reads of the System Control Block's fault status and address registers.
+        let scb = unsafe { &*SCB::PTR };
+        let frame = FaultFrame {
+            pc: ef.pc(),
+            lr: ef.lr(),
+            xpsr: ef.xpsr(),
+            cfsr: scb.cfsr.read(),
+            hfsr: scb.hfsr.read(),
+            mmfar: scb.mmfar.read(),
+            bfar: scb.bfar.read(),
+        };
+        write_record(&Crash::HardFault(frame).encode());
+        SCB::sys_reset()
+    }
+
+    // ------------------------------------------------------------------ board settings
+
+    /// Flash prefetch and instruction/data caches on (RM0390 §3.5.2: reset a cache only while
+    /// it is disabled). embassy-stm32's F4 clock set-up writes FLASH_ACR with the wait states
+    /// only; at 180 MHz (5 wait states) every uncached fetch would stall.
+    fn flash_accelerator() {
+        use embassy_stm32::pac::FLASH;
+        FLASH.acr().modify(|w| {
+            w.set_icen(false);
+            w.set_dcen(false);
+        });
+        FLASH.acr().modify(|w| {
+            w.set_icrst(true);
+            w.set_dcrst(true);
+        });
+        FLASH.acr().modify(|w| {
+            w.set_icrst(false);
+            w.set_dcrst(false);
+        });
+        FLASH.acr().modify(|w| {
+            w.set_prften(true);
+            w.set_icen(true);
+            w.set_dcen(true);
+        });
+    }
+
+    /// The independent watchdog stops counting while a debugger halts the core (a breakpoint
+    /// would otherwise reset the board 50 ms later).
+    fn freeze_watchdog_when_halted() {
+        embassy_stm32::pac::DBGMCU
+            .apb1fzr()
+            .modify(|w| w.set_iwdg(true));
+    }
+
+    /// Stretches the independent watchdog's window around a flash write: a sector erase stalls
+    /// the CPU for 1–2 s (RM0390/datasheet: 128 KiB erase, x32 parallelism, max 2 s), against
+    /// a 50 ms window. Prescaler /64 and reload 4095 give 4096 × 64 / 32 kHz ≈ 8.2 s, still
+    /// 5.6 s with the LSI at its 47 kHz worst case. The write happens only at rest (no
+    /// motion), and the previous prescaler and reload come back after it.
+    struct IwdgWindow {
+        saved: Option<(embassy_stm32::pac::iwdg::vals::Pr, u16)>,
+    }
+
+    impl IwdgWindow {
+        fn set(pr: embassy_stm32::pac::iwdg::vals::Pr, rl: u16) {
+            use embassy_stm32::pac::{iwdg::vals::Key, IWDG};
+            // Reload first: the change itself then has the old window's full length.
+            IWDG.kr().write(|w| w.set_key(Key::RESET));
+            IWDG.kr().write(|w| w.set_key(Key::ENABLE));
+            IWDG.pr().write(|w| w.set_pr(pr));
+            IWDG.rlr().write(|w| w.set_rl(rl));
+            // The new values reach the watchdog's LSI domain a few LSI cycles later.
+            while {
+                let sr = IWDG.sr().read();
+                sr.pvu() || sr.rvu()
+            } {}
+            IWDG.kr().write(|w| w.set_key(Key::RESET));
+        }
+    }
+
+    impl FlashGuard for IwdgWindow {
+        fn before(&mut self) {
+            use embassy_stm32::pac::{iwdg::vals::Pr, IWDG};
+            self.saved = Some((IWDG.pr().read().pr(), IWDG.rlr().read().rl()));
+            Self::set(Pr::DIVIDE_BY64, 0x0FFF);
+        }
+        fn after(&mut self) {
+            if let Some((pr, rl)) = self.saved.take() {
+                Self::set(pr, rl);
+            }
+        }
+    }
+
+    /// The model store's flash: sectors 6 and 7, through embassy's blocking region driver.
+    type StoreFlash =
+        BlockingAsync<embassy_stm32::flash::Bank1Region3<'static, embassy_stm32::flash::Blocking>>;
 
     #[interrupt]
     unsafe fn UART4() {
@@ -86,6 +259,11 @@ mod device {
         app::command_task(shared, port).await
     }
 
+    #[embassy_executor::task]
+    async fn persist(shared: &'static Shared, store: ModelStore<StoreFlash>) {
+        firmware::store::persist_task(shared, store, IwdgWindow { saved: None }).await
+    }
+
     /// 180 MHz from the ST-LINK's 8 MHz clock (HSE bypass): 8 / 4 × 180 / 2.
     fn clocks() -> embassy_stm32::Config {
         use embassy_stm32::rcc::*;
@@ -111,13 +289,26 @@ mod device {
 
     #[embassy_executor::main]
     async fn main(spawner: Spawner) {
-        // Read the reset cause before init, then clear the flags for the next boot.
-        let csr = embassy_stm32::pac::RCC.csr().read();
-        let watchdog_reset = csr.wdgrstf();
+        // Read the reset cause before init, then clear the flags and the record for the next
+        // boot.
+        let csr = embassy_stm32::pac::RCC.csr().read().0;
         embassy_stm32::pac::RCC.csr().modify(|w| w.set_rmvf(true));
+        let reset_cause = ResetCause::from_reset(ResetFlags(csr), take_record());
 
         let p = embassy_stm32::init(clocks());
+        flash_accelerator();
+        freeze_watchdog_when_halted();
         let (steppers, adc, rest) = board::split(p);
+
+        // The committed models, before the watchdog runs: a store left half-erased by a power
+        // cut is repaired here, which can take an erase (seconds).
+        let region = embassy_stm32::flash::Flash::new_blocking(rest.flash)
+            .into_blocking_regions()
+            .bank1_region3;
+        use firmware::board::{REGION3_START, STORE_END, STORE_START};
+        let range = STORE_START - REGION3_START..STORE_END - REGION3_START;
+        let mut store = defmt::unwrap!(ModelStore::new(BlockingAsync::new(region), range).ok());
+        let models = store.load_all().await;
 
         let mut uart_cfg = usart::Config::default();
         uart_cfg.baudrate = 115_200;
@@ -135,16 +326,18 @@ mod device {
         iwdg.unleash();
 
         let shared: &'static Shared = SHARED.init(Shared::new(Config {
-            watchdog_reset,
+            reset_cause,
             ..Config::default()
         }));
-        defmt::info!("vfp-fw booted (watchdog reset: {})", watchdog_reset);
+        shared.lock(|s| s.restore_models(&models, embassy_time::Instant::now().as_micros()));
+        defmt::info!("vfp-fw booted (reset: {=str})", reset_cause.name());
 
         interrupt::UART4.set_priority(Priority::P6);
         let high = EXECUTOR_HIGH.start(interrupt::UART4);
         high.spawn(defmt::unwrap!(stepper(shared, steppers)));
         spawner.spawn(defmt::unwrap!(sampler(shared, adc, DeviceWatchdog(iwdg))));
         spawner.spawn(defmt::unwrap!(command(shared, Serial(uart))));
+        spawner.spawn(defmt::unwrap!(persist(shared, store)));
     }
 }
 

@@ -1,0 +1,443 @@
+//! Tests of the model store: serialisation by hand, power cuts at every byte of an update on
+//! sequential-storage's mock flash, corrupt stores, and the application's write gating.
+
+use super::*;
+use crate::app::{CommandError, Config, Shared, State};
+use crate::command;
+use embassy_futures::block_on;
+use proptest::prelude::*;
+use sequential_storage::mock_flash::{MockFlashBase, WriteCountCheck};
+use std::string::String;
+use std::vec::Vec;
+
+/// 4 pages of 2 KiB with 4-byte words (the F4's x32 programming): about five models a page,
+/// so a few updates fill a page and the next one erases and migrates.
+type Flash = MockFlashBase<4, 4, 512>;
+const RANGE: Range<u32> = 0..4 * 2048;
+
+fn flash() -> Flash {
+    // Each word written once between erases, as on the STM32F4.
+    Flash::new(WriteCountCheck::OnceOnly, None, true)
+}
+
+fn store(f: Flash) -> ModelStore<Flash> {
+    ModelStore::new(f, RANGE).expect("range of whole pages")
+}
+
+/// A model distinguishable by `k`: the default's coefficients scaled by (1 + k/64).
+fn variant(k: u32) -> PolyModel {
+    let d = model_core::poly::sba1();
+    let coef: Vec<f32> = d
+        .scaled()
+        .iter()
+        .map(|c| c * (1.0 + k as f32 / 64.0))
+        .collect();
+    PolyModel::from_scaled(d.shape(), &coef, d.ar(), d.scaling()).unwrap()
+}
+
+/// A poly-AR model with every field in use (n = 2, m = 1, p = 2).
+fn ar_model() -> PolyModel {
+    let shape = Shape::new(2, 1, 2).unwrap();
+    let scaling = Scaling::new(250.0, 250.0, -5.0, 80.0).unwrap();
+    let coef = [1.0, -2.5, 0.125, 3.0e-3, -7.0, 42.0];
+    PolyModel::from_scaled(shape, &coef, &[[0.5, -0.25], [0.0625, 1.0e-6]], scaling).unwrap()
+}
+
+/// CRC-32/ISO-HDLC bit by bit, independent of the `crc` crate.
+fn crc32_bitwise(data: &[u8]) -> u32 {
+    let mut c = 0xFFFF_FFFFu32;
+    for &b in data {
+        c ^= b as u32;
+        for _ in 0..8 {
+            c = if c & 1 != 0 {
+                (c >> 1) ^ 0xEDB8_8320
+            } else {
+                c >> 1
+            };
+        }
+    }
+    !c
+}
+
+#[test]
+fn serialised_model_by_hand() {
+    let m = ar_model();
+    let mut b = [0u8; MODEL_BYTES];
+    let n = encode_model(&m, &mut b);
+    // 20 header bytes, 6 coefficients, 4 AR values.
+    assert_eq!(n, 20 + 4 * (6 + 4));
+    assert_eq!(&b[..4], &[1, 2, 1, 2]);
+    assert_eq!(&b[4..8], &250.0f32.to_le_bytes());
+    assert_eq!(&b[12..16], &(-5.0f32).to_le_bytes());
+    assert_eq!(&b[20..24], &1.0f32.to_le_bytes());
+    assert_eq!(&b[40..44], &42.0f32.to_le_bytes());
+    assert_eq!(&b[44..48], &0.5f32.to_le_bytes());
+    assert_eq!(&b[56..60], &1.0e-6f32.to_le_bytes());
+    assert_eq!(decode_model(&b[..n]), Ok(m));
+    assert_eq!(model_crc(&m), crc32_bitwise(&b[..n]));
+    // The default round-trips too, and its CRC is that of its bytes.
+    let d = model_core::poly::sba1();
+    let n = encode_model(&d, &mut b);
+    assert_eq!(n, 20 + 4 * 12);
+    assert_eq!(decode_model(&b[..n]), Ok(d));
+    assert_eq!(model_crc(&d), crc32_bitwise(&b[..n]));
+    assert_ne!(model_crc(&d), model_crc(&variant(1)));
+}
+
+#[test]
+fn bad_bytes_are_refused() {
+    let mut b = [0u8; MODEL_BYTES];
+    let n = encode_model(&ar_model(), &mut b);
+    let mut v2 = b;
+    v2[0] = 2;
+    assert_eq!(decode_model(&v2[..n]), Err(DecodeError::Version(2)));
+    assert_eq!(decode_model(&b[..n - 4]), Err(DecodeError::Length));
+    assert_eq!(decode_model(&b[..n + 4]), Err(DecodeError::Length));
+    assert_eq!(decode_model(&[]), Err(DecodeError::Length));
+    let mut big = b;
+    big[1] = 8; // n = 8 > MAX_DEG
+    assert_eq!(decode_model(&big[..n]), Err(DecodeError::Length));
+    let mut nan = b;
+    nan[20..24].copy_from_slice(&f32::NAN.to_le_bytes());
+    assert_eq!(decode_model(&nan[..n]), Err(DecodeError::Model));
+    let mut scale = b;
+    scale[8..12].copy_from_slice(&0.0f32.to_le_bytes()); // v_scale = 0
+    assert_eq!(decode_model(&scale[..n]), Err(DecodeError::Model));
+}
+
+proptest! {
+    #[test]
+    fn decode_never_panics(bytes in proptest::collection::vec(any::<u8>(), 0..400)) {
+        let _ = decode_model(&bytes);
+    }
+}
+
+#[test]
+fn empty_store_boots_on_the_default_and_a_save_survives_a_reboot() {
+    let mut st = store(flash());
+    let boot = block_on(st.load_all());
+    for (m, how) in boot {
+        assert_eq!((m, how), (model_core::poly::sba1(), Loaded::Empty));
+    }
+    block_on(st.save(1, &ar_model())).unwrap();
+    block_on(st.save(2, &variant(3))).unwrap();
+    // Reboot: a new store over the same flash.
+    let mut st = store(st.into_flash());
+    let boot = block_on(st.load_all());
+    assert_eq!(boot[0], (model_core::poly::sba1(), Loaded::Empty));
+    assert_eq!(boot[1], (ar_model(), Loaded::Stored));
+    assert_eq!(boot[2], (variant(3), Loaded::Stored));
+}
+
+#[test]
+fn many_updates_keep_the_latest_of_every_channel() {
+    // Far more updates than the flash holds at once: pages are erased and live items moved.
+    let mut st = store(flash());
+    for k in 0..60u32 {
+        let ch = (k % 3) as u8;
+        block_on(st.save(ch, &variant(k))).unwrap();
+    }
+    let mut st = store(st.into_flash());
+    let boot = block_on(st.load_all());
+    for ch in 0..3 {
+        assert_eq!(
+            boot[ch],
+            (variant(57 + ch as u32), Loaded::Stored),
+            "ch {ch}"
+        );
+    }
+}
+
+/// 3 pages of 512 bytes: six items a page, so a short history already wraps around the pages
+/// and makes an update erase one and move the live items out of it.
+type SmallFlash = MockFlashBase<3, 4, 128>;
+
+fn small(f: SmallFlash) -> ModelStore<SmallFlash> {
+    ModelStore::new(f, 0..3 * 512).expect("range of whole pages")
+}
+
+/// Cut the power at every byte of one update (written or erased), reboot, and check that the
+/// channel reads exactly the old or exactly the new model and the other channels are intact;
+/// then that the store still takes a write. `history` updates come first, so that over the
+/// range of histories the cut update lands on a fresh page, mid-page, and on a page change
+/// that erases and migrates.
+#[test]
+fn a_power_cut_at_any_byte_leaves_the_old_or_the_new_model() {
+    let others = [ar_model(), variant(99)];
+    let mut checked = 0u32;
+    let mut longest = 0u32;
+    let mut saw_old = false;
+    let mut saw_new = false;
+    for history in 0..30u32 {
+        let mut base = small(SmallFlash::new(WriteCountCheck::OnceOnly, None, true));
+        block_on(base.save(1, &others[0])).unwrap();
+        block_on(base.save(2, &others[1])).unwrap();
+        for k in 0..=history {
+            block_on(base.save(0, &variant(k))).unwrap();
+        }
+        let old = variant(history);
+        let new = variant(100 + history);
+        let base = base.into_flash();
+        for cut in 0u32.. {
+            let mut f = base.clone();
+            f.bytes_until_shutoff = Some(cut);
+            let mut st = small(f);
+            let done = block_on(st.save(0, &new)).is_ok();
+            let mut f = st.into_flash();
+            f.bytes_until_shutoff = None;
+            // Reboot.
+            let mut st = small(f);
+            let got = block_on(st.load(0));
+            if done {
+                assert_eq!(got, Ok(new), "history {history}: completed write");
+            } else {
+                assert!(
+                    got == Ok(old) || got == Ok(new),
+                    "history {history}, cut after {cut} bytes: {got:?}"
+                );
+                saw_old |= got == Ok(old);
+                saw_new |= got == Ok(new);
+            }
+            assert_eq!(
+                block_on(st.load(1)),
+                Ok(others[0]),
+                "history {history} cut {cut}"
+            );
+            assert_eq!(
+                block_on(st.load(2)),
+                Ok(others[1]),
+                "history {history} cut {cut}"
+            );
+            // The store recovers: the next write succeeds and reads back after a reboot.
+            let next = variant(200);
+            block_on(st.save(0, &next))
+                .unwrap_or_else(|e| panic!("history {history} cut {cut}: {e:?}"));
+            let mut st = small(st.into_flash());
+            assert_eq!(block_on(st.load(0)), Ok(next));
+            checked += 1;
+            longest = longest.max(cut);
+            if done {
+                break;
+            }
+        }
+    }
+    std::eprintln!("{checked} cut points; longest update {longest} bytes written or erased");
+    // Cuts landed both before and after the update's commit point, and some update erased a
+    // whole 512-byte page (and moved the live items) before it completed.
+    assert!(saw_old && saw_new);
+    assert!(longest > 512, "longest update {longest} bytes");
+    assert!(checked > 30 * 80, "only {checked} cut points");
+}
+
+#[test]
+fn a_corrupt_or_foreign_store_boots_on_the_default() {
+    // Garbage where the store should be (old code, a different layout): no panic, defaults,
+    // and the store is usable again after a write.
+    let mut f = flash();
+    let mut x = 0x1234_5678u32;
+    for b in f.as_bytes_mut() {
+        x ^= x << 13;
+        x ^= x >> 17;
+        x ^= x << 5;
+        *b = x as u8;
+    }
+    let mut st = store(f);
+    for (m, how) in block_on(st.load_all()) {
+        assert_eq!(m, model_core::poly::sba1());
+        assert_ne!(how, Loaded::Stored);
+    }
+
+    // A stored item whose bytes are not a model (a future version): invalid, default.
+    struct Raw<'a>(&'a [u8]);
+    impl<'a> Value<'a> for Raw<'a> {
+        fn serialize_into(&self, buffer: &mut [u8]) -> Result<usize, SerializationError> {
+            buffer[..self.0.len()].copy_from_slice(self.0);
+            Ok(self.0.len())
+        }
+        fn deserialize_from(buffer: &'a [u8]) -> Result<(Self, usize), SerializationError> {
+            Ok((Raw(buffer), buffer.len()))
+        }
+    }
+    let mut b = [0u8; MODEL_BYTES];
+    let n = encode_model(&ar_model(), &mut b);
+    b[0] = 2;
+    let mut st = store(flash());
+    let mut buf = [0u8; 512];
+    block_on(st.map.store_item(&mut buf, &0u8, &Raw(&b[..n]))).unwrap();
+    block_on(st.save(1, &ar_model())).unwrap();
+    let boot = block_on(st.load_all());
+    assert_eq!(boot[0], (model_core::poly::sba1(), Loaded::Invalid));
+    assert_eq!(boot[1], (ar_model(), Loaded::Stored));
+    assert_eq!(boot[2], (model_core::poly::sba1(), Loaded::Empty));
+}
+
+#[test]
+fn an_erased_or_corrupt_store_boots_on_the_default_and_announces_it() {
+    // The boot path of the binary: load every channel, install, one `store` event each.
+    let mut garbage = flash();
+    garbage.as_bytes_mut()[..2048].fill(0x5A);
+    for f in [flash(), garbage] {
+        let mut st = store(f);
+        let models = block_on(st.load_all());
+        let mut s = State::new(Config::default());
+        events(&mut s);
+        s.restore_models(&models, 3);
+        let d = model_core::poly::sba1();
+        for (ch, ev) in events(&mut s).into_iter().enumerate() {
+            match ev {
+                crate::telemetry::EventKind::Store { ch: c, what, crc } => {
+                    assert_eq!(c as usize, ch);
+                    assert!(matches!(what, StoreEvent::Empty | StoreEvent::Invalid));
+                    assert_eq!(crc, model_crc(&d));
+                }
+                other => panic!("{other:?}"),
+            }
+            assert_eq!(*s.model(ch), d);
+            assert_eq!(s.store().saved(ch), Saved::Default);
+        }
+    }
+}
+
+#[test]
+fn a_range_that_is_not_two_whole_pages_is_refused() {
+    assert!(ModelStore::new(flash(), 0..2048).is_err());
+    assert!(ModelStore::new(flash(), 100..4196).is_err());
+}
+
+// ------------------------------------------------------------------ the application's side
+
+fn cmd(s: &mut State, line: &str, now: u64) -> Result<String, CommandError> {
+    let c = command::parse(line.as_bytes()).expect("test lines parse");
+    let mut out = String::new();
+    s.execute(&c, now, &mut out).map(|()| out)
+}
+
+fn events(s: &mut State) -> Vec<crate::telemetry::EventKind> {
+    core::iter::from_fn(|| s.pop_event())
+        .map(|e| e.kind)
+        .collect()
+}
+
+/// A state past its pressure zero at `t`.
+fn ready() -> (State, u64) {
+    let mut s = State::new(Config::default());
+    let mut t = 0;
+    let code = crate::board::kpa_to_counts(0.0).round() as u16;
+    for _ in 0..25 * 8 {
+        t += 5_000;
+        s.on_oversample([code; 3], t);
+    }
+    events(&mut s);
+    (s, t)
+}
+
+#[test]
+fn boot_announces_what_each_channel_loaded() {
+    let mut s = State::new(Config::default());
+    events(&mut s);
+    let d = model_core::poly::sba1();
+    s.restore_models(
+        &[
+            (ar_model(), Loaded::Stored),
+            (d, Loaded::Empty),
+            (d, Loaded::Invalid),
+        ],
+        7,
+    );
+    use crate::telemetry::EventKind::Store;
+    assert_eq!(
+        events(&mut s),
+        [
+            Store {
+                ch: 0,
+                what: StoreEvent::Loaded,
+                crc: model_crc(&ar_model())
+            },
+            Store {
+                ch: 1,
+                what: StoreEvent::Empty,
+                crc: model_crc(&d)
+            },
+            Store {
+                ch: 2,
+                what: StoreEvent::Invalid,
+                crc: model_crc(&d)
+            },
+        ]
+    );
+    assert_eq!(*s.model(0), ar_model());
+    let out = cmd(&mut s, "model 0 read crc", 8).unwrap();
+    assert_eq!(out, std::format!(" {:#010x} flash", model_crc(&ar_model())));
+    let out = cmd(&mut s, "model 2 read crc", 8).unwrap();
+    assert_eq!(out, std::format!(" {:#010x} default", model_crc(&d)));
+    assert!(!s.flags().has(Flags::MODEL_UNSAVED));
+}
+
+#[test]
+fn a_commit_is_written_only_at_rest_and_after_the_port_is_quiet() {
+    let (mut s, t) = ready();
+    cmd(&mut s, "model 1 default", t).unwrap();
+    assert!(s.flags().has(Flags::MODEL_UNSAVED));
+    assert_eq!(s.store().saved(1), Saved::Pending);
+    // Too soon after the command.
+    assert_eq!(s.persist_begin(t + QUIET_US - 1), None);
+    // Moving: deferred.
+    cmd(&mut s, "move 0 10", t + 1).unwrap();
+    assert_eq!(s.persist_begin(t + 1 + QUIET_US), None);
+    cmd(&mut s, "stop", t + 2).unwrap();
+    let now = t + 2 + QUIET_US;
+    let (ch, model) = s.persist_begin(now).expect("at rest and quiet");
+    assert_eq!((ch, model), (1, model_core::poly::sba1()));
+    // While it writes, motion is refused and no second write starts.
+    assert_eq!(cmd(&mut s, "move 0 10", now), Err(CommandError::Busy));
+    assert_eq!(s.persist_begin(now + QUIET_US), None);
+    s.persist_end(1, &model, true, now + 1);
+    assert_eq!(s.store().saved(1), Saved::Flash);
+    assert!(!s.flags().has(Flags::MODEL_UNSAVED));
+    assert!(cmd(&mut s, "move 0 10", now + 2).is_ok());
+}
+
+#[test]
+fn a_failed_write_is_flagged_and_a_commit_during_a_write_stays_pending() {
+    let (mut s, t) = ready();
+    cmd(&mut s, "model 0 default", t).unwrap();
+    let now = t + QUIET_US;
+    let (_, m) = s.persist_begin(now).unwrap();
+    s.persist_end(0, &m, false, now);
+    assert_eq!(s.store().saved(0), Saved::Failed);
+    assert!(s.flags().has(Flags::STORE_FAILED | Flags::MODEL_UNSAVED));
+    let out = cmd(&mut s, "status", now).unwrap();
+    assert!(out.ends_with(" store failed default default"), "{out}");
+    // A new commit retries; one committed while the write runs is written next.
+    cmd(&mut s, "model 2 default", now).unwrap();
+    let now = now + QUIET_US;
+    let (ch, m) = s.persist_begin(now).unwrap();
+    assert_eq!(ch, 2);
+    cmd(&mut s, "model 2 default", now).unwrap();
+    s.persist_end(2, &m, true, now);
+    // Same model committed again: still pending, so written again.
+    assert_eq!(s.store().saved(2), Saved::Pending);
+}
+
+#[test]
+fn the_persist_task_writes_the_committed_model_to_flash() {
+    let shared = Shared::new(Config::default());
+    let mut st = store(flash());
+    let mut reply = String::new();
+    // Far enough in the past that the port is quiet at the mock clock's current instant.
+    shared.command_line(b"model 2 default", 0, &mut reply);
+    embassy_time::MockDriver::get().advance(embassy_time::Duration::from_micros(QUIET_US));
+    // Not zeroed yet at boot: the zero is in progress, so nothing is written.
+    assert!(!block_on(persist_once(&shared, &mut st, &mut ())));
+    shared.lock(|s| {
+        let code = crate::board::kpa_to_counts(0.0).round() as u16;
+        for k in 1..=25 * 8 {
+            s.on_oversample([code; 3], k * 5_000);
+        }
+    });
+    assert!(block_on(persist_once(&shared, &mut st, &mut ())));
+    assert_eq!(shared.lock(|s| s.store().saved(2)), Saved::Flash);
+    let mut st = store(st.into_flash());
+    assert_eq!(block_on(st.load(2)), Ok(model_core::poly::sba1()));
+    assert_eq!(block_on(st.load(0)), Err(Loaded::Empty));
+}
