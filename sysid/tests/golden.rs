@@ -234,7 +234,6 @@ fn identify_sim_all_but_nn() {
 }
 
 #[test]
-#[ignore = "the neural family takes minutes in the dev profile; run with --release -- --ignored"]
 fn identify_nn_sim() {
     golden_json(
         "identify-nn-sim-paper",
