@@ -3,9 +3,15 @@
 
 mod diag_common;
 use diag_common::*;
-use sysid::diag::input::read_log;
-use sysid::diag::stiffness::{self, StiffnessArgs};
-use sysid::diag::{ModelOpts, OutputOpts, Shape};
+use sysid::dataset::{DatasetConfig, LogData};
+use sysid::diag::stiffness;
+use sysid::diag::Shape;
+use vfp::cmd::stiffness::{Args as StiffnessArgs, ShapeOpts, DEFAULT_PHASE_DEADBAND};
+use vfp::opts::{LogInput, OutputOpts};
+
+fn read_log(path: &std::path::Path) -> Result<LogData, sysid::dataset::LoadError> {
+    LogData::read(path, None, &DatasetConfig::default())
+}
 use sysid::synth::SBA1_RAW;
 
 #[test]
@@ -17,7 +23,7 @@ fn means_match_the_known_law_overall_and_per_phase() {
     let path = dir.join("sba1.csv");
     write(&path, &tr, &[(0, tr.v.clone(), p)], None, &[]);
     let log = read_log(&path).unwrap();
-    let res = stiffness::analyze_log(&log, &ModelOpts::default()).unwrap();
+    let res = stiffness::analyze_log(&log, Shape::PAPER, DEFAULT_PHASE_DEADBAND).unwrap();
     let s = &res[0].summary;
 
     // Truth: the law's own partials at the same samples, split with the same 2 mm³/s band.
@@ -75,19 +81,19 @@ fn command_writes_figure_and_succeeds() {
         &[],
     );
     let args = StiffnessArgs {
-        log: path.clone(),
-        model: ModelOpts::default(),
+        input: LogInput::new(path.clone()),
+        shape: ShapeOpts::default(),
         out: OutputOpts {
             json: true,
             plots: Some(dir.join("plots")),
         },
     };
-    stiffness::run(&args).unwrap();
+    vfp::cmd::stiffness::run(&args).unwrap();
     let svg = std::fs::read_to_string(dir.join("plots/diag-stiffness.svg")).unwrap();
     assert!(svg.contains("<svg") && svg.contains("chamber 1"));
     // Chamber 1's law is chamber 0's halved: so are its mean partials (linearity of ∂).
     let log = read_log(&path).unwrap();
-    let res = stiffness::analyze_log(&log, &ModelOpts::default()).unwrap();
+    let res = stiffness::analyze_log(&log, Shape::PAPER, DEFAULT_PHASE_DEADBAND).unwrap();
     let ratio = res[1].summary.k_mean / res[0].summary.k_mean;
     assert!((ratio - 0.5).abs() < 0.01, "k ratio {ratio}");
     let ratio = res[1].summary.c_mean / res[0].summary.c_mean;
@@ -98,33 +104,30 @@ fn command_writes_figure_and_succeeds() {
 fn bad_inputs_are_errors_not_panics() {
     let dir = tmpdir("stiff-bad");
     let missing = StiffnessArgs {
-        log: dir.join("nope.csv"),
-        model: ModelOpts::default(),
+        input: LogInput::new(dir.join("nope.csv")),
+        shape: ShapeOpts::default(),
         out: OutputOpts::default(),
     };
-    let e = stiffness::run(&missing).unwrap_err().to_string();
+    let e = vfp::cmd::stiffness::run(&missing).unwrap_err().to_string();
     assert!(e.contains("nope.csv"), "{e}");
 
     // A log that never moves cannot determine a flow-dependent model.
     let still = dir.join("still.csv");
     std::fs::write(&still, "time_s,volume_mm3,flow_mm3_s,pressure_kpa\n0,10,0,1\n0.04,10,0,1.1\n0.08,10,0,0.9\n0.12,10,0,1\n").unwrap();
     let args = StiffnessArgs {
-        log: still,
-        model: ModelOpts::default(),
+        input: LogInput::new(still),
+        shape: ShapeOpts::default(),
         out: OutputOpts::default(),
     };
-    let e = stiffness::run(&args).unwrap_err().to_string();
+    let e = vfp::cmd::stiffness::run(&args).unwrap_err().to_string();
     assert!(e.contains("still.csv") && e.contains("chamber 0"), "{e}");
 
     let bad_shape = StiffnessArgs {
-        log: dir.join("x.csv"),
-        model: ModelOpts {
-            n: 9,
-            ..ModelOpts::default()
-        },
+        input: LogInput::new(dir.join("x.csv")),
+        shape: ShapeOpts { n: 9, m: 2 },
         out: OutputOpts::default(),
     };
-    assert!(stiffness::run(&bad_shape)
+    assert!(vfp::cmd::stiffness::run(&bad_shape)
         .unwrap_err()
         .to_string()
         .contains("--n 9"));

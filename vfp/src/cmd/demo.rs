@@ -28,15 +28,16 @@ use indicatif::{ProgressBar, ProgressStyle};
 use plotters::prelude::*;
 use serde::Serialize;
 
-use crate::cli::{export, CliError};
-use crate::dataset::{Dataset, DatasetConfig};
-use crate::identify::{self, ChamberReport, Family};
-use crate::poly::{self, PolyFit, Scaling, Xy};
-use crate::residual;
+use crate::Error;
+use sysid::dataset::{Dataset, DatasetConfig, LogData};
+use sysid::export;
+use sysid::identify::{self, ChamberReport, Family};
+use sysid::poly::{self, PolyFit, Scaling, Xy};
+use sysid::residual;
 
 /// `vfp demo`: simulate, record, identify, diagnose, deploy, estimate force, report.
 #[derive(Debug, Clone, clap::Args)]
-pub struct DemoArgs {
+pub struct Args {
     /// A short run (2 cycles per flow rate, 5 s of pushes, smaller sweeps), for CI.
     #[arg(long)]
     pub short: bool,
@@ -217,8 +218,8 @@ impl Stage {
     }
 }
 
-fn fail(e: impl std::fmt::Display) -> CliError {
-    CliError(e.to_string())
+fn fail(e: impl std::fmt::Display) -> Error {
+    Error::Msg(e.to_string())
 }
 
 /// The plant of both runs: SBA1 with the planted effect.
@@ -268,7 +269,7 @@ pub fn chosen_shape(rep: &ChamberReport) -> (usize, usize) {
 }
 
 /// Fits the deployed polynomial exactly as `vfp export` does: training cycles, scaling from all.
-pub fn deploy_fit(ds: &Dataset, n: usize, m: usize) -> Result<PolyFit, CliError> {
+pub fn deploy_fit(ds: &Dataset, n: usize, m: usize) -> Result<PolyFit, Error> {
     let all = ds.all();
     let sc = Scaling::from_data(&all.v, &all.vdot).map_err(fail)?;
     poly::fit(Xy::from(&ds.train()), n, m, Some(sc)).map_err(fail)
@@ -300,14 +301,14 @@ pub fn force_scenario(plan: &Plan, seed: u64, lines: &[String]) -> Scenario {
 
 // The neural family's settings are still growing fields; set the one the demo chooses.
 #[allow(clippy::field_reassign_with_default)]
-fn nn_config(plan: &Plan) -> crate::nn::SweepConfig {
-    let mut c = crate::nn::SweepConfig::default();
+fn nn_config(plan: &Plan) -> sysid::nn::SweepConfig {
+    let mut c = sysid::nn::SweepConfig::default();
     c.depths = plan.nn_depths.clone();
     c
 }
 
 /// Runs `vfp demo`.
-pub fn run(args: &DemoArgs) -> Result<(), CliError> {
+pub fn run(args: &Args) -> Result<(), Error> {
     let report = run_plan(Plan::new(args.short), args.seed, &args.out)?;
     println!(
         "demo finished in {:.1} s; report: {}",
@@ -318,10 +319,10 @@ pub fn run(args: &DemoArgs) -> Result<(), CliError> {
 }
 
 /// The whole chain for a given plan, writing into `out`; returns what it measured.
-pub fn run_plan(plan: Plan, seed: u64, out: &Path) -> Result<DemoReport, CliError> {
+pub fn run_plan(plan: Plan, seed: u64, out: &Path) -> Result<DemoReport, Error> {
     let total = Instant::now();
     std::fs::create_dir_all(out.join("figures"))
-        .map_err(|e| CliError(format!("{}: {e}", out.display())))?;
+        .map_err(|e| Error::Msg(format!("{}: {e}", out.display())))?;
     let mut stages = Vec::new();
 
     // 1. simulate
@@ -349,11 +350,11 @@ pub fn run_plan(plan: Plan, seed: u64, out: &Path) -> Result<DemoReport, CliErro
     let capture = out.join("telemetry.txt");
     {
         let f = std::fs::File::create(&capture)
-            .map_err(|e| CliError(format!("{}: {e}", capture.display())))?;
+            .map_err(|e| Error::Msg(format!("{}: {e}", capture.display())))?;
         let mut w = std::io::BufWriter::new(f);
         probe_rs_capture(&ident_run, &mut w)
             .and_then(|_| w.flush())
-            .map_err(|e| CliError(format!("{}: {e}", capture.display())))?;
+            .map_err(|e| Error::Msg(format!("{}: {e}", capture.display())))?;
     }
     st.done(
         format!(
@@ -366,9 +367,9 @@ pub fn run_plan(plan: Plan, seed: u64, out: &Path) -> Result<DemoReport, CliErro
 
     // 3. record
     let st = Stage::start(3, "record", "capture → log");
-    let rec = crate::record::convert_file(&capture).map_err(fail)?;
+    let rec = sysid::record::convert_file(&capture).map_err(fail)?;
     let log_path = out.join("identification.csv");
-    crate::log::write_log(&log_path, &rec.log).map_err(fail)?;
+    sysid::log::write_log(&log_path, &rec.log).map_err(fail)?;
     st.done(
         format!(
             "{} frames → {} ({} missing, {} corrupted lines)",
@@ -382,14 +383,9 @@ pub fn run_plan(plan: Plan, seed: u64, out: &Path) -> Result<DemoReport, CliErro
 
     // 4. identify
     let st = Stage::start(4, "identify", "model families per chamber");
-    let log = crate::log::read_log(&log_path).map_err(fail)?;
-    let dcfg = DatasetConfig::default();
-    let datasets: Vec<Dataset> = log
-        .chambers()
-        .into_iter()
-        .map(|c| Dataset::from_log(&log, c, &dcfg))
-        .collect::<Result<_, _>>()
-        .map_err(fail)?;
+    let datasets = LogData::read(&log_path, None, &DatasetConfig::default())
+        .map_err(fail)?
+        .datasets;
     let opts = identify::Options {
         families: plan.families.clone(),
         max_n: plan.max_degree,
@@ -398,7 +394,7 @@ pub fn run_plan(plan: Plan, seed: u64, out: &Path) -> Result<DemoReport, CliErro
         exp_k_max: plan.exp_k_max,
         nn: nn_config(&plan),
         nn_ar_max: 0,
-        progress: false,
+        progress: None,
         ..identify::Options::default()
     };
     let mut reports = Vec::new();
@@ -433,7 +429,7 @@ pub fn run_plan(plan: Plan, seed: u64, out: &Path) -> Result<DemoReport, CliErro
                 m: DIAGNOSE_SHAPE.1,
                 ..residual::Config::default()
             };
-            match residual::cli::series_from_dataset(ds).and_then(|s| residual::diagnose(s, &cfg)) {
+            match residual::series_from_dataset(ds).and_then(|s| residual::diagnose(s, &cfg)) {
                 Ok(d) => (Some(d), None),
                 Err(e) => (None, Some(e.to_string())),
             }
@@ -491,7 +487,7 @@ pub fn run_plan(plan: Plan, seed: u64, out: &Path) -> Result<DemoReport, CliErro
                 .get(acked)
                 .map_or("no reply", |r| r.1.as_str()),
         );
-        return Err(CliError(format!(
+        return Err(Error::Msg(format!(
             "the simulated board refused `{sent}` with `{reply}`"
         )));
     }
@@ -534,7 +530,7 @@ pub fn run_plan(plan: Plan, seed: u64, out: &Path) -> Result<DemoReport, CliErro
     let fig = out.join("figures");
     let mut figures: Vec<(String, String)> = Vec::new();
     if let (Some(ds), Some(rep)) = (datasets.first(), reports.first()) {
-        crate::cli::plots::write_all(&fig, ds, rep)?;
+        crate::plots::identify::write_all(&fig, ds, rep)?;
         for (f, cap) in [
             (
                 "ch0-vp.svg",
@@ -564,7 +560,7 @@ pub fn run_plan(plan: Plan, seed: u64, out: &Path) -> Result<DemoReport, CliErro
         }
     }
     if let Some(d) = &diagnosis {
-        residual::cli::write_plots(&fig, d).map_err(fail)?;
+        super::diagnose::write_plots(&fig, d)?;
         figures.push((
             "figures/resid-before.svg".into(),
             "Residual loop: held-out residual before".into(),
@@ -575,7 +571,7 @@ pub fn run_plan(plan: Plan, seed: u64, out: &Path) -> Result<DemoReport, CliErro
         ));
     }
     force_figure(&fig.join("force.svg"), &trace)
-        .map_err(|e| CliError(format!("{}: {e}", fig.join("force.svg").display())))?;
+        .map_err(|e| Error::Msg(format!("{}: {e}", fig.join("force.svg").display())))?;
     figures.push((
         "figures/force.svg".into(),
         "Force pushes: the board's estimate against the true force".into(),
@@ -605,10 +601,10 @@ pub fn run_plan(plan: Plan, seed: u64, out: &Path) -> Result<DemoReport, CliErro
     report.total_seconds = total.elapsed().as_secs_f64();
     let md = markdown(&report, &figures);
     std::fs::write(out.join("report.md"), md)
-        .map_err(|e| CliError(format!("{}: {e}", out.join("report.md").display())))?;
+        .map_err(|e| Error::Msg(format!("{}: {e}", out.join("report.md").display())))?;
     let json = serde_json::to_string_pretty(&report).map_err(fail)?;
     std::fs::write(out.join("report.json"), json)
-        .map_err(|e| CliError(format!("{}: {e}", out.join("report.json").display())))?;
+        .map_err(|e| Error::Msg(format!("{}: {e}", out.join("report.json").display())))?;
     Ok(report)
 }
 

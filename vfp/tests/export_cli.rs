@@ -4,8 +4,8 @@
 
 use firmware::command::{parse, Command, ModelCmd};
 use model_core::poly::{PolyModel, Scaling, Shape};
-use sysid::cli::export::{command_lines, rust_constants};
 use sysid::dataset::{Dataset, DatasetConfig};
+use sysid::export::{command_lines, rust_constants};
 use sysid::log::{write_log, Log, Sample};
 use sysid::poly::{self, Xy};
 use sysid::synth::{self, Protocol, SBA1_RAW};
@@ -223,8 +223,8 @@ fn identify_json_has_the_documented_fields() {
 #[test]
 fn export_warns_when_f32_cannot_carry_the_polynomial() {
     const ACCEL: f64 = 1000.0;
-    use sysid::cli::export::{f32_loss, f32_warning, model_for};
     use sysid::deploy::{deploy, parse_lines, FirmwarePort};
+    use sysid::export::{f32_loss, f32_warning, model_for};
     // Fast ramps: the flow dwells on seven levels (0, ±20, ±60, ±100 mm³/s), so degree 7 in v̇
     // is barely determined and its coefficients cancel.
     let tr = Protocol {
@@ -297,7 +297,7 @@ fn aicc_ranking(ds: &Dataset) -> Vec<(usize, usize)> {
 /// Checks the default selection on `ds`: the exported shape is the first in AICc order the device
 /// evaluates within the limit; every shape before it is not. Returns (AICc's first, exported).
 fn check_default_selection(ds: &Dataset) -> ((usize, usize), (usize, usize)) {
-    use sysid::cli::export::{f32_loss, model_for, F32_LOSS_LIMIT};
+    use sysid::export::{f32_loss, model_for, F32_LOSS_LIMIT};
     let ranked = aicc_ranking(ds);
     let e = model_for(ds, None, None, 0, false).unwrap();
     let loss = f32_loss(&e, &ds.v, &ds.vdot, &ds.p);

@@ -5,26 +5,24 @@ use std::path::{Path, PathBuf};
 
 use plotters::prelude::*;
 
-use super::{diagnose, Config, DiagnoseError, Diagnosis, EffectKind, ResidualAnalysis, Series};
-use crate::dataset::{Dataset, DatasetConfig};
-use crate::log::read_log;
-use crate::poly::{self, Scaling, Xy};
+use crate::opts::{effect_parser, LogInput, OutputOpts};
+use crate::Error;
+use sysid::residual::analysis::Binned;
+use sysid::residual::{
+    diagnose, select_shape, series_from_dataset, Config, Diagnosis, EffectKind, Param,
+    ResidualAnalysis,
+};
 
 /// `vfp diagnose`: trace the residual of a fitted model to physical effects it lacks.
 #[derive(Debug, Clone, clap::Args)]
-pub struct DiagnoseArgs {
-    /// Actuation log (CSV, shared log format).
-    pub log: PathBuf,
-    /// Chamber to analyse (default: the lowest chamber in the log).
-    #[arg(long)]
-    pub chamber: Option<u8>,
+pub struct Args {
+    /// The log, `--chamber` (default: the lowest chamber in the log) and the data options.
+    #[command(flatten)]
+    pub input: LogInput,
     /// Baseline polynomial as `N,M` (degree in v, degree in v̇); default: the shape the
     /// polynomial sweep selects by AICc on the training cycles, as `vfp identify` does.
     #[arg(long, value_name = "N,M")]
     pub model: Option<String>,
-    /// Hold out every k-th cycle.
-    #[arg(long, default_value_t = 5)]
-    pub holdout_every: usize,
     /// Level of the nested F-test.
     #[arg(long, default_value_t = 1e-3)]
     pub alpha: f64,
@@ -32,56 +30,17 @@ pub struct DiagnoseArgs {
     #[arg(long, default_value_t = 0.01)]
     pub min_gain: f64,
     /// Restrict the candidates (repeatable; default: the whole library).
-    #[arg(long = "effect", value_enum)]
+    #[arg(long = "effect", value_parser = effect_parser())]
     pub effects: Vec<EffectKind>,
-    /// Print one JSON document instead of the text report.
-    #[arg(long)]
-    pub json: bool,
-    /// Write residual figures before and after (SVG) into this directory.
-    #[arg(long, value_name = "DIR")]
-    pub plots: Option<PathBuf>,
+    /// `--json`: one document instead of the text report; `--plots DIR`: residual figures
+    /// before and after (SVG).
+    #[command(flatten)]
+    pub out: OutputOpts,
 }
 
-/// Why `vfp diagnose` stopped; each message says where and what to do.
-#[derive(Debug, thiserror::Error)]
-pub enum DiagnoseCliError {
-    /// The log could not be read.
-    #[error("{0}")]
-    Log(#[from] crate::log::LogError),
-    /// A chamber's data set could not be built.
-    #[error("{path}: {source}")]
-    Data {
-        /// The log.
-        path: PathBuf,
-        /// Why.
-        source: crate::dataset::DataError,
-    },
-    /// The data cannot be diagnosed.
-    #[error("{path}, chamber {chamber}: {source}")]
-    Diagnose {
-        /// The log.
-        path: PathBuf,
-        /// Chamber.
-        chamber: u8,
-        /// Why.
-        source: DiagnoseError,
-    },
-    /// A bad option.
-    #[error("invalid option: {0}")]
-    Usage(String),
-    /// A figure could not be written.
-    #[error("cannot write {path}: {msg}")]
-    Output {
-        /// File.
-        path: PathBuf,
-        /// Why.
-        msg: String,
-    },
-}
-
-fn parse_shape(s: &str) -> Result<(usize, usize), DiagnoseCliError> {
+fn parse_shape(s: &str) -> Result<(usize, usize), Error> {
     let bad = || {
-        DiagnoseCliError::Usage(format!(
+        Error::Usage(format!(
             "--model expects N,M with 1 ≤ N, M ≤ 7 (e.g. 3,2), got `{s}`"
         ))
     };
@@ -94,97 +53,36 @@ fn parse_shape(s: &str) -> Result<(usize, usize), DiagnoseCliError> {
     Ok((n, m))
 }
 
-/// Builds the loop's series from a `sysid` data set (its flow, v̈ and held-out mask).
-pub fn series_from_dataset(ds: &Dataset) -> Result<Series, DiagnoseError> {
-    let mut s = Series::new(
-        ds.t.clone(),
-        ds.v.clone(),
-        ds.vdot.clone(),
-        ds.p.clone(),
-        ds.heldout.iter().map(|h| !h).collect(),
-    )?;
-    // With logged flow, v and v̇ are consistent samples of one trajectory: the Hermite
-    // acceleration then places short acceleration phases exactly; a derived flow is already a
-    // smoothed derivative, so its own v̈ is used.
-    s.vddot = match ds.flow_source {
-        crate::dataset::FlowSource::Logged => {
-            super::signal::acceleration_hermite(&ds.t, &ds.v, &ds.vdot)
-        }
-        crate::dataset::FlowSource::Derived { .. } => ds.vddot.clone(),
-    };
-    Ok(s)
-}
-
-/// The shape the polynomial sweep selects by training AICc (the default joint cost of eq. (12)).
-pub fn select_shape(ds: &Dataset) -> Option<(usize, usize)> {
-    let train = ds.train();
-    let scaling = Scaling::from_data(&ds.v, &ds.vdot).ok()?;
-    let entries = poly::sweep(
-        Xy::from(&train),
-        None,
-        &scaling,
-        poly::MAX_DEGREE,
-        poly::MAX_DEGREE,
-    )
-    .ok()?;
-    entries
-        .into_iter()
-        .flatten()
-        .min_by(|a, b| a.train.aicc.total_cmp(&b.train.aicc))
-        .map(|e| (e.n, e.m))
-}
-
 /// Runs `vfp diagnose`.
-pub fn run(args: &DiagnoseArgs) -> Result<(), DiagnoseCliError> {
+pub fn run(args: &Args) -> Result<(), Error> {
     if !(args.alpha > 0.0 && args.alpha < 1.0) {
-        return Err(DiagnoseCliError::Usage(format!(
+        return Err(Error::Usage(format!(
             "--alpha must lie in (0, 1), got {}",
             args.alpha
         )));
     }
     if !(0.0..1.0).contains(&args.min_gain) {
-        return Err(DiagnoseCliError::Usage(format!(
+        return Err(Error::Usage(format!(
             "--min-gain must lie in [0, 1), got {}",
             args.min_gain
         )));
     }
-    if args.holdout_every < 2 {
-        return Err(DiagnoseCliError::Usage(
-            "--holdout-every must be at least 2".into(),
-        ));
+    if args.input.data.holdout_every < 2 {
+        return Err(Error::Usage("--holdout-every must be at least 2".into()));
     }
-    let log = read_log(&args.log)?;
-    let chambers = log.chambers();
-    let chamber = match args.chamber {
-        Some(c) if chambers.contains(&c) => c,
-        Some(c) => {
-            return Err(DiagnoseCliError::Usage(format!(
-                "chamber {c} is not in {} (it has {:?})",
-                args.log.display(),
-                chambers
-            )))
-        }
-        None => *chambers
-            .first()
-            .ok_or_else(|| DiagnoseCliError::Usage("the log has no samples".into()))?,
+    let data = args.input.load()?;
+    let ds = data.first();
+    let chamber = ds.chamber;
+    let wrap = |source: sysid::residual::DiagnoseError| {
+        Error::Msg(format!(
+            "{}, chamber {chamber}: {source}",
+            data.path.display()
+        ))
     };
-    let dcfg = DatasetConfig {
-        holdout_every: args.holdout_every,
-        ..DatasetConfig::default()
-    };
-    let ds = Dataset::from_log(&log, chamber, &dcfg).map_err(|source| DiagnoseCliError::Data {
-        path: args.log.clone(),
-        source,
-    })?;
-    let wrap = |source| DiagnoseCliError::Diagnose {
-        path: args.log.clone(),
-        chamber,
-        source,
-    };
-    let series = series_from_dataset(&ds).map_err(wrap)?;
+    let series = series_from_dataset(ds).map_err(wrap)?;
     let (n, m) = match &args.model {
         Some(s) => parse_shape(s)?,
-        None => select_shape(&ds).unwrap_or((3, 2)),
+        None => select_shape(ds).unwrap_or((3, 2)),
     };
     let mut cfg = Config {
         n,
@@ -197,28 +95,28 @@ pub fn run(args: &DiagnoseArgs) -> Result<(), DiagnoseCliError> {
         cfg.candidates = args.effects.clone();
     }
     let d = diagnose(series, &cfg).map_err(wrap)?;
-    if let Some(dir) = &args.plots {
+    if let Some(dir) = &args.out.plots {
         write_plots(dir, &d)?;
     }
-    if args.json {
+    if args.out.json {
         // The diagnosis itself at top level (baseline, effects, final, remaining, …) plus context.
         let mut doc = serde_json::to_value(&d).unwrap_or_default();
         if let Some(obj) = doc.as_object_mut() {
-            obj.insert("log".into(), args.log.display().to_string().into());
+            obj.insert("log".into(), data.path.display().to_string().into());
             obj.insert("chamber".into(), chamber.into());
             obj.insert("split".into(), ds.split_description().into());
         }
-        println!("{}", serde_json::to_string_pretty(&doc).unwrap_or_default());
+        crate::opts::print_json(&doc)?;
     } else {
         print!(
             "{}",
-            report(&args.log, chamber, &ds.split_description(), &d)
+            report(&data.path, chamber, &ds.split_description(), &d)
         );
     }
     Ok(())
 }
 
-fn fmt_param(p: &super::Param) -> String {
+fn fmt_param(p: &Param) -> String {
     match p.std_err {
         Some(se) => format!("{} = {:.4e} ± {:.2e} {}", p.name, p.value, se, p.unit),
         None => format!("{} = {:.4e} {}", p.name, p.value, p.unit),
@@ -308,11 +206,8 @@ pub fn report(path: &Path, chamber: u8, split: &str, d: &Diagnosis) -> String {
 }
 
 /// Writes `resid-before.svg` and `resid-after.svg` into `dir`.
-pub fn write_plots(dir: &Path, d: &Diagnosis) -> Result<Vec<PathBuf>, DiagnoseCliError> {
-    std::fs::create_dir_all(dir).map_err(|e| DiagnoseCliError::Output {
-        path: dir.to_path_buf(),
-        msg: e.to_string(),
-    })?;
+pub fn write_plots(dir: &Path, d: &Diagnosis) -> Result<Vec<PathBuf>, Error> {
+    std::fs::create_dir_all(dir).map_err(|e| Error::output(dir, e))?;
     let mut out = Vec::new();
     for (name, a, title) in [
         ("resid-before.svg", &d.analysis_before, "baseline"),
@@ -323,10 +218,7 @@ pub fn write_plots(dir: &Path, d: &Diagnosis) -> Result<Vec<PathBuf>, DiagnoseCl
         ),
     ] {
         let path = dir.join(name);
-        figure(&path, a, title).map_err(|msg| DiagnoseCliError::Output {
-            path: path.clone(),
-            msg,
-        })?;
+        figure(&path, a, title).map_err(|msg| Error::output(&path, msg))?;
         out.push(path);
     }
     Ok(out)
@@ -496,7 +388,7 @@ fn figure(path: &Path, a: &ResidualAnalysis, title: &str) -> Result<(), String> 
         &[w.band, -w.band],
     )?;
     let dir = &a.direction;
-    let line = |b: &super::analysis::Binned| {
+    let line = |b: &Binned| {
         b.centre
             .iter()
             .copied()

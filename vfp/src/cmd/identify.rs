@@ -1,29 +1,25 @@
 //! `vfp identify LOG.csv`: the paper's §II–III on a log, as tables in the paper's layout or one
 //! JSON document.
 
-use super::{num, opt, CliError, DataOpts};
-use crate::identify::{self, ChamberReport, Family, ModelRow, Options};
-use crate::metrics::CostWeights;
+use crate::opts::{family_parser, num, opt, LogInput, OutputOpts};
+use crate::Error;
 use serde::Serialize;
 use std::collections::BTreeMap;
-use std::path::PathBuf;
+use sysid::identify::{self, ChamberReport, Family, ModelRow, Options};
+use sysid::metrics::CostWeights;
 
 /// Identify volume-flow-pressure models from a log (Tables I, II and IV of the paper).
 #[derive(Debug, Clone, clap::Args)]
 pub struct Args {
-    /// The actuation log (CSV, shared/data-format.md).
-    pub log: PathBuf,
     #[command(flatten)]
-    pub data: DataOpts,
+    pub input: LogInput,
     /// Limit the run to this family (repeatable; default: all).
-    #[arg(long = "family", value_enum)]
+    #[arg(long = "family", value_parser = family_parser())]
     pub families: Vec<Family>,
-    /// Print one JSON document instead of tables.
-    #[arg(long)]
-    pub json: bool,
-    /// Write SVG figures like the paper's Figs. 2-5 and V-P curves into DIR.
-    #[arg(long, value_name = "DIR")]
-    pub plots: Option<PathBuf>,
+    /// `--json` (one document instead of tables); `--plots DIR`: figures like the paper's
+    /// Figs. 2-5 and V-P curves.
+    #[command(flatten)]
+    pub out: OutputOpts,
     /// Joint-cost weights w1,w2,w3 on RMSE, 1-R2adj and AICc (eq. 8).
     #[arg(long, value_name = "W1,W2,W3", default_value = "0,0,1")]
     pub weights: String,
@@ -50,11 +46,11 @@ pub struct Args {
     pub prune: usize,
 }
 
-fn parse_list(s: &str, what: &str, len: usize) -> Result<Vec<f64>, CliError> {
+fn parse_list(s: &str, what: &str, len: usize) -> Result<Vec<f64>, Error> {
     let v: Result<Vec<f64>, _> = s.split(',').map(|x| x.trim().parse::<f64>()).collect();
     match v {
         Ok(v) if v.len() == len && v.iter().all(|x| x.is_finite() && *x >= 0.0) => Ok(v),
-        _ => Err(CliError(format!(
+        _ => Err(Error::Msg(format!(
             "{what} {s:?}: expected {len} comma-separated finite numbers >= 0"
         ))),
     }
@@ -62,7 +58,7 @@ fn parse_list(s: &str, what: &str, len: usize) -> Result<Vec<f64>, CliError> {
 
 impl Args {
     /// The identification options these arguments describe.
-    pub fn options(&self) -> Result<Options, CliError> {
+    pub fn options(&self) -> Result<Options, Error> {
         let w = parse_list(&self.weights, "--weights", 3)?;
         let ar_shape = match &self.ar_shape {
             None => None,
@@ -72,13 +68,13 @@ impl Args {
             }
         };
         if !(1..=7).contains(&self.max_n) || !(1..=7).contains(&self.max_m) {
-            return Err(CliError(format!(
+            return Err(Error::Msg(format!(
                 "--max-n {} --max-m {}: degrees must be 1..=7",
                 self.max_n, self.max_m
             )));
         }
         if self.ar_max > 5 || self.nn_ar_max > 5 {
-            return Err(CliError(
+            return Err(Error::Msg(
                 "--ar-max and --nn-ar-max must be at most 5 (the device's limit)".into(),
             ));
         }
@@ -100,7 +96,8 @@ impl Args {
             exp_k_max: self.exp_k_max,
             nn_ar_max: self.nn_ar_max,
             prune_k: self.prune,
-            progress: !self.json || std::io::IsTerminal::is_terminal(&std::io::stderr()),
+            progress: (!self.out.json || std::io::IsTerminal::is_terminal(&std::io::stderr()))
+                .then_some(crate::progress::spinner as identify::ProgressFn),
             ..Options::default()
         })
     }
@@ -126,19 +123,20 @@ struct Document<'a> {
 }
 
 /// Runs `vfp identify`.
-pub fn run(args: &Args) -> Result<(), CliError> {
+pub fn run(args: &Args) -> Result<(), Error> {
     let options = args.options()?;
-    let (_, datasets) = args.data.load(&args.log)?;
+    let data = args.input.load()?;
+    let datasets = &data.datasets;
     let reports: Vec<ChamberReport> = datasets
         .iter()
         .map(|ds| identify::identify(ds, &options))
         .collect();
-    if let Some(dir) = &args.plots {
+    if let Some(dir) = &args.out.plots {
         for (ds, rep) in datasets.iter().zip(&reports) {
-            super::plots::write_all(dir, ds, rep)?;
+            crate::plots::identify::write_all(dir, ds, rep)?;
         }
     }
-    if args.json {
+    if args.out.json {
         let mut timing: BTreeMap<&'static str, f64> = BTreeMap::new();
         for r in &reports {
             for (k, v) in &r.timing_s {
@@ -146,7 +144,7 @@ pub fn run(args: &Args) -> Result<(), CliError> {
             }
         }
         let doc = Document {
-            file: args.log.display().to_string(),
+            file: data.path.display().to_string(),
             weights: options.weights,
             selected: reports.first().and_then(|r| {
                 r.selected.as_ref().map(|row| Tagged {
@@ -167,13 +165,13 @@ pub fn run(args: &Args) -> Result<(), CliError> {
             chambers: &reports,
         };
         let text = serde_json::to_string_pretty(&doc)
-            .map_err(|e| CliError(format!("cannot encode JSON: {e}")))?;
+            .map_err(|e| Error::Msg(format!("cannot encode JSON: {e}")))?;
         println!("{text}");
     } else {
         for r in &reports {
-            print!("{}", render(r, &args.log.display().to_string(), &options));
+            print!("{}", render(r, &data.path.display().to_string(), &options));
         }
-        if let Some(dir) = &args.plots {
+        if let Some(dir) = &args.out.plots {
             println!("figures written to {}", dir.display());
         }
     }

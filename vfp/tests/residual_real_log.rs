@@ -1,15 +1,16 @@
 //! The residual loop on the real ventilator + test-lung log in `data/real/` (recorded by others,
 //! not designed for this tool). It checks only what must hold on any data — the loop runs, every
 //! kept effect lowered held-out RMSE, and the report is honest about what remains — and prints the
-//! report (`cargo test --release -p sysid --test residual_real_log -- --ignored --nocapture`). The library is not tuned
+//! report (`cargo test --release -p vfp --test residual_real_log -- --ignored --nocapture`). The library is not tuned
 //! to this file.
 
 use std::path::Path;
 
 use sysid::dataset::{Dataset, DatasetConfig};
 use sysid::log::read_log;
-use sysid::residual::cli::{report, select_shape, series_from_dataset};
 use sysid::residual::{diagnose, Config};
+use sysid::residual::{select_shape, series_from_dataset};
+use vfp::cmd::diagnose::report;
 
 const LOG: &str = "../data/real/test-lung-pip15-peep5.csv";
 

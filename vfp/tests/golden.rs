@@ -93,30 +93,46 @@ fn first_difference(path: &str, a: &Value, b: &Value) -> Option<String> {
     }
 }
 
-/// Compares `text` with the stored file `name` (or records it with `VFP_GOLDEN_RECORD=1`).
-fn compare_text(name: &str, text: &str) {
+/// The stored file `name`, or `None` when recording (`VFP_GOLDEN_RECORD=1`: `text` is written).
+fn stored(name: &str, text: &str) -> Option<String> {
     let path = golden_dir().join(name);
     if std::env::var_os("VFP_GOLDEN_RECORD").is_some() {
         std::fs::create_dir_all(golden_dir()).expect("create tests/golden");
         std::fs::write(&path, text).expect("write the golden file");
-        return;
+        return None;
     }
-    let stored = std::fs::read_to_string(&path).unwrap_or_else(|e| {
+    Some(std::fs::read_to_string(&path).unwrap_or_else(|e| {
         panic!(
             "{}: {e} (record it with VFP_GOLDEN_RECORD=1)",
             path.display()
         )
-    });
-    if name.ends_with(".json") {
-        // Compared as values: every number parses to the same f64 only if its digits are the
-        // same number, so this is exact, and independent of the JSON writer's layout.
-        let a: Value = serde_json::from_str(text).expect("the output is JSON");
-        let b: Value = serde_json::from_str(&stored).expect("the stored file is JSON");
-        if let Some(d) = first_difference("$", &a, &b) {
-            panic!("{name} differs from the stored output: {d}");
-        }
+    }))
+}
+
+/// Runs a `--json` command and compares its document, timing removed, with `name`: as values,
+/// each parsed once with correctly rounded float parsing (serde_json's `float_roundtrip`), so a
+/// number equals the stored one only if it is the same f64; independent of the writer's layout.
+fn golden_json(name: &str, cwd: &Path, args: &[&str]) {
+    let out = vfp(cwd, args);
+    let mut v: Value = serde_json::from_str(&out)
+        .unwrap_or_else(|e| panic!("vfp {}: not JSON ({e}):\n{out}", args.join(" ")));
+    strip_timing(&mut v);
+    let name = format!("{name}.json");
+    let text = serde_json::to_string_pretty(&v).expect("re-encode") + "\n";
+    let Some(stored) = stored(&name, &text) else {
         return;
+    };
+    let b: Value = serde_json::from_str(&stored).expect("the stored file is JSON");
+    if let Some(d) = first_difference("$", &v, &b) {
+        panic!("{name} differs from the stored output: {d}");
     }
+}
+
+/// Compares `text` with the stored file `name` line by line.
+fn compare_text(name: &str, text: &str) {
+    let Some(stored) = stored(name, text) else {
+        return;
+    };
     if text != stored {
         let line = text
             .lines()
@@ -130,16 +146,6 @@ fn compare_text(name: &str, text: &str) {
             stored.lines().nth(line)
         );
     }
-}
-
-/// Runs a `--json` command and compares its document, timing removed, with `name`.
-fn golden_json(name: &str, cwd: &Path, args: &[&str]) {
-    let out = vfp(cwd, args);
-    let mut v: Value = serde_json::from_str(&out)
-        .unwrap_or_else(|e| panic!("vfp {}: not JSON ({e}):\n{out}", args.join(" ")));
-    strip_timing(&mut v);
-    let text = serde_json::to_string_pretty(&v).expect("re-encode") + "\n";
-    compare_text(&format!("{name}.json"), &text);
 }
 
 /// Runs a command and compares its standard output with `name`.

@@ -1,7 +1,7 @@
 //! Small SVG plotting helpers shared by the diagnostics commands (plotters, SVG backend, so no
 //! system fonts are needed).
 
-use super::DiagError;
+use crate::Error;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 use std::path::{Path, PathBuf};
@@ -59,8 +59,8 @@ pub(crate) fn color(i: usize) -> RGBColor {
 }
 
 /// Creates `dir` and returns `dir/name`.
-pub(crate) fn target(dir: &Path, name: &str) -> Result<PathBuf, DiagError> {
-    std::fs::create_dir_all(dir).map_err(|e| DiagError::output(dir, e))?;
+pub(crate) fn target(dir: &Path, name: &str) -> Result<PathBuf, Error> {
+    std::fs::create_dir_all(dir).map_err(|e| Error::output(dir, e))?;
     Ok(dir.join(name))
 }
 
@@ -73,11 +73,8 @@ pub(crate) fn canvas(path: &Path, size: (u32, u32)) -> DrawingArea<SVGBackend<'_
 }
 
 /// Writes the canvas to disk.
-pub(crate) fn finish(
-    root: DrawingArea<SVGBackend<'_>, Shift>,
-    path: &Path,
-) -> Result<(), DiagError> {
-    root.present().map_err(|e| DiagError::output(path, e))
+pub(crate) fn finish(root: DrawingArea<SVGBackend<'_>, Shift>, path: &Path) -> Result<(), Error> {
+    root.present().map_err(|e| Error::output(path, e))
 }
 
 fn range(vals: impl Iterator<Item = f64>) -> (f64, f64) {
@@ -92,8 +89,8 @@ pub(crate) fn panel(
     xdesc: &str,
     ydesc: &str,
     curves: &[Curve],
-) -> Result<(), DiagError> {
-    let e = |e: DrawingAreaErrorKind<_>| DiagError::output(path, e);
+) -> Result<(), Error> {
+    let e = |e: DrawingAreaErrorKind<_>| Error::output(path, e);
     let (x0, x1) = range(curves.iter().flat_map(|c| c.pts.iter().map(|p| p.0)));
     let (y0, y1) = range(curves.iter().flat_map(|c| c.pts.iter().map(|p| p.1)));
     let mut chart = ChartBuilder::on(area)

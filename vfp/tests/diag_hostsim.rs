@@ -5,11 +5,18 @@ mod diag_common;
 use diag_common::tmpdir;
 use host_sim::{simulate, Design, Effects, PlantConfig, Protocol, Scenario};
 use std::path::{Path, PathBuf};
-use sysid::diag::air_scan::{self, AirScanArgs, Trend};
+use sysid::dataset::{DatasetConfig, LogData};
+use sysid::diag::air_scan::Trend;
 use sysid::diag::chow::{chow, ChowOptions};
-use sysid::diag::force::{self, ForceArgs};
-use sysid::diag::input::read_log;
-use sysid::diag::{ModelOpts, OutputOpts};
+use sysid::diag::force;
+use vfp::cmd::air_scan::{self, Args as AirScanArgs};
+use vfp::cmd::force::Args as ForceArgs;
+use vfp::cmd::stiffness::ShapeOpts;
+use vfp::opts::{ChamberOpt, DataOpts, OutputOpts};
+
+fn read_log(path: &Path) -> Result<LogData, sysid::dataset::LoadError> {
+    LogData::read(path, None, &DatasetConfig::default())
+}
 
 /// A short protocol: one cycle at each of 20, 60 and 100 mm³/s over the design's range.
 fn short(v_high: f64) -> Protocol {
@@ -57,13 +64,12 @@ fn air_pockets_lower_stiffness_and_damping() {
         logs,
         x_key: "air_pocket_mm3".into(),
         x: Some(volumes.to_vec()),
-        model: ModelOpts {
-            chamber: Some(0),
-            ..ModelOpts::default()
-        },
+        chamber: ChamberOpt { chamber: Some(0) },
+        data: DataOpts::default(),
+        shape: ShapeOpts::default(),
         out: OutputOpts::default(),
     };
-    let r = air_scan::scan(&args).unwrap();
+    let r = air_scan::scan_logs(&args).unwrap().0;
     for e in &r.logs {
         println!(
             "air {} k {} c {} (infl {:?}/{:?})",
@@ -106,7 +112,7 @@ fn same_actuator_is_not_told_apart_and_designs_are() {
     let b = read_log(&run_to(&dir, "sba2", &design(Design::Sba2, 3))).unwrap();
     let c = read_log(&run_to(&dir, "sba3", &design(Design::Sba3, 4))).unwrap();
     let o = ChowOptions::default();
-    let s = |l: &sysid::diag::input::Log| l.chambers[&0].clone();
+    let s = |l: &LogData| l.dataset(0).unwrap().clone();
     let same = chow((&s(&a1)).into(), (&s(&a2)).into(), &o).unwrap();
     eprintln!(
         "same: F {} p {} classic {} ar {:?}",
@@ -142,14 +148,18 @@ fn force_pushes_are_estimated_near_the_noise_floor() {
         ident: ident.clone(),
         test: push.clone(),
         area: vec![22.0],
-        n: 3,
-        m: 2,
+        shape: ShapeOpts::default(),
         smooth: 1,
         plot_window: 10.0,
+        data: DataOpts::default(),
         out: OutputOpts::default(),
     };
-    let (r, _) =
-        force::estimate(&read_log(&ident).unwrap(), &read_log(&push).unwrap(), &args).unwrap();
+    let (r, _) = force::estimate(
+        &read_log(&ident).unwrap(),
+        &read_log(&push).unwrap(),
+        &args.options().unwrap(),
+    )
+    .unwrap();
     let (mean, std, rmse) = (
         r.mean_error_n.unwrap(),
         r.std_error_n.unwrap(),
@@ -167,12 +177,14 @@ fn force_pushes_are_estimated_near_the_noise_floor() {
 }
 
 /// Regenerates the README's runs and figures (`docs/img/diag-*.svg`):
-/// `cargo test -p sysid --test diag_hostsim -- --ignored --nocapture readme_runs`.
+/// `cargo test -p vfp --test diag_hostsim -- --ignored --nocapture readme_runs`.
 #[test]
 #[ignore]
 fn readme_runs() {
-    use sysid::diag::chow::{self, ChowArgs, Method};
-    use sysid::diag::stiffness::{self, StiffnessArgs};
+    use sysid::diag::chow::Method;
+    use vfp::cmd::chow::{self, Args as ChowArgs};
+    use vfp::cmd::stiffness::{self, Args as StiffnessArgs};
+    use vfp::opts::LogInput;
     let dir = std::env::temp_dir().join("vfp-readme");
     std::fs::create_dir_all(&dir).unwrap();
     let img = Path::new(env!("CARGO_MANIFEST_DIR")).join("../docs/img");
@@ -191,8 +203,8 @@ fn readme_runs() {
     );
     println!("$ vfp stiffness sba1.csv --plots docs/img");
     stiffness::run(&StiffnessArgs {
-        log: ident.clone(),
-        model: ModelOpts::default(),
+        input: LogInput::new(ident.clone()),
+        shape: ShapeOpts::default(),
         out: plots.clone(),
     })
     .unwrap();
@@ -219,10 +231,9 @@ fn readme_runs() {
         logs,
         x_key: "air_pocket_mm3".into(),
         x: Some(vec![0.0, 10.0, 20.0, 40.0]),
-        model: ModelOpts {
-            chamber: Some(0),
-            ..ModelOpts::default()
-        },
+        chamber: ChamberOpt { chamber: Some(0) },
+        data: DataOpts::default(),
+        shape: ShapeOpts::default(),
         out: plots.clone(),
     })
     .unwrap();
@@ -255,9 +266,9 @@ fn readme_runs() {
     println!("\n$ vfp chow sba1.csv sba1-rerun.csv SBA2.csv SBA3.csv SBA4.csv --plots docs/img");
     chow::run(&ChowArgs {
         logs,
-        n: 3,
-        m: 2,
-        chamber: None,
+        shape: ShapeOpts::default(),
+        chamber: ChamberOpt::default(),
+        data: DataOpts::default(),
         alpha: 0.0005,
         method: Method::Gls,
         ar_max: 10,
@@ -268,14 +279,14 @@ fn readme_runs() {
 
     let push = run_to(&dir, "push", &Scenario::force_pushes(0.3, 10.0));
     println!("\n$ vfp force --ident sba1.csv --test push.csv --plots docs/img");
-    force::run(&ForceArgs {
+    vfp::cmd::force::run(&ForceArgs {
         ident,
         test: push,
         area: vec![22.0],
-        n: 3,
-        m: 2,
+        shape: ShapeOpts::default(),
         smooth: 1,
         plot_window: 10.0,
+        data: DataOpts::default(),
         out: plots,
     })
     .unwrap();

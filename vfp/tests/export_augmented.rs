@@ -10,11 +10,11 @@
 use firmware::telemetry::Frame;
 use host_sim::{simulate, Effects, PlantConfig, Protocol, Scenario, TimedCommand};
 use model_core::poly::{ArHistory, PolyModel, SBA1_RAW};
-use sysid::cli::export::command_lines;
 use sysid::dataset::{Dataset, DatasetConfig};
 use sysid::deploy::{deploy, parse_lines, FirmwarePort, Readback};
-use sysid::residual::cli::series_from_dataset;
+use sysid::export::command_lines;
 use sysid::residual::export::{augmented_export, device_model, DeviceModel};
+use sysid::residual::series_from_dataset;
 use sysid::residual::{Config, EffectKind, Series};
 use sysid::synth;
 
@@ -274,7 +274,7 @@ fn exported_lines_run_on_the_firmware_as_in_sysid() {
 
     // A simulated board loads the lines over its serial port and runs its estimator while moving;
     // every frame's P̂ equals the host model fed the same frames (previous frame's flow for v̈).
-    let mut cmds: Vec<TimedCommand> = sysid::demo::upload_commands(&lines);
+    let mut cmds: Vec<TimedCommand> = vfp::cmd::demo::upload_commands(&lines);
     for (at_s, line) in [
         (1.0, "move 0 400 80"),
         (7.0, "move 0 150 35"),

@@ -1,5 +1,5 @@
 //! `vfp simulate`: run the firmware's own tasks against the simulated plant (`host-sim`) and
-//! write what the device reported as an actuation log (`shared/data-format.md`), with the
+//! write what the device reported as an actuation log (`docs/log-format.md`), with the
 //! simulator's truth (`force_n`, true chamber volume, flow and pressure) in extra columns.
 
 use std::fs::File;
@@ -10,7 +10,7 @@ use std::time::Instant;
 use host_sim::plant::Drive;
 use host_sim::{simulate, Design, Protocol, Scenario, EFFECT_PRESETS};
 
-use super::CliError;
+use crate::Error;
 
 /// Arguments of `vfp simulate`.
 #[derive(Debug, Clone, clap::Args)]
@@ -60,9 +60,9 @@ pub enum DriveArg {
 }
 
 /// Builds the scenario the arguments describe.
-pub fn scenario(args: &Args) -> Result<Scenario, CliError> {
+pub fn scenario(args: &Args) -> Result<Scenario, Error> {
     let mut sc = match &args.scenario {
-        Some(path) => Scenario::load(path).map_err(|e| CliError(e.to_string()))?,
+        Some(path) => Scenario::load(path).map_err(|e| Error::Msg(e.to_string()))?,
         None => preset(args)?,
     };
     if let Some(seed) = args.seed {
@@ -74,26 +74,26 @@ pub fn scenario(args: &Args) -> Result<Scenario, CliError> {
             DriveArg::Ideal => Drive::Ideal,
         };
     }
-    sc.validate().map_err(|e| CliError(e.to_string()))?;
+    sc.validate().map_err(|e| Error::Msg(e.to_string()))?;
     Ok(sc)
 }
 
-fn preset(args: &Args) -> Result<Scenario, CliError> {
+fn preset(args: &Args) -> Result<Scenario, Error> {
     let (kind, value) = match args.preset.split_once(':') {
         Some((k, v)) => (k, Some(v)),
         None => (args.preset.as_str(), None),
     };
-    let protocol_for = |base: Scenario, proto: Protocol| -> Result<Scenario, CliError> {
+    let protocol_for = |base: Scenario, proto: Protocol| -> Result<Scenario, Error> {
         let mut proto = proto;
         if let Some(c) = args.cycles {
             if c == 0 {
-                return Err(CliError("--cycles must be at least 1".into()));
+                return Err(Error::Msg("--cycles must be at least 1".into()));
             }
             proto.cycles = c;
         }
         if let Some(f) = &args.flows {
             if f.is_empty() || f.iter().any(|x| !(x.is_finite() && *x > 0.0)) {
-                return Err(CliError(format!(
+                return Err(Error::Msg(format!(
                     "--flows {f:?}: every flow must be a positive number of mm3/s"
                 )));
             }
@@ -109,7 +109,7 @@ fn preset(args: &Args) -> Result<Scenario, CliError> {
                 .ok()
                 .filter(|x: &f64| x.is_finite() && *x >= 0.0)
                 .ok_or_else(|| {
-                    CliError(format!(
+                    Error::Msg(format!(
                         "--preset air:{v}: the air volume must be a number of mm3 >= 0"
                     ))
                 })?;
@@ -120,7 +120,7 @@ fn preset(args: &Args) -> Result<Scenario, CliError> {
                 .into_iter()
                 .find(|d| d.name() == v.to_ascii_lowercase())
                 .ok_or_else(|| {
-                    CliError(format!(
+                    Error::Msg(format!(
                         "--preset design:{v}: unknown design (sba1, sba2, sba3 or sba4)"
                     ))
                 })?;
@@ -128,7 +128,7 @@ fn preset(args: &Args) -> Result<Scenario, CliError> {
         }
         ("effect", Some(v)) => {
             let base = Scenario::effect(v).ok_or_else(|| {
-                CliError(format!(
+                Error::Msg(format!(
                     "--preset effect:{v}: unknown effect (one of {})",
                     EFFECT_PRESETS.join(", ")
                 ))
@@ -137,7 +137,7 @@ fn preset(args: &Args) -> Result<Scenario, CliError> {
         }
         ("force", None) => {
             if !(args.force_peak_n.is_finite() && args.force_seconds > 0.0) {
-                return Err(CliError(
+                return Err(Error::Msg(
                     "--force-peak-n and --force-seconds must be finite, seconds > 0".into(),
                 ));
             }
@@ -146,7 +146,7 @@ fn preset(args: &Args) -> Result<Scenario, CliError> {
                 args.force_seconds,
             ))
         }
-        _ => Err(CliError(format!(
+        _ => Err(Error::Msg(format!(
             "--preset {}: unknown preset (paper, air:MM3, design:sbaN, effect:NAME, force)",
             args.preset
         ))),
@@ -154,18 +154,18 @@ fn preset(args: &Args) -> Result<Scenario, CliError> {
 }
 
 /// Runs `vfp simulate`.
-pub fn run(args: &Args) -> Result<(), CliError> {
+pub fn run(args: &Args) -> Result<(), Error> {
     let sc = scenario(args)?;
     eprintln!("simulating {}: {}", sc.name, sc.description);
     let started = Instant::now();
-    let sim = simulate(&sc).map_err(|e| CliError(format!("simulation failed: {e}")))?;
+    let sim = simulate(&sc).map_err(|e| Error::Msg(format!("simulation failed: {e}")))?;
     let wall = started.elapsed().as_secs_f64();
     let file = File::create(&args.out)
-        .map_err(|e| CliError(format!("cannot create {}: {e}", args.out.display())))?;
+        .map_err(|e| Error::Msg(format!("cannot create {}: {e}", args.out.display())))?;
     let mut w = BufWriter::new(file);
     sim.write_log(&mut w)
         .and_then(|()| w.flush())
-        .map_err(|e| CliError(format!("cannot write {}: {e}", args.out.display())))?;
+        .map_err(|e| Error::Msg(format!("cannot write {}: {e}", args.out.display())))?;
     let rig_s = sim
         .frames
         .last()

@@ -1,84 +1,48 @@
-//! `vfp export LOG.csv`: identify each chamber's polynomial (or poly-AR) model and print it in the
-//! forms the device loads: serial command lines (firmware `command.rs`:
+//! Export (behind `vfp export`): each chamber's polynomial (or poly-AR) model in the forms the
+//! device loads: serial command lines (firmware `command.rs`:
 //! `model <ch> begin <n> <m> <p> <v_off> <v_scale> <f_off> <f_scale>`, `model <ch> coef <i> <b>…`,
 //! `model <ch> ar <i> <b>…`, `model <ch> commit`) and Rust constants for build-time defaults.
 //!
 //! Coefficients are the scaled-basis bᵢⱼ of [`model_core::poly::PolyModel`] in f32, printed with
 //! Rust's shortest round-trip formatting so the device parses back exactly the exported values.
 //!
-//! `--augmented` first runs the residual loop of `vfp diagnose` on each chamber and exports the
-//! model it ends with ([`crate::residual::export`]): terms the device can run are folded into the
+//! The augmented export (`vfp export --augmented`) first runs the residual loop of `vfp diagnose` on
+//! each chamber and exports the model it ends with ([`crate::residual::export`]): terms the device can run are folded into the
 //! exported model (inertance as an AR(1) flow term), the others are named with the reason, and
 //! `//` comment lines above each chamber's model state the held-out RMSE of the full augmented
 //! model, of the exported model as the device evaluates it, and of the baseline. `vfp deploy`
 //! skips those comments.
 
-use super::{CliError, DataOpts};
 use crate::dataset::Dataset;
 use crate::poly::{self, Scaling, Xy};
 use crate::polyar;
-use crate::residual::export::{augmented_export, AugmentedExport};
-use crate::residual::{self, EffectKind};
+use crate::residual::export::AugmentedExport;
 use model_core::poly::PolyModel;
 use std::fmt::Write;
-use std::path::{Path, PathBuf};
+use std::path::Path;
+
+/// Why a model could not be exported: one sentence naming the option or the fit at fault.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("{0}")]
+pub struct ExportError(pub String);
+
+macro_rules! from_display {
+    ($($t:ty),*) => {$(
+        impl From<$t> for ExportError {
+            fn from(e: $t) -> Self {
+                ExportError(e.to_string())
+            }
+        }
+    )*};
+}
+from_display!(
+    crate::poly::PolyError,
+    crate::metrics::MetricsError,
+    model_core::ModelError
+);
 
 /// Most values on one `model … coef`/`ar` line (the firmware's `MAX_CHUNK`).
 pub const CHUNK: usize = 8;
-
-/// Export identified models for the device (serial command lines and Rust constants).
-#[derive(Debug, Clone, clap::Args)]
-pub struct Args {
-    /// The actuation log (CSV, shared/data-format.md).
-    pub log: PathBuf,
-    #[command(flatten)]
-    pub data: DataOpts,
-    /// Highest power of v (default: the polynomial sweep's AICc selection).
-    #[arg(long)]
-    pub n: Option<usize>,
-    /// Highest power of v̇ (default: the polynomial sweep's AICc selection).
-    #[arg(long)]
-    pub m: Option<usize>,
-    /// Autoregressive order (0..=5) of the exported model.
-    #[arg(long, default_value_t = 0)]
-    pub p: usize,
-    /// What to print.
-    #[arg(long, value_enum, default_value_t = Format::Both)]
-    pub format: Format,
-    /// Fit on all samples instead of the training cycles only.
-    #[arg(long)]
-    pub all_samples: bool,
-    /// Export the model `vfp diagnose` ends with: run the residual loop on each chamber (baseline
-    /// shape from --n/--m, default the AICc selection), fold the kept effects the device can run
-    /// into the exported model (inertance L·v̈ becomes an AR(1) flow term, v̈ taken as the backward
-    /// difference at the log's frame interval), and name those it cannot with the reason. Comment
-    /// lines (`//`, skipped by `vfp deploy`) give the held-out RMSE of the full augmented model, of
-    /// the exported model as the device evaluates it, and of the baseline.
-    #[arg(long)]
-    pub augmented: bool,
-    /// With --augmented: restrict the loop's candidate effects (repeatable; default: the whole
-    /// library, as `vfp diagnose`).
-    #[arg(long = "effect", value_enum, requires = "augmented")]
-    pub effects: Vec<EffectKind>,
-    /// With --augmented: level of the loop's nested F-test (default 1e-3, as `vfp diagnose`).
-    #[arg(long, requires = "augmented")]
-    pub alpha: Option<f64>,
-    /// With --augmented: smallest relative held-out RMSE gain for an effect to be kept (default
-    /// 0.01, as `vfp diagnose`).
-    #[arg(long, requires = "augmented")]
-    pub min_gain: Option<f64>,
-}
-
-/// Output forms.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
-pub enum Format {
-    /// Serial command lines only.
-    Lines,
-    /// Rust constants only.
-    Rust,
-    /// Both, lines first.
-    Both,
-}
 
 /// Serial command lines that load `model` into chamber `ch`.
 pub fn command_lines(ch: u8, model: &PolyModel) -> Vec<String> {
@@ -159,9 +123,9 @@ pub fn model_for(
     m: Option<usize>,
     p: usize,
     all_samples: bool,
-) -> Result<Exported, CliError> {
+) -> Result<Exported, ExportError> {
     if p > model_core::poly::MAX_AR {
-        return Err(CliError(format!(
+        return Err(ExportError(format!(
             "--p {p}: the device supports AR orders 0..={}",
             model_core::poly::MAX_AR
         )));
@@ -190,12 +154,12 @@ pub fn model_for(
                 }
                 passed_over.get_or_insert((entry.n, entry.m, loss));
             }
-            Err(CliError(
+            Err(ExportError(
                 "no polynomial shape of the sweep is evaluated by the device's f32 arithmetic within a tenth of its fit error; give --n and --m"
                     .into(),
             ))
         }
-        _ => Err(CliError(
+        _ => Err(ExportError(
             "give both --n and --m, or neither (then the AICc selection is used)".into(),
         )),
     }
@@ -213,7 +177,7 @@ fn build(
     p: usize,
     all_samples: bool,
     sc: Scaling,
-) -> Result<Exported, CliError> {
+) -> Result<Exported, ExportError> {
     let data = if all_samples { ds.all() } else { ds.train() };
     if p == 0 {
         let fit = poly::fit(Xy::from(&data), n, m, Some(sc))?;
@@ -237,7 +201,7 @@ fn build(
         let mut fits = polyar::sweep(&d, n, m, p, &sc)?;
         let fit = fits
             .pop()
-            .ok_or_else(|| CliError("poly-AR sweep returned nothing".into()))??;
+            .ok_or_else(|| ExportError("poly-AR sweep returned nothing".into()))??;
         let model = fit.to_model_core()?;
         let prov = format!(
             "n = {n}, m = {m}, p = {p}, RMSE {:.4} kPa on {} samples",
@@ -332,64 +296,6 @@ pub fn f32_warning(e: &Exported, ds: &Dataset) -> Option<String> {
     })
 }
 
-/// Settings of the residual loop from the command line, checked.
-fn loop_config(args: &Args, ds: &Dataset) -> Result<residual::Config, CliError> {
-    if args.p != 0 {
-        return Err(CliError(format!(
-            "--p {}: the augmented export chooses its own AR terms (inertance becomes AR(1)); leave --p out",
-            args.p
-        )));
-    }
-    if args.all_samples {
-        return Err(CliError(
-            "--all-samples: the augmented export compares models on held-out cycles; leave it out"
-                .into(),
-        ));
-    }
-    if args.data.holdout_every < 2 {
-        return Err(CliError(format!(
-            "--holdout-every {}: the augmented export needs held-out cycles (2 or more)",
-            args.data.holdout_every
-        )));
-    }
-    let mut cfg = residual::Config::default();
-    if let Some(a) = args.alpha {
-        if !(a > 0.0 && a < 1.0) {
-            return Err(CliError(format!("--alpha {a}: must lie in (0, 1)")));
-        }
-        cfg.alpha = a;
-    }
-    if let Some(g) = args.min_gain {
-        if !(0.0..1.0).contains(&g) {
-            return Err(CliError(format!("--min-gain {g}: must lie in [0, 1)")));
-        }
-        cfg.min_gain = g;
-    }
-    if !args.effects.is_empty() {
-        cfg.candidates = args.effects.clone();
-    }
-    (cfg.n, cfg.m) = match (args.n, args.m) {
-        (Some(n), Some(m))
-            if (1..=poly::MAX_DEGREE).contains(&n) && (1..=poly::MAX_DEGREE).contains(&m) =>
-        {
-            (n, m)
-        }
-        (Some(n), Some(m)) => {
-            return Err(CliError(format!(
-                "--n {n} --m {m}: the augmented export needs 1 ≤ n, m ≤ {}",
-                poly::MAX_DEGREE
-            )))
-        }
-        (None, None) => residual::cli::select_shape(ds).unwrap_or((3, 2)),
-        _ => {
-            return Err(CliError(
-                "give both --n and --m, or neither (then the AICc selection is used)".into(),
-            ))
-        }
-    };
-    Ok(cfg)
-}
-
 /// The account of one chamber's augmented export, one sentence per line (printed as `//` comments).
 pub fn augmented_report(log: &Path, chamber: u8, x: &AugmentedExport) -> Vec<String> {
     let d = &x.diagnosis;
@@ -454,79 +360,4 @@ pub fn augmented_report(log: &Path, chamber: u8, x: &AugmentedExport) -> Vec<Str
         }
     }
     out
-}
-
-/// Runs `vfp export`.
-pub fn run(args: &Args) -> Result<(), CliError> {
-    let (_, datasets) = args.data.load(&args.log)?;
-    let mut lines = Vec::new();
-    let mut rust = String::new();
-    for ds in &datasets {
-        if args.augmented {
-            let cfg = loop_config(args, ds)?;
-            let wrap = |e: &dyn std::fmt::Display| {
-                CliError(format!(
-                    "{}, chamber {}: {e}",
-                    args.log.display(),
-                    ds.chamber
-                ))
-            };
-            let series = residual::cli::series_from_dataset(ds).map_err(|e| wrap(&e))?;
-            let x = augmented_export(series, &cfg).map_err(|e| wrap(&e))?;
-            let report = augmented_report(&args.log, ds.chamber, &x);
-            for l in report
-                .iter()
-                .filter(|l| l.starts_with("NO") || l.starts_with("WARNING"))
-            {
-                eprintln!("chamber {}: {l}", ds.chamber);
-            }
-            let comments: Vec<String> = report.iter().map(|l| format!("// {l}")).collect();
-            lines.extend(comments.iter().cloned());
-            lines.extend(command_lines(ds.chamber, &x.device.model));
-            if args.format == Format::Rust {
-                // With `both` the same comments already head the lines.
-                for c in &comments {
-                    rust.push_str(c);
-                    rust.push('\n');
-                }
-            }
-            let prov = format!(
-                "{} (augmented: n = {}, m = {}, p = {}, held-out RMSE {:.4} kPa on the device)",
-                args.log.display(),
-                x.diagnosis.baseline.n,
-                x.diagnosis.baseline.m,
-                x.device.model.shape().p,
-                x.rmse.device
-            );
-            rust.push_str(&rust_constants(ds.chamber, &x.device.model, &prov));
-            continue;
-        }
-        let e = model_for(ds, args.n, args.m, args.p, args.all_samples)?;
-        let (model, prov) = (e.model, e.prov.clone());
-        if let Some(w) = f32_warning(&e, ds) {
-            eprintln!("chamber {}: {w}", ds.chamber);
-            lines.push(format!("// chamber {}: {w}", ds.chamber));
-            if args.format == Format::Rust {
-                rust.push_str(&format!("// {w}\n"));
-            }
-        }
-        lines.extend(command_lines(ds.chamber, &model));
-        rust.push_str(&rust_constants(
-            ds.chamber,
-            &model,
-            &format!("{} ({prov})", args.log.display()),
-        ));
-    }
-    if matches!(args.format, Format::Lines | Format::Both) {
-        for l in &lines {
-            println!("{l}");
-        }
-    }
-    if matches!(args.format, Format::Rust | Format::Both) {
-        if args.format == Format::Both {
-            println!();
-        }
-        print!("{rust}");
-    }
-    Ok(())
 }

@@ -3,9 +3,19 @@
 
 mod diag_common;
 use diag_common::*;
-use sysid::diag::force::{self, ForceArgs};
-use sysid::diag::input::read_log;
-use sysid::diag::OutputOpts;
+use sysid::dataset::{DatasetConfig, LogData};
+use sysid::diag::force::{self, ForceOptions};
+use vfp::cmd::force::Args as ForceArgs;
+use vfp::cmd::stiffness::ShapeOpts;
+use vfp::opts::{DataOpts, OutputOpts};
+
+fn read_log(path: &std::path::Path) -> Result<LogData, sysid::dataset::LoadError> {
+    LogData::read(path, None, &DatasetConfig::default())
+}
+
+fn options(a: &ForceArgs) -> ForceOptions {
+    a.options().unwrap()
+}
 use sysid::synth::{eval_raw, Trajectory};
 
 const SIGMA: f64 = 0.05;
@@ -72,10 +82,10 @@ fn args(ident: std::path::PathBuf, test: std::path::PathBuf, smooth: usize) -> F
         ident,
         test,
         area: vec![AREA],
-        n: 3,
-        m: 2,
+        shape: ShapeOpts { n: 3, m: 2 },
         smooth,
         plot_window: 10.0,
+        data: DataOpts::default(),
         out: OutputOpts::default(),
     }
 }
@@ -85,8 +95,12 @@ fn force_error_sits_at_the_noise_floor() {
     let dir = tmpdir("force");
     let (ident, test) = logs(&dir);
     let a = args(ident.clone(), test.clone(), 1);
-    let (r, trace) =
-        force::estimate(&read_log(&ident).unwrap(), &read_log(&test).unwrap(), &a).unwrap();
+    let (r, trace) = force::estimate(
+        &read_log(&ident).unwrap(),
+        &read_log(&test).unwrap(),
+        &options(&a),
+    )
+    .unwrap();
     // Floor: σ·A·√3 = 0.05 kPa × 22 mm² × 1.732 = 1.905 mN.
     let floor = SIGMA * AREA * 3f64.sqrt() * 1e-3;
     assert!(
@@ -113,8 +127,10 @@ fn smoothing_trades_noise_for_bandwidth() {
     let dir = tmpdir("force-smooth");
     let (ident, test) = logs(&dir);
     let (il, tl) = (read_log(&ident).unwrap(), read_log(&test).unwrap());
-    let (r1, _) = force::estimate(&il, &tl, &args(ident.clone(), test.clone(), 1)).unwrap();
-    let (r5, _) = force::estimate(&il, &tl, &args(ident.clone(), test.clone(), 5)).unwrap();
+    let (r1, _) =
+        force::estimate(&il, &tl, &options(&args(ident.clone(), test.clone(), 1))).unwrap();
+    let (r5, _) =
+        force::estimate(&il, &tl, &options(&args(ident.clone(), test.clone(), 5))).unwrap();
     // Noise floor falls by √5; the stated −3 dB bandwidth is 0.443·25/5 = 2.2 Hz.
     assert!((r5.noise_floor_n * 5f64.sqrt() - r1.noise_floor_n).abs() < 1e-9);
     assert!(
@@ -137,15 +153,18 @@ fn command_runs_and_rejects_bad_options() {
         json: true,
         plots: Some(dir.join("plots")),
     };
-    force::run(&a).unwrap();
+    vfp::cmd::force::run(&a).unwrap();
     let svg = std::fs::read_to_string(dir.join("plots/diag-force.svg")).unwrap();
     assert!(svg.contains("reference force_n"));
     let mut bad = args(ident.clone(), test.clone(), 1);
     bad.area = vec![22.0, -1.0, 22.0];
-    assert!(force::run(&bad).unwrap_err().to_string().contains("--area"));
+    assert!(vfp::cmd::force::run(&bad)
+        .unwrap_err()
+        .to_string()
+        .contains("--area"));
     let mut bad = args(ident, dir.join("missing.csv"), 1);
     bad.smooth = 3;
-    assert!(force::run(&bad)
+    assert!(vfp::cmd::force::run(&bad)
         .unwrap_err()
         .to_string()
         .contains("missing.csv"));

@@ -5,14 +5,14 @@
 //! - `ch<c>-error-histogram.svg`: its error distribution, 0.05 kPa bins (Fig. 5b);
 //! - `ch<c>-vp.svg`: measured and predicted V-P curves (Fig. 1c).
 
-use super::CliError;
-use crate::dataset::Dataset;
-use crate::identify::{ChamberReport, Family};
+use crate::Error;
 use plotters::prelude::*;
 use std::path::Path;
+use sysid::dataset::Dataset;
+use sysid::identify::{ChamberReport, Family};
 
-fn err(path: &Path, e: impl std::fmt::Display) -> CliError {
-    CliError(format!("{}: cannot write figure: {e}", path.display()))
+fn err(path: &Path, e: impl std::fmt::Display) -> Error {
+    Error::Msg(format!("{}: cannot write figure: {e}", path.display()))
 }
 
 fn bounds(xs: impl Iterator<Item = f64>) -> (f64, f64) {
@@ -20,7 +20,7 @@ fn bounds(xs: impl Iterator<Item = f64>) -> (f64, f64) {
 }
 
 /// Writes every figure for one chamber into `dir` (created if needed).
-pub fn write_all(dir: &Path, ds: &Dataset, rep: &ChamberReport) -> Result<(), CliError> {
+pub fn write_all(dir: &Path, ds: &Dataset, rep: &ChamberReport) -> Result<(), Error> {
     std::fs::create_dir_all(dir).map_err(|e| err(dir, e))?;
     for fam in Family::ALL {
         let rows: Vec<_> = rep.models.iter().filter(|m| m.family == fam).collect();
@@ -100,7 +100,7 @@ fn bars_and_points(
     labels: &[String],
     bars: &[f64],
     points: &[f64],
-) -> Result<(), CliError> {
+) -> Result<(), Error> {
     let root = crate::figure::svg(path, (1000, 640));
     root.fill(&WHITE).map_err(|e| err(path, e))?;
     let (top, bottom) = root.split_vertically(340);
@@ -165,7 +165,7 @@ fn scatter(
     title: &str,
     axes: (&str, &str),
     sets: &[(Vec<(f64, f64)>, RGBAColor)],
-) -> Result<(), CliError> {
+) -> Result<(), Error> {
     let root = crate::figure::svg(path, (900, 600));
     root.fill(&WHITE).map_err(|e| err(path, e))?;
     let (x0, x1) = bounds(sets.iter().flat_map(|s| s.0.iter().map(|p| p.0)));
@@ -194,7 +194,7 @@ fn scatter(
     root.present().map_err(|e| err(path, e))
 }
 
-fn histogram(path: &Path, title: &str, xs: &[f64], bin: f64) -> Result<(), CliError> {
+fn histogram(path: &Path, title: &str, xs: &[f64], bin: f64) -> Result<(), Error> {
     let root = crate::figure::svg(path, (900, 600));
     root.fill(&WHITE).map_err(|e| err(path, e))?;
     let (lo, hi) = bounds(xs.iter().copied());
