@@ -11,7 +11,7 @@ use criterion::{criterion_group, criterion_main, Criterion};
 use host_sim::{simulate, Protocol, Scenario};
 use sysid::dataset::{Dataset, DatasetConfig};
 use sysid::log::parse_log;
-use sysid::residual::cli::series_from_dataset;
+use sysid::residual::series_from_dataset;
 use sysid::residual::{diagnose, Config};
 
 fn bench(c: &mut Criterion) {

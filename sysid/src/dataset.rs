@@ -28,14 +28,15 @@
 //!
 //! # Frames before the pressure zero
 //! A log recorded from this project's firmware carries its status bits in a `flags` column (an
-//! extra column to the shared format, so other logs simply lack it). At boot the firmware averages
+//! extra column to the log format (`docs/log-format.md`), so other logs simply lack it). At boot the firmware averages
 //! the first frames at rest to take each sensor's zero, and those frames (flag `NOT_ZEROED`) read
 //! the sensor's raw offset, a few tenths of a kPa on the simulated rig: they are left out of the
 //! dataset ([`Dataset::not_zeroed`] counts them, and the commands report it). A `flags` cell that
 //! is not an unsigned integer is an error naming the sample.
 
-use crate::log::{Log, MAX_CHAMBERS};
+use crate::log::{Log, LogError, MAX_CHAMBERS};
 use firmware::telemetry::Flags;
+use std::path::{Path, PathBuf};
 
 /// How to build datasets from a log.
 #[derive(Debug, Clone, PartialEq)]
@@ -373,6 +374,151 @@ impl Dataset {
     /// All rows.
     pub fn all(&self) -> Columns {
         self.select(|_| true)
+    }
+}
+
+/// A log file read and turned into the datasets of the requested chambers: the one way from a log
+/// to datasets that every analysis and every `vfp` command takes (flags handling, the `NOT_ZEROED`
+/// count, flow source, deadband and training / held-out split all come from
+/// [`Dataset::from_log`] with one [`DatasetConfig`]).
+#[derive(Clone, Debug)]
+pub struct LogData {
+    /// Where the log came from (as given; reports name it so).
+    pub path: PathBuf,
+    /// The log as read (comments, metadata, rows).
+    pub log: Log,
+    /// The requested chambers' datasets, in chamber order; never empty.
+    pub datasets: Vec<Dataset>,
+}
+
+/// Why a log could not be turned into datasets.
+#[derive(Debug, thiserror::Error)]
+pub enum LoadError {
+    /// The file could not be read or does not follow `docs/log-format.md` (file, line, column).
+    #[error(transparent)]
+    Log(#[from] LogError),
+    /// A chamber's dataset could not be built.
+    #[error("{path}: {source}")]
+    Data {
+        /// The log.
+        path: PathBuf,
+        /// Why.
+        source: DataError,
+    },
+    /// The requested chamber is not one the format knows.
+    #[error("--chamber {chamber}: chambers are 0, 1 and 2")]
+    BadChamber {
+        /// The request.
+        chamber: u8,
+    },
+    /// The requested chamber has no samples in the log.
+    #[error("{path}, column `chamber`: no samples for chamber {chamber} (present: {present:?}); choose one with --chamber")]
+    NoChamber {
+        /// The log.
+        path: PathBuf,
+        /// The request.
+        chamber: u8,
+        /// The chambers the log has.
+        present: Vec<u8>,
+    },
+    /// The log holds no samples at all.
+    #[error("{path}: the log holds no samples")]
+    Empty {
+        /// The log.
+        path: PathBuf,
+    },
+    /// The deadband is not a flow.
+    #[error("--deadband {0}: must be a finite flow >= 0 mm3/s")]
+    BadDeadband(f64),
+}
+
+impl LogData {
+    /// Reads `path` and builds the dataset of `chamber`, or of every chamber in the log when
+    /// `None`.
+    pub fn read(
+        path: &Path,
+        chamber: Option<u8>,
+        cfg: &DatasetConfig,
+    ) -> Result<LogData, LoadError> {
+        let log = crate::log::read_log(path)?;
+        Self::from_log(path, log, chamber, cfg)
+    }
+
+    /// The same for a log already parsed (`path` names it in messages and reports).
+    pub fn from_log(
+        path: &Path,
+        log: Log,
+        chamber: Option<u8>,
+        cfg: &DatasetConfig,
+    ) -> Result<LogData, LoadError> {
+        if let Some(d) = cfg.deadband {
+            if !(d.is_finite() && d >= 0.0) {
+                return Err(LoadError::BadDeadband(d));
+            }
+        }
+        let present = log.chambers();
+        let data = |source| LoadError::Data {
+            path: path.to_path_buf(),
+            source,
+        };
+        let datasets = match chamber {
+            Some(c) if c >= MAX_CHAMBERS => return Err(LoadError::BadChamber { chamber: c }),
+            Some(c) if !present.contains(&c) => {
+                return Err(LoadError::NoChamber {
+                    path: path.to_path_buf(),
+                    chamber: c,
+                    present,
+                })
+            }
+            Some(c) => vec![Dataset::from_log(&log, c, cfg).map_err(data)?],
+            None => Dataset::all_from_log(&log, cfg).map_err(data)?,
+        };
+        if datasets.is_empty() {
+            return Err(LoadError::Empty {
+                path: path.to_path_buf(),
+            });
+        }
+        Ok(LogData {
+            path: path.to_path_buf(),
+            log,
+            datasets,
+        })
+    }
+
+    /// The first requested chamber's dataset (the requested one, else the lowest in the log).
+    pub fn first(&self) -> &Dataset {
+        &self.datasets[0]
+    }
+
+    /// The dataset of `chamber`, when it was requested and is in the log.
+    pub fn dataset(&self, chamber: u8) -> Option<&Dataset> {
+        self.datasets.iter().find(|d| d.chamber == chamber)
+    }
+
+    /// Whether v̇ was derived from volume and time in any dataset (no `flow_mm3_s` column, or
+    /// `derive_flow`).
+    pub fn flow_derived(&self) -> bool {
+        self.datasets
+            .iter()
+            .any(|d| matches!(d.flow_source, FlowSource::Derived { .. }))
+    }
+
+    /// `# key=value` metadata of the log.
+    pub fn meta(&self, key: &str) -> Option<&str> {
+        self.log.metadata(key)
+    }
+
+    /// A short label: the file stem.
+    pub fn label(&self) -> String {
+        self.path
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default()
+    }
+
+    /// The path as reports print it.
+    pub fn name(&self) -> String {
+        self.path.display().to_string()
     }
 }
 

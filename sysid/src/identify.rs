@@ -15,7 +15,7 @@ use std::collections::BTreeMap;
 use std::time::Instant;
 
 /// A model family of the paper's Table II.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, clap::ValueEnum)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum Family {
     /// Σ αᵢ exp(βᵢ v) + γ v̇ + δ, k = 1..=10.
@@ -68,8 +68,8 @@ pub struct Options {
     pub nn_ar_depth: usize,
     /// Number of least significant terms tried in the pruning table.
     pub prune_k: usize,
-    /// Show progress bars on stderr.
-    pub progress: bool,
+    /// Told when the slow sweeps (exp, nn) start, change step and finish; `None`: silent.
+    pub progress: Option<ProgressFn>,
 }
 
 impl Default for Options {
@@ -86,7 +86,7 @@ impl Default for Options {
             nn_ar_max: 5,
             nn_ar_depth: 8,
             prune_k: 3,
-            progress: false,
+            progress: None,
         }
     }
 }
@@ -316,18 +316,30 @@ pub struct ChamberReport {
     pub timing_s: BTreeMap<&'static str, f64>,
 }
 
-fn bar(show: bool, len: u64, what: &str) -> indicatif::ProgressBar {
-    if !show {
-        return indicatif::ProgressBar::hidden();
+/// What a slow sweep reports to [`Options::progress`] (the tool shows it as a spinner).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Progress<'a> {
+    /// `family`'s sweep is doing `what`.
+    Working {
+        /// The family.
+        family: Family,
+        /// What it does now.
+        what: &'a str,
+    },
+    /// `family`'s sweep has finished.
+    Done {
+        /// The family.
+        family: Family,
+    },
+}
+
+/// Receives [`Progress`] reports.
+pub type ProgressFn = fn(Progress<'_>);
+
+fn tell(opt: &Options, p: Progress<'_>) {
+    if let Some(f) = opt.progress {
+        f(p);
     }
-    let b = indicatif::ProgressBar::new(len);
-    if let Ok(style) = indicatif::ProgressStyle::with_template(
-        "{prefix:>12} [{bar:30}] {pos}/{len} {msg} ({elapsed})",
-    ) {
-        b.set_style(style.progress_chars("=> "));
-    }
-    b.set_prefix(what.to_string());
-    b
 }
 
 /// Runs the selected families on one chamber's dataset.
@@ -385,10 +397,15 @@ pub fn identify(ds: &Dataset, opt: &Options) -> ChamberReport {
         let t0 = Instant::now();
         match family {
             Family::Exp => {
-                let b = bar(opt.progress, opt.exp_k_max as u64, "exp");
-                b.set_message("fitting");
+                tell(
+                    opt,
+                    Progress::Working {
+                        family,
+                        what: "fitting",
+                    },
+                );
                 let fits = exp::sweep(&train.v, &train.vdot, &train.p, opt.exp_k_max);
-                b.finish_and_clear();
+                tell(opt, Progress::Done { family });
                 for (i, r) in fits.into_iter().enumerate() {
                     match r {
                         Ok(f) => {
@@ -419,8 +436,6 @@ pub fn identify(ds: &Dataset, opt: &Options) -> ChamberReport {
             Family::Nn => {
                 // As in the paper: depths d = 1..=15 without AR inputs, then AR orders
                 // p = 1..=nn_ar_max at depth `nn_ar_depth` (Table III).
-                let b = bar(opt.progress, 0, "nn");
-                b.enable_steady_tick(std::time::Duration::from_millis(200));
                 let mut plain = opt.nn.clone();
                 plain.ar_orders = vec![0];
                 let mut ar = opt.nn.clone();
@@ -441,7 +456,13 @@ pub fn identify(ds: &Dataset, opt: &Options) -> ChamberReport {
                     runs.push((ar, "AR orders"));
                 }
                 for (cfg, what) in runs {
-                    b.set_message(format!("training {what}"));
+                    tell(
+                        opt,
+                        Progress::Working {
+                            family,
+                            what: &format!("training {what}"),
+                        },
+                    );
                     for r in nn::sweep(&it, &train.p, &cfg).results {
                         let f = match r {
                             Ok(f) => f,
@@ -487,7 +508,7 @@ pub fn identify(ds: &Dataset, opt: &Options) -> ChamberReport {
                         }
                     }
                 }
-                b.finish_and_clear();
+                tell(opt, Progress::Done { family });
             }
             Family::Poly => match &scaling {
                 Err(e) => fail(&mut rep, family, "all".into(), e),

@@ -1,4 +1,4 @@
-//! Reading and writing the actuation log format (`shared/data-format.md`).
+//! Reading and writing the actuation log format (`docs/log-format.md`).
 //!
 //! A log is UTF-8 CSV with one header row; `#` lines are comments and may carry `key=value`
 //! metadata. Columns are found by name in any order: `time_s`, `volume_mm3` and `pressure_kpa`
@@ -134,7 +134,9 @@ pub enum LogError {
         message: String,
     },
     /// The file has no header row or no data rows.
-    #[error("{file}: {what}; a log needs a header row and at least one sample (see shared/data-format.md)")]
+    #[error(
+        "{file}: {what}; a log needs a header row and at least one sample (see docs/log-format.md)"
+    )]
     Empty {
         /// File name as given.
         file: String,

@@ -2,7 +2,7 @@
 //! selection cost.
 //!
 //! With N samples, residuals eᵢ = Pᵢ − P̂ᵢ, SSE = Σ eᵢ² and ν estimated parameters
-//! (equation numbers count the `equation` environments of `shared/paper`):
+//! (equation numbers count the `equation` environments of the paper):
 //!
 //! * RMSE = √(SSE / N)                                                    (2)
 //! * R²adj = 1 − SSE / Σ(Pᵢ − P̄)² · (N − 1)/(N − k − 1), k = ν − 1 predictors

@@ -6,7 +6,7 @@
 //! by its `$` marker and decoded by the firmware's own parser
 //! ([`firmware::telemetry::parse_line`]), so the format has one definition.
 //!
-//! Output is the shared log format (`shared/data-format.md`): one row per chamber per frame with
+//! Output is the log format (`docs/log-format.md`): one row per chamber per frame with
 //! `time_s, chamber, volume_mm3, flow_mm3_s, pressure_kpa`, plus the device's own numbers as extra
 //! columns `seq, flags, p_hat_kpa, residual_kpa, k_kpa_per_mm3, c_kpa_s_per_mm3, force_est_n`.
 //! Event lines (zero offsets, faults, model loads) become `# event …` comments.
@@ -31,11 +31,10 @@
 
 use std::fmt::Write as _;
 use std::io::BufRead;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use firmware::telemetry::{self, EventKind, Frame, Line};
 
-use crate::cli::CliError;
 use crate::log::{Log, Sample};
 
 /// Names of the extra columns, in order.
@@ -51,19 +50,6 @@ pub const EXTRA_COLUMNS: [&str; 7] = [
 
 /// How many individual gaps / bad lines are listed in the summary (all are counted).
 const LIST_LIMIT: usize = 20;
-
-/// `vfp record`: convert a telemetry capture into an actuation log.
-#[derive(Debug, Clone, clap::Args)]
-pub struct RecordArgs {
-    /// Telemetry capture: the output of `probe-rs run` (or raw `$F`/`$E` lines); `-` reads stdin.
-    pub capture: PathBuf,
-    /// Log file to write (CSV, shared/data-format.md).
-    #[arg(short, long, value_name = "LOG.csv")]
-    pub out: PathBuf,
-    /// Exit with an error (after writing the log) when any frame is missing or any line is bad.
-    #[arg(long)]
-    pub strict: bool,
-}
 
 /// Frames missing between two received frames.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
@@ -517,24 +503,6 @@ pub fn convert_file(path: &Path) -> Result<Recording, RecordError> {
         source: e,
     })?;
     convert(std::io::BufReader::new(f), &name)
-}
-
-/// Runs `vfp record`.
-pub fn run(args: &RecordArgs) -> Result<(), CliError> {
-    let rec = convert_file(&args.capture).map_err(|e| CliError(e.to_string()))?;
-    crate::log::write_log(&args.out, &rec.log).map_err(|e| CliError(e.to_string()))?;
-    eprint!("{}", rec.summary(&args.capture.display().to_string()));
-    println!("wrote {}", args.out.display());
-    if args.strict && !rec.is_complete() {
-        return Err(CliError(format!(
-            "{}: {} frames missing, {} corrupted lines, {} rejected frames (--strict); the log was written anyway",
-            args.capture.display(),
-            rec.missing_frames(),
-            rec.corrupted.len(),
-            rec.rejected.len()
-        )));
-    }
-    Ok(())
 }
 
 #[cfg(test)]

@@ -7,7 +7,7 @@ mod gen;
 
 use gen::{generate, Inject};
 use sysid::dataset::{Dataset, DatasetConfig};
-use sysid::residual::cli::series_from_dataset;
+use sysid::residual::series_from_dataset;
 use sysid::residual::{diagnose, Config, Diagnosis};
 
 const SIGMA: f64 = 0.05;

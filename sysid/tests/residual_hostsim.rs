@@ -19,7 +19,7 @@ use host_sim::plant::Drive;
 use host_sim::{simulate, Effects, PlantConfig, Protocol, Scenario, SimRun};
 use sysid::dataset::{Dataset, DatasetConfig};
 use sysid::log::parse_log;
-use sysid::residual::cli::series_from_dataset;
+use sysid::residual::series_from_dataset;
 use sysid::residual::{diagnose, Config, Diagnosis};
 
 /// The run, its diagnosis on chamber 0 and σ from truth on the held-out frames.

@@ -3,8 +3,8 @@
 //! report. Checked against what was planted, not against what the code printed before.
 
 use e2e_tests::scratch;
-use sysid::demo::{run_plan, Plan};
 use sysid::identify::Family;
+use vfp::cmd::demo::{run_plan, Plan};
 
 #[test]
 fn the_demo_chain_runs_and_finds_what_was_planted() {

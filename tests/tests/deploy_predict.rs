@@ -4,9 +4,9 @@
 
 use e2e_tests::short_protocol;
 use host_sim::{simulate, PlantConfig, Scenario, TimedCommand};
-use sysid::cli::export::command_lines;
 use sysid::dataset::{Dataset, DatasetConfig};
 use sysid::deploy::{deploy, parse_lines, FirmwarePort, Readback};
+use sysid::export::command_lines;
 use sysid::poly::{fit, Scaling, Xy};
 
 #[test]
@@ -28,7 +28,7 @@ fn exported_model_predicts_on_the_board_as_in_sysid() {
     }
 
     // A fresh board: the lines through its serial port, then moves at several flows.
-    let mut cmds: Vec<TimedCommand> = sysid::demo::upload_commands(&lines);
+    let mut cmds: Vec<TimedCommand> = vfp::cmd::demo::upload_commands(&lines);
     for (at_s, line) in [
         (1.5, "move all 400 80"),
         (8.0, "move all 150 35"),

@@ -37,24 +37,35 @@
 //! Both logs use one basis scaled over the pooled data (sysid's Chebyshev basis, [`design`]);
 //! residual sums of squares do not depend on which basis of the polynomial space is used.
 
-use super::input::{read_log, Log, Series};
-use super::plot::{self, Curve, Mark};
-use super::{DiagError, OutputOpts, Shape};
+use super::{DiagError, Shape};
+use crate::dataset::{Dataset, LogData};
 use crate::linreg;
 use crate::poly::{chebyshev, Scaling, Xy, MAX_DEGREE};
 use nalgebra::{DMatrix, DVector};
 use serde::Serialize;
 use statrs::distribution::{ContinuousCDF, FisherSnedecor};
-use std::path::PathBuf;
 
 /// Which statistic decides.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Method {
     /// Chow F after prewhitening by an AR(p) model of the residual (feasible GLS).
     Gls,
     /// Chow's original F (independent errors assumed; over-rejects on 25 Hz time series).
     Classic,
+}
+
+impl Method {
+    /// Both statistics.
+    pub const ALL: [Method; 2] = [Method::Gls, Method::Classic];
+
+    /// The name used in JSON and on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            Method::Gls => "gls",
+            Method::Classic => "classic",
+        }
+    }
 }
 
 /// Outcome of one Chow test.
@@ -309,38 +320,6 @@ pub enum ChowError {
     Degenerate,
 }
 
-/// `vfp chow`: pairwise Chow tests between logs.
-#[derive(Debug, Clone, clap::Args)]
-pub struct ChowArgs {
-    /// Two or more actuation logs.
-    #[arg(required = true, num_args = 2..)]
-    pub logs: Vec<PathBuf>,
-    /// Highest power of volume v in the common polynomial.
-    #[arg(long, default_value_t = 3)]
-    pub n: usize,
-    /// Highest power of flow v̇ in the common polynomial.
-    #[arg(long, default_value_t = 2)]
-    pub m: usize,
-    /// Chamber to compare (0..=2); default: the lowest chamber in each log.
-    #[arg(long)]
-    pub chamber: Option<u8>,
-    /// Significance level.
-    #[arg(long, default_value_t = 0.0005)]
-    pub alpha: f64,
-    /// Statistic that decides: `gls` (prewhitened; robust to serially correlated errors) or
-    /// `classic` (Chow 1960, independent errors).
-    #[arg(long, value_enum, default_value_t = Method::Gls)]
-    pub method: Method,
-    /// Highest AR order of the residual model for prewhitening (chosen by AIC up to this).
-    #[arg(long, default_value_t = 10)]
-    pub ar_max: usize,
-    /// Force the AR order of the residual model.
-    #[arg(long)]
-    pub ar_order: Option<usize>,
-    #[command(flatten)]
-    pub out: OutputOpts,
-}
-
 /// One pair in the JSON report.
 #[derive(Debug, Serialize)]
 pub struct Pair {
@@ -353,7 +332,7 @@ pub struct Pair {
     pub test: ChowTest,
 }
 
-/// JSON document of `vfp chow --json`.
+/// The report of `vfp chow` (its `--json` document).
 #[derive(Debug, Serialize)]
 pub struct ChowReport {
     /// Common shape.
@@ -370,48 +349,20 @@ pub struct ChowReport {
     pub matrix: Vec<Vec<Option<f64>>>,
 }
 
-/// Runs `vfp chow`.
-pub fn run(args: &ChowArgs) -> Result<(), DiagError> {
-    if !(args.alpha > 0.0 && args.alpha < 1.0) {
-        return Err(DiagError::Usage(format!(
-            "--alpha {}: must lie in (0, 1)",
-            args.alpha
-        )));
-    }
-    let opts = super::ModelOpts {
-        n: args.n,
-        m: args.m,
-        chamber: args.chamber,
-        deadband: 0.0,
-    };
-    opts.validate()?;
-    let shape = opts.shape();
-    let logs: Vec<Log> = args
-        .logs
-        .iter()
-        .map(|p| read_log(p))
-        .collect::<Result<_, _>>()?;
-    let series: Vec<(u8, &Series)> = logs
-        .iter()
-        .map(|l| l.chamber(args.chamber))
-        .collect::<Result<_, _>>()?;
-    let names: Vec<String> = args.logs.iter().map(|p| p.display().to_string()).collect();
+/// Pairwise Chow tests between the first chamber of each log (the one it was read with, else the
+/// lowest), every pair i < j, with Table VI's matrix of deciding F values.
+pub fn chow_logs(logs: &[LogData], o: &ChowOptions) -> Result<ChowReport, DiagError> {
+    let names: Vec<String> = logs.iter().map(LogData::name).collect();
+    let series: Vec<&Dataset> = logs.iter().map(LogData::first).collect();
     let mut pairs = Vec::new();
     let mut matrix = vec![vec![None; logs.len()]; logs.len()];
     for i in 0..logs.len() {
         for j in i + 1..logs.len() {
-            let o = ChowOptions {
-                shape,
-                alpha: args.alpha,
-                method: args.method,
-                ar_max: args.ar_max,
-                ar_order: args.ar_order,
-            };
-            let test = chow(series[i].1.into(), series[j].1.into(), &o).map_err(|e| match e {
+            let test = chow(series[i].into(), series[j].into(), o).map_err(|e| match e {
                 ChowError::Fit(w, msg) => {
                     let what = match w {
-                        0 => format!("{} (chamber {})", names[i], series[i].0),
-                        1 => format!("{} (chamber {})", names[j], series[j].0),
+                        0 => format!("{} (chamber {})", names[i], series[i].chamber),
+                        1 => format!("{} (chamber {})", names[j], series[j].chamber),
                         _ => format!("pooled {} + {}", names[i], names[j]),
                     };
                     DiagError::fit(what, msg)
@@ -430,166 +381,12 @@ pub fn run(args: &ChowArgs) -> Result<(), DiagError> {
             });
         }
     }
-    let report = ChowReport {
-        shape,
-        alpha: args.alpha,
-        method: args.method,
+    Ok(ChowReport {
+        shape: o.shape,
+        alpha: o.alpha,
+        method: o.method,
         logs: names,
         pairs,
         matrix,
-    };
-    args.out.emit(&report, human, |dir| {
-        plot_chow(dir, &logs, &series, &report)
     })
-}
-
-fn fmt_p(p: f64) -> String {
-    if p < 1e-300 {
-        "<1e-300".into()
-    } else {
-        format!("{p:.3e}")
-    }
-}
-
-/// The human report.
-pub fn human(r: &ChowReport) -> String {
-    let k = r.shape.terms();
-    let mut s = format!(
-        "Chow test, common polynomial n = {}, m = {} ({k} coefficients), alpha = {}, verdict by \
-         {} F\n",
-        r.shape.n,
-        r.shape.m,
-        r.alpha,
-        match r.method {
-            Method::Gls => "the prewhitened (AR-GLS)",
-            Method::Classic => "the classic (independent-errors)",
-        }
-    );
-    for (i, l) in r.logs.iter().enumerate() {
-        s += &format!("  [{i}] {l}\n");
-    }
-    s += "\nF matrix (Table VI):\n        ";
-    for i in 0..r.logs.len() {
-        s += &format!("{:>12}", format!("[{i}]"));
-    }
-    s += "\n";
-    for (i, row) in r.matrix.iter().enumerate() {
-        s += &format!("  {:>6}", format!("[{i}]"));
-        for f in row {
-            s += &f
-                .map(|f| format!("{f:>12.2}"))
-                .unwrap_or_else(|| format!("{:>12}", "-"));
-        }
-        s += "\n";
-    }
-    s += "\npairs:\n";
-    for (pi, p) in r.pairs.iter().enumerate() {
-        let t = &p.test;
-        let ia = r.logs.iter().position(|l| *l == p.a).unwrap_or(pi);
-        let ib = r.logs.iter().position(|l| *l == p.b).unwrap_or(pi);
-        s += &format!(
-            "  [{ia}] vs [{ib}]: F = {:.3} (df {}, {}), p = {}, critical {:.3} -> {}\n      \
-             classic F = {:.3} (p = {}); residual AR({}) {}\n",
-            t.f,
-            t.df1,
-            t.df2,
-            fmt_p(t.p),
-            t.critical,
-            if t.reject {
-                "DIFFERENT (H0 rejected)"
-            } else {
-                "not distinguishable"
-            },
-            t.f_classic,
-            fmt_p(t.p_classic),
-            t.ar.len(),
-            if t.ar.is_empty() {
-                "(none: independent errors)".to_string()
-            } else {
-                format!(
-                    "phi = {:?}",
-                    t.ar.iter()
-                        .map(|x| (x * 1000.0).round() / 1000.0)
-                        .collect::<Vec<_>>()
-                )
-            },
-        );
-    }
-    s
-}
-
-/// V–P data of every log and the deciding F of every pair against the critical value.
-fn plot_chow(
-    dir: &std::path::Path,
-    logs: &[Log],
-    series: &[(u8, &Series)],
-    r: &ChowReport,
-) -> Result<PathBuf, DiagError> {
-    let path = plot::target(dir, "diag-chow.svg")?;
-    let root = plot::canvas(&path, (1100, 440));
-    let (left, right) = root.split_horizontally(550);
-    let vp: Vec<Curve> = logs
-        .iter()
-        .zip(series)
-        .enumerate()
-        .map(|(i, (l, (_, s)))| {
-            let step = (s.len() / 800).max(1);
-            let pts =
-                s.v.iter()
-                    .zip(&s.p)
-                    .step_by(step)
-                    .map(|(&v, &p)| (v, p))
-                    .collect();
-            Curve::new(
-                format!("[{i}] {}", l.label()),
-                pts,
-                plot::color(i),
-                Mark::Dots,
-            )
-        })
-        .collect();
-    plot::panel(
-        &left,
-        &path,
-        "V-P of the compared logs",
-        "volume (mm3)",
-        "pressure (kPa)",
-        &vp,
-    )?;
-    let fs: Vec<(f64, f64)> = r
-        .pairs
-        .iter()
-        .enumerate()
-        .map(|(i, p)| (i as f64, p.test.f.max(1e-3).log10()))
-        .collect();
-    let crit = r
-        .pairs
-        .first()
-        .map(|p| p.test.critical.log10())
-        .unwrap_or(0.0);
-    let n = r.pairs.len().max(1) as f64;
-    let curves = vec![
-        Curve::new(
-            "log10 F per pair (x = pair index)",
-            fs,
-            plot::color(0),
-            Mark::LineDots,
-        ),
-        Curve::new(
-            format!("log10 critical value (alpha = {})", r.alpha),
-            vec![(-0.5, crit), (n - 0.5, crit)],
-            plot::color(3),
-            Mark::Line,
-        ),
-    ];
-    plot::panel(
-        &right,
-        &path,
-        "Chow F per pair",
-        "pair (order of the report)",
-        "log10 F",
-        &curves,
-    )?;
-    plot::finish(root, &path)?;
-    Ok(path.clone())
 }

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 /// Why a diagnostics command stopped. Every variant names where the problem is and what to do.
 #[derive(Debug, thiserror::Error)]
 pub enum DiagError {
-    /// A log could not be read or does not follow `shared/data-format.md`.
+    /// A log could not be read or does not follow `docs/log-format.md`.
     #[error("{path}{}{}: {msg}", line.map(|l| format!(", line {l}")).unwrap_or_default(),
             column.as_ref().map(|c| format!(", column `{c}`")).unwrap_or_default())]
     Input {
@@ -32,14 +32,6 @@ pub enum DiagError {
     /// A command-line value is out of its range.
     #[error("invalid option: {0}")]
     Usage(String),
-    /// Writing an output (plot, directory) failed.
-    #[error("cannot write {path}: {msg}")]
-    Output {
-        /// The file or directory.
-        path: PathBuf,
-        /// The underlying reason.
-        msg: String,
-    },
 }
 
 impl DiagError {
@@ -47,12 +39,6 @@ impl DiagError {
         DiagError::Fit {
             context: context.into(),
             msg: msg.into(),
-        }
-    }
-    pub(crate) fn output(path: impl Into<PathBuf>, msg: impl ToString) -> Self {
-        DiagError::Output {
-            path: path.into(),
-            msg: msg.to_string(),
         }
     }
 }

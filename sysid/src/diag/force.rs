@@ -22,41 +22,21 @@
 //! its −3 dB frequency is ≈ 0.443·f_s/M (0.443 being where |sin(πfM/f_s)/(M sin(πf/f_s))| = 1/√2
 //! for large M), stated in the report.
 
-use super::input::{read_log, Log, Series};
-use super::plot::{self, Curve, Mark};
-use super::{DiagError, OutputOpts};
+use super::DiagError;
+use crate::dataset::{Dataset, LogData};
 use crate::poly::{self, Xy};
 use serde::Serialize;
 use std::collections::BTreeMap;
-use std::path::PathBuf;
 
-/// `vfp force`: external force from pressure residuals.
-#[derive(Debug, Clone, clap::Args)]
-pub struct ForceArgs {
-    /// Force-free log to identify one model per chamber on.
-    #[arg(long)]
-    pub ident: PathBuf,
-    /// Log to estimate the force on (with `force_n` for a comparison).
-    #[arg(long)]
-    pub test: PathBuf,
-    /// Effective area per chamber in mm², one value for all or one per chamber (`22,22,22`).
-    #[arg(long, value_delimiter = ',', default_value = "22")]
+/// What `vfp force` estimates with.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ForceOptions {
+    /// Polynomial shape per chamber.
+    pub shape: super::Shape,
+    /// Effective area per chamber in mm², one value for all or one per chamber.
     pub area: Vec<f64>,
-    /// Highest power of volume v.
-    #[arg(long, default_value_t = 3)]
-    pub n: usize,
-    /// Highest power of flow v̇.
-    #[arg(long, default_value_t = 2)]
-    pub m: usize,
     /// Centred moving average over this many samples (1 = no filter).
-    #[arg(long, default_value_t = 1)]
     pub smooth: usize,
-    /// Seconds of the test log shown in the time plot (from 1 s before the first push, or from
-    /// the start when the log has no force_n).
-    #[arg(long, default_value_t = 10.0)]
-    pub plot_window: f64,
-    #[command(flatten)]
-    pub out: OutputOpts,
 }
 
 /// Per-chamber information of the report.
@@ -74,7 +54,7 @@ pub struct ChamberForce {
     pub mean_residual_kpa: f64,
 }
 
-/// JSON document of `vfp force --json`. Forces in N.
+/// The report of `vfp force` (its `--json` document). Forces in N.
 #[derive(Debug, Serialize)]
 pub struct ForceReport {
     /// Identification log.
@@ -123,7 +103,7 @@ pub struct ForceTrace {
 }
 
 /// Matches chambers by time; returns per matched instant the sample index of each chamber.
-fn match_times(chambers: &BTreeMap<u8, &Series>) -> (Vec<BTreeMap<u8, usize>>, usize) {
+fn match_times(chambers: &BTreeMap<u8, &Dataset>) -> (Vec<BTreeMap<u8, usize>>, usize) {
     let (&rc, rs) = chambers
         .iter()
         .min_by_key(|(_, s)| s.len())
@@ -203,14 +183,11 @@ pub fn error_stats(e: &[f64]) -> (f64, f64, f64) {
 
 /// Identifies per chamber on `ident`, estimates the force on `test`.
 pub fn estimate(
-    ident: &Log,
-    test: &Log,
-    args: &ForceArgs,
+    ident: &LogData,
+    test: &LogData,
+    args: &ForceOptions,
 ) -> Result<(ForceReport, ForceTrace), DiagError> {
-    let shape = super::Shape {
-        n: args.n,
-        m: args.m,
-    };
+    let shape = args.shape;
     let area_of = |c: u8| -> f64 {
         if args.area.len() == 1 {
             args.area[0]
@@ -220,8 +197,9 @@ pub fn estimate(
     };
     let mut fits = BTreeMap::new();
     let mut test_series = BTreeMap::new();
-    for (&c, s) in &test.chambers {
-        let is = ident.chambers.get(&c).ok_or_else(|| DiagError::Input {
+    for s in &test.datasets {
+        let c = s.chamber;
+        let is = ident.dataset(c).ok_or_else(|| DiagError::Input {
             path: ident.path.clone(),
             line: None,
             column: Some("chamber".into()),
@@ -329,8 +307,8 @@ pub fn estimate(
         None => (None, None, None),
     };
     let report = ForceReport {
-        ident: ident.path.display().to_string(),
-        test: test.path.display().to_string(),
+        ident: ident.name(),
+        test: test.name(),
         shape,
         samples: rows.len(),
         unmatched,
@@ -359,171 +337,3 @@ pub fn estimate(
         },
     ))
 }
-
-/// Runs `vfp force`.
-pub fn run(args: &ForceArgs) -> Result<(), DiagError> {
-    super::ModelOpts {
-        n: args.n,
-        m: args.m,
-        chamber: None,
-        deadband: 0.0,
-    }
-    .validate()?;
-    if !(args.area.len() == 1 || args.area.len() == 3)
-        || args.area.iter().any(|a| !(a.is_finite() && *a > 0.0))
-    {
-        return Err(DiagError::Usage(format!(
-            "--area {:?}: give one positive area in mm2 for all chambers or three (a,b,c)",
-            args.area
-        )));
-    }
-    if args.smooth == 0 {
-        return Err(DiagError::Usage(
-            "--smooth 0: the window is at least 1 sample".into(),
-        ));
-    }
-    let ident = read_log(&args.ident)?;
-    let test = read_log(&args.test)?;
-    let (report, trace) = estimate(&ident, &test, args)?;
-    args.out.emit(&report, human, |dir| {
-        plot_force(dir, &trace, args.plot_window)
-    })
-}
-
-/// The human report (forces in mN).
-pub fn human(r: &ForceReport) -> String {
-    let mn = |x: f64| x * 1e3;
-    let mut s = format!(
-        "External force from pressure residuals (polynomial n = {}, m = {} per chamber, \
-         identified on {})\ntest log {}: {} instants at {:.1} Hz{}\n\n",
-        r.shape.n,
-        r.shape.m,
-        r.ident,
-        r.test,
-        r.samples,
-        r.sample_rate_hz,
-        if r.unmatched > 0 {
-            format!(
-                " ({} dropped: a chamber had no sample at that time)",
-                r.unmatched
-            )
-        } else {
-            String::new()
-        }
-    );
-    s += "  chamber  area (mm2)  ident RMSE (kPa)  test noise (kPa)  mean residual (kPa)\n";
-    for c in &r.chambers {
-        s += &format!(
-            "  {:>7} {:>11.1} {:>17.4} {:>17.4} {:>20.4}\n",
-            c.chamber, c.area_mm2, c.ident_rmse_kpa, c.test_noise_kpa, c.mean_residual_kpa
-        );
-    }
-    s += &format!("\nmean estimated force: {:.2} mN\n", mn(r.mean_force_n));
-    match (r.mean_error_n, r.std_error_n, r.rmse_n) {
-        (Some(m), Some(sd), Some(rm)) => {
-            s += &format!(
-                "error against force_n: {:.2} +/- {:.2} mN (mean +/- std), RMSE {:.2} mN \
-                 (paper: 1.60 +/- 7.50 mN)\n",
-                mn(m),
-                mn(sd),
-                mn(rm)
-            )
-        }
-        _ => s += "no force_n column in the test log: no error statistics\n",
-    }
-    s += &format!(
-        "\nWhat limits the accuracy: pressure noise times area, summed over {} chambers, is a \
-         floor of {:.2} mN (sqrt(sum (A sigma)^2) with sigma from the test log's fourth \
-         differences); with the identification RMSE instead of sigma (adds model misfit) it is \
-         {:.2} mN.\n",
-        r.chambers.len(),
-        mn(r.noise_floor_n),
-        mn(r.model_floor_n)
-    );
-    if r.smooth_samples > 1 {
-        s += &format!(
-            "Filter: centred moving average over {} samples divides white noise by sqrt({}) and \
-             limits the bandwidth to {:.2} Hz (-3 dB) of the {:.1} Hz Nyquist band.\n",
-            r.smooth_samples,
-            r.smooth_samples,
-            r.bandwidth_hz,
-            r.sample_rate_hz / 2.0
-        );
-    } else {
-        s += &format!(
-            "No filter: full bandwidth up to Nyquist ({:.1} Hz); --smooth M trades noise for \
-             bandwidth (about 0.443 fs/M Hz).\n",
-            r.bandwidth_hz
-        );
-    }
-    s
-}
-
-/// Fig. 8c (truth and estimate over time) and Fig. 8a (measured vs predicted pressure).
-fn plot_force(dir: &std::path::Path, tr: &ForceTrace, window: f64) -> Result<PathBuf, DiagError> {
-    let path = plot::target(dir, "diag-force.svg")?;
-    let root = plot::canvas(&path, (1000, 760));
-    let (top, bottom) = root.split_vertically(380);
-    // Show the pushes: start 1 s before the reference force first rises (else at the start).
-    let first = tr
-        .truth
-        .as_ref()
-        .and_then(|f| f.iter().position(|&x| x > 0.0));
-    let t0 = match first {
-        Some(i) => tr.t[i] - 1.0,
-        None => tr.t.first().copied().unwrap_or(0.0),
-    };
-    let keep: Vec<usize> = (0..tr.t.len())
-        .filter(|&i| tr.t[i] >= t0 && tr.t[i] - t0 <= window)
-        .collect();
-    let mut curves = Vec::new();
-    if let Some(truth) = &tr.truth {
-        curves.push(Curve::new(
-            "reference force_n",
-            keep.iter().map(|&i| (tr.t[i], truth[i] * 1e3)).collect(),
-            RGB_BLACK,
-            Mark::Line,
-        ));
-    }
-    curves.push(Curve::new(
-        "estimate (residual x area, summed)",
-        keep.iter().map(|&i| (tr.t[i], tr.est[i] * 1e3)).collect(),
-        plot::color(3),
-        Mark::Line,
-    ));
-    plot::panel(
-        &top,
-        &path,
-        "external force",
-        "time (s)",
-        "force (mN)",
-        &curves,
-    )?;
-    let mut pc = Vec::new();
-    for (k, (c, (meas, pred))) in tr.pressures.iter().enumerate() {
-        pc.push(Curve::new(
-            format!("chamber {c} measured"),
-            keep.iter().map(|&i| (tr.t[i], meas[i])).collect(),
-            plot::color(k),
-            Mark::Dots,
-        ));
-        pc.push(Curve::new(
-            format!("chamber {c} model"),
-            keep.iter().map(|&i| (tr.t[i], pred[i])).collect(),
-            plot::color(k),
-            Mark::Line,
-        ));
-    }
-    plot::panel(
-        &bottom,
-        &path,
-        "chamber pressures",
-        "time (s)",
-        "pressure (kPa)",
-        &pc,
-    )?;
-    plot::finish(root, &path)?;
-    Ok(path.clone())
-}
-
-const RGB_BLACK: plotters::style::RGBColor = plotters::style::RGBColor(0, 0, 0);

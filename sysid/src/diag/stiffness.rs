@@ -1,4 +1,4 @@
-//! `vfp stiffness LOG`: pointwise stiffness and damping of the identified polynomial (paper
+//! Pointwise stiffness and damping of the identified polynomial (`vfp stiffness`; paper
 //! §IV-A, eq. 13, Fig. 7c–d).
 //!
 //! With P̂(v, v̇) = Σᵢ Σⱼ αᵢⱼ vⁱ v̇ʲ fitted to the log (least squares over all its samples, one
@@ -11,13 +11,10 @@
 //! 2 mm³/s: two 0.04 mm³ steps per 25 Hz frame) keeps samples at rest, whose flow sign is noise,
 //! out of both phases; they still count in the overall means, as in the paper.
 
-use super::input::{read_log, Log, Series};
-use super::plot::{self, Curve, Mark};
-use super::Shape;
-use super::{DiagError, ModelOpts, OutputOpts};
+use super::{DiagError, Shape};
+use crate::dataset::{Dataset, LogData};
 use crate::poly::{self, PolyFit, Xy};
 use serde::Serialize;
-use std::path::PathBuf;
 
 /// Mean stiffness and damping over a set of samples.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
@@ -115,7 +112,7 @@ pub struct ChamberStiffness {
 pub fn analyze(
     context: &str,
     chamber: u8,
-    s: &Series,
+    s: &Dataset,
     shape: Shape,
     deadband: f64,
 ) -> Result<ChamberStiffness, DiagError> {
@@ -139,31 +136,20 @@ pub fn analyze(
     })
 }
 
-/// Analyses every chamber of a log; returns them in chamber order.
-pub fn analyze_log(log: &Log, opts: &ModelOpts) -> Result<Vec<ChamberStiffness>, DiagError> {
-    let ctx = log.path.display().to_string();
-    let chambers: Vec<u8> = match opts.chamber {
-        Some(c) => vec![log.chamber(Some(c))?.0],
-        None => log.chambers.keys().copied().collect(),
-    };
-    chambers
-        .into_iter()
-        .map(|c| analyze(&ctx, c, &log.chambers[&c], opts.shape(), opts.deadband))
+/// Analyses every chamber of `data` (the chambers it was read with), in chamber order.
+pub fn analyze_log(
+    data: &LogData,
+    shape: Shape,
+    deadband: f64,
+) -> Result<Vec<ChamberStiffness>, DiagError> {
+    let ctx = data.name();
+    data.datasets
+        .iter()
+        .map(|ds| analyze(&ctx, ds.chamber, ds, shape, deadband))
         .collect()
 }
 
-/// `vfp stiffness`: stiffness and damping of one log.
-#[derive(Debug, Clone, clap::Args)]
-pub struct StiffnessArgs {
-    /// Actuation log (shared/data-format.md).
-    pub log: PathBuf,
-    #[command(flatten)]
-    pub model: ModelOpts,
-    #[command(flatten)]
-    pub out: OutputOpts,
-}
-
-/// JSON document of `vfp stiffness --json`: the first analysed chamber at the top level, all
+/// The report of `vfp stiffness --json`: the first analysed chamber at the top level, all
 /// chambers in `chambers`.
 #[derive(Debug, Serialize)]
 pub struct StiffnessReport {
@@ -193,122 +179,30 @@ pub struct Units {
     pub c: &'static str,
 }
 
-pub(crate) const UNITS: Units = Units {
+/// The units of k and c in every report.
+pub const UNITS: Units = Units {
     k: "kPa/mm^3",
     c: "kPa*s/mm^3",
 };
 
-/// Runs `vfp stiffness`.
-pub fn run(args: &StiffnessArgs) -> Result<(), DiagError> {
-    args.model.validate()?;
-    let log = read_log(&args.log)?;
-    let res = analyze_log(&log, &args.model)?;
+/// Stiffness and damping of every chamber of `data`: the report and each chamber's fit and
+/// pointwise values (for figures).
+pub fn stiffness(
+    data: &LogData,
+    shape: Shape,
+    deadband: f64,
+) -> Result<(StiffnessReport, Vec<ChamberStiffness>), DiagError> {
+    let res = analyze_log(data, shape, deadband)?;
     let report = StiffnessReport {
-        log: args.log.display().to_string(),
-        shape: args.model.shape(),
-        deadband_mm3_s: args.model.deadband,
-        flow_derived: log.flow_derived,
+        log: data.name(),
+        shape,
+        deadband_mm3_s: deadband,
+        flow_derived: data.flow_derived(),
         units: UNITS,
         first: res[0].summary.clone(),
         chambers: res.iter().map(|r| r.summary.clone()).collect(),
     };
-    args.out.emit(&report, human, |dir| {
-        plot_distributions(dir, &log.label(), &res)
-    })
-}
-
-fn opt(x: Option<f64>) -> String {
-    x.map(|x| format!("{x:>12.5}"))
-        .unwrap_or_else(|| format!("{:>12}", "-"))
-}
-
-/// The human report.
-pub fn human(r: &StiffnessReport) -> String {
-    let mut s = format!(
-        "Stiffness k = dP/dv and damping c = dP/dvdot of the fitted polynomial (n = {}, m = {}) \
-         at every sample of {}\n",
-        r.shape.n, r.shape.m, r.log
-    );
-    if r.flow_derived {
-        s += "(flow derived from volume and time: the log has no flow_mm3_s column)\n";
-    }
-    for c in &r.chambers {
-        s += &format!(
-            "\nchamber {}: {} samples, fit RMSE {:.4} kPa\n  {:<10} {:>12} {:>12} {:>8}\n",
-            c.chamber,
-            c.samples,
-            c.fit_rmse_kpa,
-            "phase",
-            "k (kPa/mm3)",
-            "c (kPa s/mm3)",
-            "samples"
-        );
-        s += &format!(
-            "  {:<10} {:>12.5} {:>12.5} {:>8}\n",
-            "all", c.k_mean, c.c_mean, c.samples
-        );
-        for (name, m) in [("inflation", &c.inflation), ("deflation", &c.deflation)] {
-            s += &format!(
-                "  {:<10} {} {} {:>8}\n",
-                name,
-                opt(m.k_mean),
-                opt(m.c_mean),
-                m.samples
-            );
-        }
-        s += &format!(
-            "  ({} samples with |vdot| <= {} mm3/s count as rest: in 'all' only)\n",
-            c.rest_samples, r.deadband_mm3_s
-        );
-    }
-    s
-}
-
-/// Fig. 7d-style distributions of kᵢ and cᵢ per chamber; returns the file written.
-fn plot_distributions(
-    dir: &std::path::Path,
-    label: &str,
-    res: &[ChamberStiffness],
-) -> Result<PathBuf, DiagError> {
-    let path = plot::target(dir, "diag-stiffness.svg")?;
-    let root = plot::canvas(&path, (1100, 420));
-    let (left, right) = root.split_horizontally(550);
-    let ks: Vec<&[f64]> = res.iter().map(|r| r.pointwise.k.as_slice()).collect();
-    let cs: Vec<&[f64]> = res.iter().map(|r| r.pointwise.c.as_slice()).collect();
-    let (klo, khi) = plot::quantile_range(&ks, 0.005, 0.995);
-    let (clo, chi) = plot::quantile_range(&cs, 0.005, 0.995);
-    let curves = |sets: &[&[f64]], lo, hi| -> Vec<Curve> {
-        sets.iter()
-            .zip(res)
-            .enumerate()
-            .map(|(i, (s, r))| {
-                Curve::new(
-                    format!("chamber {}", r.summary.chamber),
-                    plot::density_outline(s, lo, hi, 60),
-                    plot::color(i),
-                    Mark::Line,
-                )
-            })
-            .collect()
-    };
-    plot::panel(
-        &left,
-        &path,
-        &format!("{label}: pointwise stiffness k"),
-        "k = dP/dv (kPa/mm3)",
-        "density",
-        &curves(&ks, klo, khi),
-    )?;
-    plot::panel(
-        &right,
-        &path,
-        &format!("{label}: pointwise damping c"),
-        "c = dP/dvdot (kPa s/mm3)",
-        "density",
-        &curves(&cs, clo, chi),
-    )?;
-    plot::finish(root, &path)?;
-    Ok(path.clone())
+    Ok((report, res))
 }
 
 #[cfg(test)]

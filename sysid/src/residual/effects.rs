@@ -51,7 +51,7 @@ use super::Series;
 pub const P_ATM_KPA: f64 = 101.325;
 
 /// The candidate effects the loop knows.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum EffectKind {
     /// Direction-dependent, rate-independent pressure offset.

@@ -26,7 +26,6 @@
 
 pub mod analysis;
 mod basis;
-pub mod cli;
 pub mod effects;
 pub mod export;
 mod lsq;
@@ -34,6 +33,9 @@ pub mod select;
 pub(crate) mod signal;
 
 use serde::Serialize;
+
+use crate::dataset::Dataset;
+use crate::poly::{self, Scaling, Xy};
 
 pub use analysis::{ResidualAnalysis, Signature};
 pub use basis::PolyBasis;
@@ -365,6 +367,16 @@ pub fn device_support(kinds: &[EffectKind]) -> Vec<(EffectKind, DeviceSupport)> 
         .collect()
 }
 
+/// One effect the loop kept: the errors before and after its round (RMSE, kPa) and its test.
+struct KeptStep {
+    kind: EffectKind,
+    heldout_before: f64,
+    heldout_after: f64,
+    train_before: f64,
+    train_after: f64,
+    test: NestedTest,
+}
+
 /// Runs the whole loop on one series.
 pub fn diagnose(series: Series, cfg: &Config) -> Result<Diagnosis, DiagnoseError> {
     let prep = effects::Prepared::new(series, cfg.n, cfg.m);
@@ -375,7 +387,7 @@ pub fn diagnose(series: Series, cfg: &Config) -> Result<Diagnosis, DiagnoseError
         )
     })?;
     let mut cur = baseline.clone();
-    let mut reports: Vec<(EffectKind, f64, f64, f64, f64, NestedTest)> = Vec::new();
+    let mut reports: Vec<KeptStep> = Vec::new();
     let mut rejected = Vec::new();
     let mut unphysical_left: Vec<Signature> = Vec::new();
     // Each candidate's search time in the previous round, to schedule the next (`search_all`).
@@ -415,14 +427,14 @@ pub fn diagnose(series: Series, cfg: &Config) -> Result<Diagnosis, DiagnoseError
                     .last()
                     .map(|e| e.kind)
                     .unwrap_or(EffectKind::Inertance);
-                reports.push((
+                reports.push(KeptStep {
                     kind,
-                    cur.rmse_heldout,
-                    cand.stage.rmse_heldout,
-                    cur.rmse_train,
-                    cand.stage.rmse_train,
+                    heldout_before: cur.rmse_heldout,
+                    heldout_after: cand.stage.rmse_heldout,
+                    train_before: cur.rmse_train,
+                    train_after: cand.stage.rmse_train,
                     test,
-                ));
+                });
                 let tuned = select::retune(&prep, &cand.stage);
                 cur = if tuned.fit.sse <= cand.stage.fit.sse && select::unphysical(&tuned).is_none()
                 {
@@ -433,8 +445,8 @@ pub fn diagnose(series: Series, cfg: &Config) -> Result<Diagnosis, DiagnoseError
                 // Report the model as kept (after re-tuning), so each step's "after" is the next
                 // step's "before".
                 if let Some(last) = reports.last_mut() {
-                    last.2 = cur.rmse_heldout;
-                    last.4 = cur.rmse_train;
+                    last.heldout_after = cur.rmse_heldout;
+                    last.train_after = cur.rmse_train;
                 }
             }
             None => {
@@ -471,16 +483,18 @@ pub fn diagnose(series: Series, cfg: &Config) -> Result<Diagnosis, DiagnoseError
     let effects: Vec<EffectReport> = reports
         .iter()
         .enumerate()
-        .map(|(i, &(kind, hb, ha, tb, ta, test))| {
+        .map(|(i, step)| {
+            let kind = step.kind;
+            let test = step.test;
             let (runs_on_device, reason) = kind.device_support();
             EffectReport {
                 name: kind.name(),
                 story: kind.story(),
                 params: select::effect_params(&prep, &cur, i),
-                rmse_heldout_before: hb,
-                rmse_heldout_after: ha,
-                rmse_train_before: tb,
-                rmse_train_after: ta,
+                rmse_heldout_before: step.heldout_before,
+                rmse_heldout_after: step.heldout_after,
+                rmse_train_before: step.train_before,
+                rmse_train_after: step.train_after,
                 p_value: test.p_value,
                 test,
                 device: DeviceSupport {
@@ -590,4 +604,42 @@ fn search_all(
         }
     });
     out.into_iter().flatten().collect()
+}
+
+/// Builds the loop's series from a `sysid` data set (its flow, v̈ and held-out mask).
+pub fn series_from_dataset(ds: &Dataset) -> Result<Series, DiagnoseError> {
+    let mut s = Series::new(
+        ds.t.clone(),
+        ds.v.clone(),
+        ds.vdot.clone(),
+        ds.p.clone(),
+        ds.heldout.iter().map(|h| !h).collect(),
+    )?;
+    // With logged flow, v and v̇ are consistent samples of one trajectory: the Hermite
+    // acceleration then places short acceleration phases exactly; a derived flow is already a
+    // smoothed derivative, so its own v̈ is used.
+    s.vddot = match ds.flow_source {
+        crate::dataset::FlowSource::Logged => signal::acceleration_hermite(&ds.t, &ds.v, &ds.vdot),
+        crate::dataset::FlowSource::Derived { .. } => ds.vddot.clone(),
+    };
+    Ok(s)
+}
+
+/// The shape the polynomial sweep selects by training AICc (the default joint cost of eq. (12)).
+pub fn select_shape(ds: &Dataset) -> Option<(usize, usize)> {
+    let train = ds.train();
+    let scaling = Scaling::from_data(&ds.v, &ds.vdot).ok()?;
+    let entries = poly::sweep(
+        Xy::from(&train),
+        None,
+        &scaling,
+        poly::MAX_DEGREE,
+        poly::MAX_DEGREE,
+    )
+    .ok()?;
+    entries
+        .into_iter()
+        .flatten()
+        .min_by(|a, b| a.train.aicc.total_cmp(&b.train.aicc))
+        .map(|e| (e.n, e.m))
 }

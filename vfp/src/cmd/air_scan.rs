@@ -1,0 +1,192 @@
+//! `vfp air-scan LOG…`: stiffness and damping over several logs, e.g. air pockets of growing volume
+//! in the syringe (paper §IV-A, Fig. 7c–d), with the trend; the method is
+//! [`sysid::diag::air_scan`].
+
+use super::stiffness::{ShapeOpts, DEFAULT_PHASE_DEADBAND};
+use crate::opts::{ChamberOpt, DataOpts, OutputOpts};
+use crate::plots::diag::{self as plot, Curve, Mark};
+use crate::Error;
+use std::path::PathBuf;
+use sysid::diag::air_scan::{scan, AirScanReport, ScanPoints, Trend};
+use sysid::diag::stiffness::Summary;
+
+/// `vfp air-scan`: stiffness and damping across logs.
+#[derive(Debug, Clone, clap::Args)]
+pub struct Args {
+    /// Actuation logs, e.g. one per air-pocket volume.
+    #[arg(required = true, num_args = 1..)]
+    pub logs: Vec<PathBuf>,
+    /// Metadata key giving each log's x value (`# key=value` comment).
+    #[arg(long, default_value = "air_pocket_mm3")]
+    pub x_key: String,
+    /// The x value of each log, in command-line order (overrides the metadata), e.g. `0,10,20,40`.
+    #[arg(long, value_delimiter = ',')]
+    pub x: Option<Vec<f64>>,
+    /// The chamber analysed in every log (default: the lowest in each).
+    #[command(flatten)]
+    pub chamber: ChamberOpt,
+    #[command(flatten)]
+    pub data: DataOpts,
+    #[command(flatten)]
+    pub shape: ShapeOpts,
+    #[command(flatten)]
+    pub out: OutputOpts,
+}
+
+/// The scan's report and pointwise values (no output); see [`run`].
+pub fn scan_logs(args: &Args) -> Result<(AirScanReport, Vec<ScanPoints>), Error> {
+    let shape = args.shape.shape()?;
+    let logs = args
+        .logs
+        .iter()
+        .map(|p| args.data.load(p, args.chamber.chamber))
+        .collect::<Result<Vec<_>, _>>()?;
+    let deadband = args.data.deadband.unwrap_or(DEFAULT_PHASE_DEADBAND);
+    Ok(scan(
+        &logs,
+        args.x.as_deref(),
+        &args.x_key,
+        shape,
+        deadband,
+    )?)
+}
+
+/// Runs `vfp air-scan`.
+pub fn run(args: &Args) -> Result<(), Error> {
+    let (report, points) = scan_logs(args)?;
+    args.out
+        .emit(&report, human, |dir| plot_scan(dir, &report, &points))
+}
+
+fn opt(x: Option<f64>) -> String {
+    x.map(|x| format!("{x:>10.5}"))
+        .unwrap_or_else(|| format!("{:>10}", "-"))
+}
+
+/// The human report.
+pub fn human(r: &AirScanReport) -> String {
+    let mut s = format!(
+        "Mean stiffness k (kPa/mm3) and damping c (kPa s/mm3) per log, by {}\n\n  {:>8} {:>10} \
+         {:>10} {:>10} {:>10} {:>10} {:>10}  log\n",
+        r.x_key, r.x_key, "k all", "c all", "k infl", "c infl", "k defl", "c defl"
+    );
+    for e in &r.logs {
+        let m = &e.summary;
+        s += &format!(
+            "  {:>8} {:>10.5} {:>10.5} {} {} {} {}  {} (chamber {}){}\n",
+            e.x,
+            m.k_mean,
+            m.c_mean,
+            opt(m.inflation.k_mean),
+            opt(m.inflation.c_mean),
+            opt(m.deflation.k_mean),
+            opt(m.deflation.c_mean),
+            e.log,
+            m.chamber,
+            if e.x_from_meta {
+                ""
+            } else {
+                " [x = position: no metadata]"
+            }
+        );
+    }
+    let word = |t: Trend| match t {
+        Trend::Falling => "falls",
+        Trend::Rising => "rises",
+        Trend::Mixed => "is not monotone",
+    };
+    s += &format!(
+        "\nAs {} grows, k {} and c {}.\n",
+        r.x_key,
+        word(r.k_trend),
+        word(r.c_trend)
+    );
+    s
+}
+
+/// Fig. 7c (means against x, per phase) and 7d (distributions per log).
+fn plot_scan(
+    dir: &std::path::Path,
+    r: &AirScanReport,
+    points: &[ScanPoints],
+) -> Result<PathBuf, Error> {
+    let path = plot::target(dir, "diag-air-scan.svg")?;
+    let root = plot::canvas(&path, (1100, 840));
+    let (top, bottom) = root.split_vertically(420);
+    let (tl, tr) = top.split_horizontally(550);
+    let (bl, br) = bottom.split_horizontally(550);
+    let series = |f: &dyn Fn(&Summary) -> Option<f64>| -> Vec<(f64, f64)> {
+        r.logs
+            .iter()
+            .filter_map(|e| f(&e.summary).map(|y| (e.x, y)))
+            .collect()
+    };
+    let means = |all: Vec<(f64, f64)>, inf: Vec<(f64, f64)>, def: Vec<(f64, f64)>| {
+        vec![
+            Curve::new("all samples", all, plot::color(0), Mark::LineDots),
+            Curve::new("inflation", inf, plot::color(3), Mark::Triangles),
+            Curve::new("deflation", def, RGB_BLUE, Mark::Triangles),
+        ]
+    };
+    plot::panel(
+        &tl,
+        &path,
+        "mean stiffness",
+        &r.x_key,
+        "k (kPa/mm3)",
+        &means(
+            series(&|m| Some(m.k_mean)),
+            series(&|m| m.inflation.k_mean),
+            series(&|m| m.deflation.k_mean),
+        ),
+    )?;
+    plot::panel(
+        &tr,
+        &path,
+        "mean damping",
+        &r.x_key,
+        "c (kPa s/mm3)",
+        &means(
+            series(&|m| Some(m.c_mean)),
+            series(&|m| m.inflation.c_mean),
+            series(&|m| m.deflation.c_mean),
+        ),
+    )?;
+    let ks: Vec<&[f64]> = points.iter().map(|p| p.pointwise.k.as_slice()).collect();
+    let cs: Vec<&[f64]> = points.iter().map(|p| p.pointwise.c.as_slice()).collect();
+    let dist = |sets: &[&[f64]]| -> Vec<Curve> {
+        let (lo, hi) = plot::quantile_range(sets, 0.005, 0.995);
+        sets.iter()
+            .zip(points)
+            .enumerate()
+            .map(|(i, (s, p))| {
+                Curve::new(
+                    format!("{} = {}", r.x_key, p.x),
+                    plot::density_outline(s, lo, hi, 50),
+                    plot::color(i),
+                    Mark::Line,
+                )
+            })
+            .collect()
+    };
+    plot::panel(
+        &bl,
+        &path,
+        "distribution of pointwise k",
+        "k (kPa/mm3)",
+        "density",
+        &dist(&ks),
+    )?;
+    plot::panel(
+        &br,
+        &path,
+        "distribution of pointwise c",
+        "c (kPa s/mm3)",
+        "density",
+        &dist(&cs),
+    )?;
+    plot::finish(root, &path)?;
+    Ok(path.clone())
+}
+
+const RGB_BLUE: plotters::style::RGBColor = plotters::style::RGBColor(31, 60, 200);

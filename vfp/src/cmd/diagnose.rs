@@ -1,0 +1,440 @@
+//! `vfp diagnose LOG.csv`: the residual loop on a log (see the module above for the method).
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use plotters::prelude::*;
+
+use crate::opts::{effect_parser, LogInput, OutputOpts};
+use crate::Error;
+use sysid::residual::analysis::Binned;
+use sysid::residual::{
+    diagnose, select_shape, series_from_dataset, Config, Diagnosis, EffectKind, Param,
+    ResidualAnalysis,
+};
+
+/// `vfp diagnose`: trace the residual of a fitted model to physical effects it lacks.
+#[derive(Debug, Clone, clap::Args)]
+pub struct Args {
+    /// The log, `--chamber` (default: the lowest chamber in the log) and the data options.
+    #[command(flatten)]
+    pub input: LogInput,
+    /// Baseline polynomial as `N,M` (degree in v, degree in v̇); default: the shape the
+    /// polynomial sweep selects by AICc on the training cycles, as `vfp identify` does.
+    #[arg(long, value_name = "N,M")]
+    pub model: Option<String>,
+    /// Level of the nested F-test.
+    #[arg(long, default_value_t = 1e-3)]
+    pub alpha: f64,
+    /// Smallest relative held-out RMSE gain for an effect to be kept.
+    #[arg(long, default_value_t = 0.01)]
+    pub min_gain: f64,
+    /// Restrict the candidates (repeatable; default: the whole library).
+    #[arg(long = "effect", value_parser = effect_parser())]
+    pub effects: Vec<EffectKind>,
+    /// `--json`: one document instead of the text report; `--plots DIR`: residual figures
+    /// before and after (SVG).
+    #[command(flatten)]
+    pub out: OutputOpts,
+}
+
+fn parse_shape(s: &str) -> Result<(usize, usize), Error> {
+    let bad = || {
+        Error::Usage(format!(
+            "--model expects N,M with 1 ≤ N, M ≤ 7 (e.g. 3,2), got `{s}`"
+        ))
+    };
+    let (a, b) = s.split_once(',').ok_or_else(bad)?;
+    let n: usize = a.trim().parse().map_err(|_| bad())?;
+    let m: usize = b.trim().parse().map_err(|_| bad())?;
+    if !(1..=7).contains(&n) || !(1..=7).contains(&m) {
+        return Err(bad());
+    }
+    Ok((n, m))
+}
+
+/// Runs `vfp diagnose`.
+pub fn run(args: &Args) -> Result<(), Error> {
+    if !(args.alpha > 0.0 && args.alpha < 1.0) {
+        return Err(Error::Usage(format!(
+            "--alpha must lie in (0, 1), got {}",
+            args.alpha
+        )));
+    }
+    if !(0.0..1.0).contains(&args.min_gain) {
+        return Err(Error::Usage(format!(
+            "--min-gain must lie in [0, 1), got {}",
+            args.min_gain
+        )));
+    }
+    if args.input.data.holdout_every < 2 {
+        return Err(Error::Usage("--holdout-every must be at least 2".into()));
+    }
+    let data = args.input.load()?;
+    let ds = data.first();
+    let chamber = ds.chamber;
+    let wrap = |source: sysid::residual::DiagnoseError| {
+        Error::Msg(format!(
+            "{}, chamber {chamber}: {source}",
+            data.path.display()
+        ))
+    };
+    let series = series_from_dataset(ds).map_err(wrap)?;
+    let (n, m) = match &args.model {
+        Some(s) => parse_shape(s)?,
+        None => select_shape(ds).unwrap_or((3, 2)),
+    };
+    let mut cfg = Config {
+        n,
+        m,
+        alpha: args.alpha,
+        min_gain: args.min_gain,
+        ..Config::default()
+    };
+    if !args.effects.is_empty() {
+        cfg.candidates = args.effects.clone();
+    }
+    let d = diagnose(series, &cfg).map_err(wrap)?;
+    if let Some(dir) = &args.out.plots {
+        write_plots(dir, &d)?;
+    }
+    if args.out.json {
+        // The diagnosis itself at top level (baseline, effects, final, remaining, …) plus context.
+        let mut doc = serde_json::to_value(&d).unwrap_or_default();
+        if let Some(obj) = doc.as_object_mut() {
+            obj.insert("log".into(), data.path.display().to_string().into());
+            obj.insert("chamber".into(), chamber.into());
+            obj.insert("split".into(), ds.split_description().into());
+        }
+        crate::opts::print_json(&doc)?;
+    } else {
+        print!(
+            "{}",
+            report(&data.path, chamber, &ds.split_description(), &d)
+        );
+    }
+    Ok(())
+}
+
+fn fmt_param(p: &Param) -> String {
+    match p.std_err {
+        Some(se) => format!("{} = {:.4e} ± {:.2e} {}", p.name, p.value, se, p.unit),
+        None => format!("{} = {:.4e} {}", p.name, p.value, p.unit),
+    }
+}
+
+/// The text report for a person.
+pub fn report(path: &Path, chamber: u8, split: &str, d: &Diagnosis) -> String {
+    let mut s = String::new();
+    let _ = writeln!(s, "vfp diagnose {} — chamber {chamber}", path.display());
+    let _ = writeln!(
+        s,
+        "split: {split}; {} training, {} held-out samples",
+        d.samples.0, d.samples.1
+    );
+    let _ = writeln!(s, "significance: {}", d.significance);
+    let _ = writeln!(
+        s,
+        "\nbaseline polynomial n = {}, m = {} ({} parameters): RMSE train {:.4} kPa, held-out {:.4} kPa",
+        d.baseline.n, d.baseline.m, d.baseline.nu, d.baseline.rmse_train, d.baseline.rmse_heldout
+    );
+    let _ = writeln!(
+        s,
+        "  residual: Ljung–Box p = {:.2e}, lag-1 autocorrelation {:.2}, strongest input {} (lag {}, r = {:.2}), spectral peak {:.3} Hz, inflation − deflation {:+.4} kPa",
+        d.before.ljung_box_p,
+        d.before.acf_lag1,
+        d.before.strongest_input.0,
+        d.before.strongest_input.1,
+        d.before.strongest_input.2,
+        d.before.spectral_peak_hz,
+        d.before.direction_gap
+    );
+    if d.effects.is_empty() {
+        let _ = writeln!(s, "\nno effect passed the test");
+    }
+    for (i, e) in d.effects.iter().enumerate() {
+        let _ = writeln!(
+            s,
+            "\n{}. {} — held-out RMSE {:.4} → {:.4} kPa ({:+.1} %), F = {:.1} on ({:.0}, {:.0}) df, N_eff = {:.0}, p = {:.2e}",
+            i + 1,
+            e.name,
+            e.rmse_heldout_before,
+            e.rmse_heldout_after,
+            100.0 * (e.rmse_heldout_after / e.rmse_heldout_before - 1.0),
+            e.test.f_statistic,
+            e.test.df1,
+            e.test.df2,
+            e.test.n_eff,
+            e.p_value
+        );
+        let _ = writeln!(s, "   {}", e.story);
+        for p in &e.params {
+            let _ = writeln!(s, "   {}", fmt_param(p));
+        }
+        let _ = writeln!(
+            s,
+            "   on the device: {} ({})",
+            if e.device.runs_on_device { "yes" } else { "no" },
+            e.device.reason
+        );
+    }
+    let _ = writeln!(
+        s,
+        "\nfinal model ({} parameters): RMSE train {:.4} kPa, held-out {:.4} kPa{}",
+        d.final_model.nu,
+        d.final_model.rmse_train,
+        d.final_model.rmse_heldout,
+        if d.final_model.uses_measured_pressure {
+            " (uses measured pressure as a scheduling input)"
+        } else {
+            ""
+        }
+    );
+    if d.remaining.is_empty() {
+        let _ = writeln!(
+            s,
+            "remaining structure: none (held-out residual passes Ljung–Box, p = {:.3})",
+            d.after.ljung_box_p
+        );
+    } else {
+        let _ = writeln!(s, "remaining structure that no candidate explains:");
+        for r in &d.remaining {
+            let _ = writeln!(s, "  - {}: {}", r.kind, r.description);
+        }
+    }
+    s
+}
+
+/// Writes `resid-before.svg` and `resid-after.svg` into `dir`.
+pub fn write_plots(dir: &Path, d: &Diagnosis) -> Result<Vec<PathBuf>, Error> {
+    std::fs::create_dir_all(dir).map_err(|e| Error::output(dir, e))?;
+    let mut out = Vec::new();
+    for (name, a, title) in [
+        ("resid-before.svg", &d.analysis_before, "baseline"),
+        (
+            "resid-after.svg",
+            &d.analysis_after,
+            "after the residual loop",
+        ),
+    ] {
+        let path = dir.join(name);
+        figure(&path, a, title).map_err(|msg| Error::output(&path, msg))?;
+        out.push(path);
+    }
+    Ok(out)
+}
+
+type Area<'a> = DrawingArea<SVGBackend<'a>, plotters::coord::Shift>;
+
+/// One curve of a panel: label, points, colour, drawn as points (true) or a line.
+type Curve<'a> = (&'a str, Vec<(f64, f64)>, RGBColor, bool);
+
+fn bounds(pts: impl Iterator<Item = f64> + Clone) -> (f64, f64) {
+    let (lo, hi) = pts.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), x| {
+        if x.is_finite() {
+            (a.min(x), b.max(x))
+        } else {
+            (a, b)
+        }
+    });
+    if !lo.is_finite() {
+        return (0.0, 1.0);
+    }
+    let pad = if hi > lo { 0.05 * (hi - lo) } else { 1.0 };
+    (lo - pad, hi + pad)
+}
+
+fn panel(
+    area: &Area<'_>,
+    caption: &str,
+    xl: &str,
+    yl: &str,
+    series: &[Curve<'_>],
+    hlines: &[f64],
+) -> Result<(), String> {
+    let xs = series.iter().flat_map(|s| s.1.iter().map(|p| p.0));
+    let ys = series
+        .iter()
+        .flat_map(|s| s.1.iter().map(|p| p.1))
+        .chain(hlines.iter().copied());
+    let (x0, x1) = bounds(xs.collect::<Vec<_>>().into_iter());
+    let (y0, y1) = bounds(ys.collect::<Vec<_>>().into_iter());
+    let mut chart = ChartBuilder::on(area)
+        .caption(caption, ("sans-serif", 16))
+        .margin(8)
+        .x_label_area_size(32)
+        .y_label_area_size(56)
+        .build_cartesian_2d(x0..x1, y0..y1)
+        .map_err(|e| e.to_string())?;
+    chart
+        .configure_mesh()
+        .x_desc(xl)
+        .y_desc(yl)
+        .light_line_style(WHITE)
+        .draw()
+        .map_err(|e| e.to_string())?;
+    for &h in hlines {
+        chart
+            .draw_series(LineSeries::new(
+                vec![(x0, h), (x1, h)],
+                BLACK.mix(0.4).stroke_width(1),
+            ))
+            .map_err(|e| e.to_string())?;
+    }
+    for (label, pts, color, points) in series {
+        let c = *color;
+        if *points {
+            chart
+                .draw_series(pts.iter().map(|&p| Circle::new(p, 1, c.mix(0.5).filled())))
+                .map_err(|e| e.to_string())?
+                .label(*label)
+                .legend(move |(x, y)| Circle::new((x + 8, y), 3, c.filled()));
+        } else {
+            chart
+                .draw_series(LineSeries::new(pts.clone(), c.stroke_width(2)))
+                .map_err(|e| e.to_string())?
+                .label(*label)
+                .legend(move |(x, y)| {
+                    PathElement::new(vec![(x, y), (x + 16, y)], c.stroke_width(2))
+                });
+        }
+    }
+    if series.len() > 1 {
+        chart
+            .configure_series_labels()
+            .background_style(WHITE.mix(0.8))
+            .border_style(BLACK.mix(0.3))
+            .draw()
+            .map_err(|e| e.to_string())?;
+    }
+    Ok(())
+}
+
+fn figure(path: &Path, a: &ResidualAnalysis, title: &str) -> Result<(), String> {
+    let root = crate::figure::svg(path, (1500, 900));
+    root.fill(&WHITE).map_err(|e| e.to_string())?;
+    let root = root
+        .titled(
+            &format!(
+                "held-out residual, {title}: RMSE {:.4} kPa, Ljung–Box p = {:.2e}",
+                a.rmse, a.whiteness.lb_p_value
+            ),
+            ("sans-serif", 22),
+        )
+        .map_err(|e| e.to_string())?;
+    let panels = root.split_evenly((2, 3));
+    let blue = RGBColor(31, 119, 180);
+    let red = RGBColor(214, 39, 40);
+    let green = RGBColor(44, 160, 44);
+    let grey = RGBColor(90, 90, 90);
+    // Subsample the scatter so figures stay small.
+    let step = (a.points.len() / 4000).max(1);
+    let pts: Vec<&[f64; 4]> = a.points.iter().step_by(step).collect();
+    panel(
+        &panels[0],
+        "residual over time",
+        "time (s)",
+        "residual (kPa)",
+        &[(
+            "residual",
+            pts.iter().map(|p| (p[0], p[3])).collect(),
+            grey,
+            true,
+        )],
+        &[0.0],
+    )?;
+    let w = &a.whiteness;
+    panel(
+        &panels[1],
+        "autocorrelation (95 % white band)",
+        "lag (s)",
+        "acf",
+        &[(
+            "acf",
+            w.acf
+                .iter()
+                .enumerate()
+                .map(|(k, &r)| (k as f64 * w.lag_s, r))
+                .collect(),
+            blue,
+            false,
+        )],
+        &[w.band, -w.band, 0.0],
+    )?;
+    let colors = [blue, red, green, grey];
+    let cross: Vec<Curve<'_>> = a
+        .cross
+        .iter()
+        .zip(colors)
+        .map(|(c, col)| {
+            (
+                c.input,
+                c.lags
+                    .iter()
+                    .zip(&c.values)
+                    .map(|(&l, &v)| (l as f64 * w.lag_s, v))
+                    .collect(),
+                col,
+                false,
+            )
+        })
+        .collect();
+    panel(
+        &panels[2],
+        "cross-correlation (input leads at +lag)",
+        "lag (s)",
+        "correlation",
+        &cross,
+        &[w.band, -w.band],
+    )?;
+    let dir = &a.direction;
+    let line = |b: &Binned| {
+        b.centre
+            .iter()
+            .copied()
+            .zip(b.mean.iter().copied())
+            .collect::<Vec<_>>()
+    };
+    panel(
+        &panels[3],
+        "residual vs volume by direction",
+        "volume (mm³)",
+        "mean residual (kPa)",
+        &[
+            ("inflation", line(&dir.inflation_vs_v), red, false),
+            ("deflation", line(&dir.deflation_vs_v), blue, false),
+        ],
+        &[0.0],
+    )?;
+    panel(
+        &panels[4],
+        "residual vs |flow| by direction",
+        "|flow| (mm³/s)",
+        "mean residual (kPa)",
+        &[
+            ("inflation", line(&dir.inflation_vs_speed), red, false),
+            ("deflation", line(&dir.deflation_vs_speed), blue, false),
+        ],
+        &[0.0],
+    )?;
+    let sp = &a.spectrum;
+    panel(
+        &panels[5],
+        "Welch spectrum",
+        "frequency (Hz)",
+        "log10 PSD (kPa²/Hz)",
+        &[(
+            "psd",
+            sp.freq_hz
+                .iter()
+                .zip(&sp.psd)
+                .skip(1)
+                .map(|(&f, &p)| (f, p.max(1e-30).log10()))
+                .collect(),
+            blue,
+            false,
+        )],
+        &[],
+    )?;
+    root.present().map_err(|e| e.to_string())
+}

@@ -1,0 +1,354 @@
+//! `vfp identify LOG.csv`: the paper's §II–III on a log, as tables in the paper's layout or one
+//! JSON document.
+
+use crate::opts::{family_parser, num, opt, LogInput, OutputOpts};
+use crate::Error;
+use serde::Serialize;
+use std::collections::BTreeMap;
+use sysid::identify::{self, ChamberReport, Family, ModelRow, Options};
+use sysid::metrics::CostWeights;
+
+/// Identify volume-flow-pressure models from a log (Tables I, II and IV of the paper).
+#[derive(Debug, Clone, clap::Args)]
+pub struct Args {
+    #[command(flatten)]
+    pub input: LogInput,
+    /// Limit the run to this family (repeatable; default: all).
+    #[arg(long = "family", value_parser = family_parser())]
+    pub families: Vec<Family>,
+    /// `--json` (one document instead of tables); `--plots DIR`: figures like the paper's
+    /// Figs. 2-5 and V-P curves.
+    #[command(flatten)]
+    pub out: OutputOpts,
+    /// Joint-cost weights w1,w2,w3 on RMSE, 1-R2adj and AICc (eq. 8).
+    #[arg(long, value_name = "W1,W2,W3", default_value = "0,0,1")]
+    pub weights: String,
+    /// Highest power of v in the polynomial sweep.
+    #[arg(long, default_value_t = 7)]
+    pub max_n: usize,
+    /// Highest power of v̇ in the polynomial sweep.
+    #[arg(long, default_value_t = 7)]
+    pub max_m: usize,
+    /// Highest AR order of the poly-AR sweep.
+    #[arg(long, default_value_t = 5)]
+    pub ar_max: usize,
+    /// (n, m) of the poly-AR sweep, e.g. 3,2 (default: the polynomial selection).
+    #[arg(long, value_name = "N,M")]
+    pub ar_shape: Option<String>,
+    /// Highest number of exponential terms.
+    #[arg(long, default_value_t = 10)]
+    pub exp_k_max: usize,
+    /// Highest AR order of the neural sweep.
+    #[arg(long, default_value_t = 5)]
+    pub nn_ar_max: usize,
+    /// Least significant terms tried in the pruning table (0 = no pruning).
+    #[arg(long, default_value_t = 3)]
+    pub prune: usize,
+}
+
+fn parse_list(s: &str, what: &str, len: usize) -> Result<Vec<f64>, Error> {
+    let v: Result<Vec<f64>, _> = s.split(',').map(|x| x.trim().parse::<f64>()).collect();
+    match v {
+        Ok(v) if v.len() == len && v.iter().all(|x| x.is_finite() && *x >= 0.0) => Ok(v),
+        _ => Err(Error::Msg(format!(
+            "{what} {s:?}: expected {len} comma-separated finite numbers >= 0"
+        ))),
+    }
+}
+
+impl Args {
+    /// The identification options these arguments describe.
+    pub fn options(&self) -> Result<Options, Error> {
+        let w = parse_list(&self.weights, "--weights", 3)?;
+        let ar_shape = match &self.ar_shape {
+            None => None,
+            Some(s) => {
+                let v = parse_list(s, "--ar-shape", 2)?;
+                Some((v[0] as usize, v[1] as usize))
+            }
+        };
+        if !(1..=7).contains(&self.max_n) || !(1..=7).contains(&self.max_m) {
+            return Err(Error::Msg(format!(
+                "--max-n {} --max-m {}: degrees must be 1..=7",
+                self.max_n, self.max_m
+            )));
+        }
+        if self.ar_max > 5 || self.nn_ar_max > 5 {
+            return Err(Error::Msg(
+                "--ar-max and --nn-ar-max must be at most 5 (the device's limit)".into(),
+            ));
+        }
+        Ok(Options {
+            families: if self.families.is_empty() {
+                Family::ALL.to_vec()
+            } else {
+                self.families.clone()
+            },
+            weights: CostWeights {
+                w_rmse: w[0],
+                w_r2: w[1],
+                w_aicc: w[2],
+            },
+            max_n: self.max_n,
+            max_m: self.max_m,
+            ar_max: self.ar_max,
+            ar_shape,
+            exp_k_max: self.exp_k_max,
+            nn_ar_max: self.nn_ar_max,
+            prune_k: self.prune,
+            progress: (!self.out.json || std::io::IsTerminal::is_terminal(&std::io::stderr()))
+                .then_some(crate::progress::spinner as identify::ProgressFn),
+            ..Options::default()
+        })
+    }
+}
+
+/// A model row tagged with its chamber (top-level `models` of the JSON).
+#[derive(Serialize)]
+struct Tagged<'a> {
+    chamber: u8,
+    #[serde(flatten)]
+    row: &'a ModelRow,
+}
+
+/// The `--json` document.
+#[derive(Serialize)]
+struct Document<'a> {
+    file: String,
+    weights: CostWeights,
+    selected: Option<Tagged<'a>>,
+    models: Vec<Tagged<'a>>,
+    timing_s: BTreeMap<&'static str, f64>,
+    chambers: &'a [ChamberReport],
+}
+
+/// Runs `vfp identify`.
+pub fn run(args: &Args) -> Result<(), Error> {
+    let options = args.options()?;
+    let data = args.input.load()?;
+    let datasets = &data.datasets;
+    let reports: Vec<ChamberReport> = datasets
+        .iter()
+        .map(|ds| identify::identify(ds, &options))
+        .collect();
+    if let Some(dir) = &args.out.plots {
+        for (ds, rep) in datasets.iter().zip(&reports) {
+            crate::plots::identify::write_all(dir, ds, rep)?;
+        }
+    }
+    if args.out.json {
+        let mut timing: BTreeMap<&'static str, f64> = BTreeMap::new();
+        for r in &reports {
+            for (k, v) in &r.timing_s {
+                *timing.entry(k).or_default() += v;
+            }
+        }
+        let doc = Document {
+            file: data.path.display().to_string(),
+            weights: options.weights,
+            selected: reports.first().and_then(|r| {
+                r.selected.as_ref().map(|row| Tagged {
+                    chamber: r.chamber,
+                    row,
+                })
+            }),
+            models: reports
+                .iter()
+                .flat_map(|r| {
+                    r.models.iter().map(move |row| Tagged {
+                        chamber: r.chamber,
+                        row,
+                    })
+                })
+                .collect(),
+            timing_s: timing,
+            chambers: &reports,
+        };
+        let text = serde_json::to_string_pretty(&doc)
+            .map_err(|e| Error::Msg(format!("cannot encode JSON: {e}")))?;
+        println!("{text}");
+    } else {
+        for r in &reports {
+            print!("{}", render(r, &data.path.display().to_string(), &options));
+        }
+        if let Some(dir) = &args.out.plots {
+            println!("figures written to {}", dir.display());
+        }
+    }
+    Ok(())
+}
+
+/// The human report of one chamber, in the paper's table layout.
+pub fn render(r: &ChamberReport, file: &str, options: &Options) -> String {
+    use std::fmt::Write;
+    let mut s = String::new();
+    let w = &options.weights;
+    let _ = writeln!(s, "== {file}, chamber {} ==", r.chamber);
+    let _ = writeln!(
+        s,
+        "{} samples, {} cycles; training {} / held-out {} ({}); flow {}",
+        r.samples, r.cycles, r.train_samples, r.heldout_samples, r.split, r.flow
+    );
+    let _ = writeln!(
+        s,
+        "selection: J = {}·RMSE + {}·(1 - R2adj) + {}·AICc on training data (eq. 8)\n",
+        w.w_rmse, w.w_r2, w.w_aicc
+    );
+
+    let t = &r.table1;
+    let _ = writeln!(
+        s,
+        "Table I. Correlations and PCA of the normalised [v, vdot, vddot, P]"
+    );
+    let _ = writeln!(
+        s,
+        "  corr(P, v) = {}   corr(P, vdot) = {}   corr(P, vddot) = {}",
+        opt_f(t.corr_v),
+        opt_f(t.corr_vdot),
+        opt_f(t.corr_vddot)
+    );
+    if let (Some(v), Some(l)) = (t.vectors, t.lambda_norm) {
+        let _ = writeln!(
+            s,
+            "  {:>12} {:>7} {:>7} {:>7} {:>7}",
+            "", "PC1", "PC2", "PC3", "PC4"
+        );
+        for (name, row) in ["v(t)", "vdot(t)", "vddot(t)", "P(t)"].iter().zip(v) {
+            let _ = writeln!(
+                s,
+                "  V {:>10} {:>7.2} {:>7.2} {:>7.2} {:>7.2}",
+                name, row[0], row[1], row[2], row[3]
+            );
+        }
+        let _ = writeln!(
+            s,
+            "  {:>12} {:>7.2} {:>7.2} {:>7.2} {:>7.2}",
+            "lambda_norm", l[0], l[1], l[2], l[3]
+        );
+    } else {
+        let _ = writeln!(s, "  PCA not defined: a column is constant");
+    }
+    let _ = writeln!(s);
+
+    let _ = writeln!(
+        s,
+        "Table II. Regression performances (training | held-out); * = lowest cost in the family"
+    );
+    for fam in Family::ALL {
+        let rows: Vec<&ModelRow> = r.models.iter().filter(|m| m.family == fam).collect();
+        if rows.is_empty() && !r.failed.iter().any(|f| f.family == fam) {
+            continue;
+        }
+        let best = r.best.iter().find(|b| b.family == fam);
+        let head = match fam {
+            Family::Exp => "k",
+            Family::Nn => "(p, d)",
+            Family::Poly => "(n, m)",
+            Family::PolyAr => "(p, n, m)",
+        };
+        let _ = writeln!(s, "  -- {} --", fam.name());
+        let _ = writeln!(
+            s,
+            "  {:>11} {:>4} {:>9} {:>8} {:>11} {:>11} | {:>9} {:>8}",
+            head, "nu", "RMSE", "R2adj", "AICc", "BIC", "RMSE", "R2adj"
+        );
+        for m in rows {
+            let star = if Some(m) == best { "*" } else { " " };
+            let _ = writeln!(
+                s,
+                "  {:>10}{} {:>4} {:>9} {:>8.4} {:>11} {:>11} | {:>9} {:>8}",
+                m.shape(),
+                star,
+                m.nu,
+                num(m.rmse),
+                m.r2_adj,
+                format!("{:.4e}", m.aicc),
+                format!("{:.4e}", m.bic),
+                opt(m.rmse_heldout),
+                m.r2_adj_heldout.map_or("-".into(), |x| format!("{x:.4}"))
+            );
+        }
+        for f in r.failed.iter().filter(|f| f.family == fam) {
+            let _ = writeln!(s, "  {:>11} not fitted: {}", f.shape, f.error);
+        }
+        if let Some(t) = r.timing_s.get(fam.name()) {
+            let _ = writeln!(s, "  sweep time {:.3} s", t);
+        }
+    }
+    for n in &r.notes {
+        let _ = writeln!(s, "  note: {n}");
+    }
+    let _ = writeln!(s);
+
+    if let Some(f) = &r.poly_fit {
+        let _ = writeln!(
+            s,
+            "Table IV. Coefficients of the polynomial model (n = {}, m = {}), paper units (kPa, mm3, mm3/s)",
+            f.n, f.m
+        );
+        let _ = writeln!(
+            s,
+            "  {:>14} {:>13} {:>11} {:>9} {:>10}",
+            "term", "coeff.", "SE", "t", "p"
+        );
+        for c in &r.poly_coefficients {
+            let _ = writeln!(
+                s,
+                "  {:>14} {:>13.4e} {:>11.3e} {:>9.2} {:>10.2e}",
+                c.term, c.stat.estimate, c.stat.se, c.stat.t, c.stat.p
+            );
+        }
+        if !r.pruning.is_empty() {
+            let _ = writeln!(
+                s,
+                "  Reduced models (least significant terms excluded, refitted)"
+            );
+            let _ = writeln!(
+                s,
+                "  {:>26} {:>4} {:>9} {:>8} {:>11} | {:>9}",
+                "excluded term(s)", "nu", "RMSE", "R2adj", "AICc", "RMSE ho"
+            );
+            let _ = writeln!(
+                s,
+                "  {:>26} {:>4} {:>9} {:>8.4} {:>11} |",
+                "(none)",
+                f.nu,
+                num(f.train.rmse),
+                f.train.r2_adj,
+                format!("{:.4e}", f.train.aicc)
+            );
+            for p in &r.pruning {
+                let _ = writeln!(
+                    s,
+                    "  {:>26} {:>4} {:>9} {:>8.4} {:>11} | {:>9}",
+                    p.excluded.join(", "),
+                    p.nu,
+                    num(p.train.rmse),
+                    p.train.r2_adj,
+                    format!("{:.4e}", p.train.aicc),
+                    opt(p.heldout.map(|h| h.rmse))
+                );
+            }
+        }
+        let _ = writeln!(s);
+    }
+    if let Some(sel) = &r.selected {
+        let _ = writeln!(
+            s,
+            "Selected: {} {} (nu = {}): RMSE {} kPa training, {} kPa held-out\n",
+            sel.family.name(),
+            sel.shape(),
+            sel.nu,
+            num(sel.rmse),
+            opt(sel.rmse_heldout)
+        );
+    }
+    s
+}
+
+fn opt_f(x: Option<f64>) -> String {
+    x.map_or_else(
+        || "undefined (constant column)".into(),
+        |x| format!("{x:.4}"),
+    )
+}

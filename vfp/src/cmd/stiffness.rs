@@ -1,0 +1,159 @@
+//! `vfp stiffness LOG`: pointwise stiffness and damping of the identified polynomial (paper
+//! §IV-A, eq. 13, Fig. 7c–d); the method is [`sysid::diag::stiffness`].
+
+use crate::opts::{LogInput, OutputOpts};
+use crate::plots::diag::{self as plot, Curve, Mark};
+use crate::Error;
+use std::path::PathBuf;
+use sysid::diag::stiffness::{stiffness, ChamberStiffness, StiffnessReport};
+use sysid::diag::Shape;
+
+/// Phase deadband of the stiffness means when `--deadband` is not given, mm³/s.
+pub const DEFAULT_PHASE_DEADBAND: f64 = 2.0;
+
+/// Polynomial shape of the §IV analyses (`--n`, `--m`).
+#[derive(Debug, Clone, Copy, clap::Args)]
+pub struct ShapeOpts {
+    /// Highest power of volume v in the polynomial.
+    #[arg(long, default_value_t = 3)]
+    pub n: usize,
+    /// Highest power of flow v̇ in the polynomial.
+    #[arg(long, default_value_t = 2)]
+    pub m: usize,
+}
+
+impl Default for ShapeOpts {
+    fn default() -> Self {
+        Self { n: 3, m: 2 }
+    }
+}
+
+impl ShapeOpts {
+    /// The shape, checked (1..=7 each).
+    pub fn shape(&self) -> Result<Shape, Error> {
+        let s = Shape {
+            n: self.n,
+            m: self.m,
+        };
+        s.validate()?;
+        Ok(s)
+    }
+}
+
+/// `vfp stiffness`: stiffness and damping of one log.
+#[derive(Debug, Clone, clap::Args)]
+pub struct Args {
+    /// The log, `--chamber` (default: every chamber) and the data options; `--deadband` also
+    /// separates inflation (v̇ > band) and deflation (v̇ < −band) from rest in the means.
+    #[command(flatten)]
+    pub input: LogInput,
+    #[command(flatten)]
+    pub shape: ShapeOpts,
+    #[command(flatten)]
+    pub out: OutputOpts,
+}
+
+/// Runs `vfp stiffness`.
+pub fn run(args: &Args) -> Result<(), Error> {
+    let shape = args.shape.shape()?;
+    let data = args.input.load()?;
+    let deadband = args.input.data.deadband.unwrap_or(DEFAULT_PHASE_DEADBAND);
+    let (report, res) = stiffness(&data, shape, deadband)?;
+    args.out.emit(&report, human, |dir| {
+        plot_distributions(dir, &data.label(), &res)
+    })
+}
+
+fn opt(x: Option<f64>) -> String {
+    x.map(|x| format!("{x:>12.5}"))
+        .unwrap_or_else(|| format!("{:>12}", "-"))
+}
+
+/// The human report.
+pub fn human(r: &StiffnessReport) -> String {
+    let mut s = format!(
+        "Stiffness k = dP/dv and damping c = dP/dvdot of the fitted polynomial (n = {}, m = {}) \
+         at every sample of {}\n",
+        r.shape.n, r.shape.m, r.log
+    );
+    if r.flow_derived {
+        s += "(flow derived from volume and time: the log has no flow_mm3_s column)\n";
+    }
+    for c in &r.chambers {
+        s += &format!(
+            "\nchamber {}: {} samples, fit RMSE {:.4} kPa\n  {:<10} {:>12} {:>12} {:>8}\n",
+            c.chamber,
+            c.samples,
+            c.fit_rmse_kpa,
+            "phase",
+            "k (kPa/mm3)",
+            "c (kPa s/mm3)",
+            "samples"
+        );
+        s += &format!(
+            "  {:<10} {:>12.5} {:>12.5} {:>8}\n",
+            "all", c.k_mean, c.c_mean, c.samples
+        );
+        for (name, m) in [("inflation", &c.inflation), ("deflation", &c.deflation)] {
+            s += &format!(
+                "  {:<10} {} {} {:>8}\n",
+                name,
+                opt(m.k_mean),
+                opt(m.c_mean),
+                m.samples
+            );
+        }
+        s += &format!(
+            "  ({} samples with |vdot| <= {} mm3/s count as rest: in 'all' only)\n",
+            c.rest_samples, r.deadband_mm3_s
+        );
+    }
+    s
+}
+
+/// Fig. 7d-style distributions of kᵢ and cᵢ per chamber; returns the file written.
+fn plot_distributions(
+    dir: &std::path::Path,
+    label: &str,
+    res: &[ChamberStiffness],
+) -> Result<PathBuf, Error> {
+    let path = plot::target(dir, "diag-stiffness.svg")?;
+    let root = plot::canvas(&path, (1100, 420));
+    let (left, right) = root.split_horizontally(550);
+    let ks: Vec<&[f64]> = res.iter().map(|r| r.pointwise.k.as_slice()).collect();
+    let cs: Vec<&[f64]> = res.iter().map(|r| r.pointwise.c.as_slice()).collect();
+    let (klo, khi) = plot::quantile_range(&ks, 0.005, 0.995);
+    let (clo, chi) = plot::quantile_range(&cs, 0.005, 0.995);
+    let curves = |sets: &[&[f64]], lo, hi| -> Vec<Curve> {
+        sets.iter()
+            .zip(res)
+            .enumerate()
+            .map(|(i, (s, r))| {
+                Curve::new(
+                    format!("chamber {}", r.summary.chamber),
+                    plot::density_outline(s, lo, hi, 60),
+                    plot::color(i),
+                    Mark::Line,
+                )
+            })
+            .collect()
+    };
+    plot::panel(
+        &left,
+        &path,
+        &format!("{label}: pointwise stiffness k"),
+        "k = dP/dv (kPa/mm3)",
+        "density",
+        &curves(&ks, klo, khi),
+    )?;
+    plot::panel(
+        &right,
+        &path,
+        &format!("{label}: pointwise damping c"),
+        "c = dP/dvdot (kPa s/mm3)",
+        "density",
+        &curves(&cs, clo, chi),
+    )?;
+    plot::finish(root, &path)?;
+    Ok(path.clone())
+}

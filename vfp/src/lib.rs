@@ -1,0 +1,13 @@
+//! The `vfp` command-line tool on top of the [`sysid`] library: one module per subcommand
+//! ([`cmd`]), the options they share ([`opts`]), one error type ([`Error`]) and the figures
+//! ([`plots`], [`figure`]). The numbers come from `sysid`; this crate parses arguments, reads
+//! files, renders reports and draws.
+
+pub mod cmd;
+pub mod error;
+pub mod figure;
+pub mod opts;
+pub mod plots;
+pub mod progress;
+
+pub use error::Error;

@@ -1,0 +1,211 @@
+//! Small SVG plotting helpers shared by the diagnostics commands (plotters, SVG backend, so no
+//! system fonts are needed).
+
+use crate::Error;
+use plotters::coord::Shift;
+use plotters::prelude::*;
+use std::path::{Path, PathBuf};
+
+/// How a curve is drawn.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Mark {
+    /// Connected line.
+    Line,
+    /// Line with circles at the points.
+    LineDots,
+    /// Small dots only.
+    Dots,
+    /// Upward triangles only.
+    Triangles,
+}
+
+/// One labelled curve of a panel.
+pub(crate) struct Curve {
+    pub label: String,
+    pub pts: Vec<(f64, f64)>,
+    pub color: RGBColor,
+    pub mark: Mark,
+}
+
+impl Curve {
+    pub fn new(
+        label: impl Into<String>,
+        pts: Vec<(f64, f64)>,
+        color: RGBColor,
+        mark: Mark,
+    ) -> Self {
+        Curve {
+            label: label.into(),
+            pts,
+            color,
+            mark,
+        }
+    }
+}
+
+/// Distinct colours for series i = 0, 1, …
+pub(crate) fn color(i: usize) -> RGBColor {
+    const C: [RGBColor; 8] = [
+        RGBColor(31, 119, 180),
+        RGBColor(255, 127, 14),
+        RGBColor(44, 160, 44),
+        RGBColor(214, 39, 40),
+        RGBColor(148, 103, 189),
+        RGBColor(140, 86, 75),
+        RGBColor(227, 119, 194),
+        RGBColor(127, 127, 127),
+    ];
+    C[i % C.len()]
+}
+
+/// Creates `dir` and returns `dir/name`.
+pub(crate) fn target(dir: &Path, name: &str) -> Result<PathBuf, Error> {
+    std::fs::create_dir_all(dir).map_err(|e| Error::output(dir, e))?;
+    Ok(dir.join(name))
+}
+
+/// A new white SVG canvas of the given size.
+pub(crate) fn canvas(path: &Path, size: (u32, u32)) -> DrawingArea<SVGBackend<'_>, Shift> {
+    let root = crate::figure::svg(path, size);
+    // Filling a fresh SVG canvas cannot fail: it only appends to an in-memory buffer.
+    root.fill(&WHITE).ok();
+    root
+}
+
+/// Writes the canvas to disk.
+pub(crate) fn finish(root: DrawingArea<SVGBackend<'_>, Shift>, path: &Path) -> Result<(), Error> {
+    root.present().map_err(|e| Error::output(path, e))
+}
+
+fn range(vals: impl Iterator<Item = f64>) -> (f64, f64) {
+    crate::figure::padded_range(vals)
+}
+
+/// Draws curves with axes, labels and a legend into `area`.
+pub(crate) fn panel(
+    area: &DrawingArea<SVGBackend<'_>, Shift>,
+    path: &Path,
+    title: &str,
+    xdesc: &str,
+    ydesc: &str,
+    curves: &[Curve],
+) -> Result<(), Error> {
+    let e = |e: DrawingAreaErrorKind<_>| Error::output(path, e);
+    let (x0, x1) = range(curves.iter().flat_map(|c| c.pts.iter().map(|p| p.0)));
+    let (y0, y1) = range(curves.iter().flat_map(|c| c.pts.iter().map(|p| p.1)));
+    let mut chart = ChartBuilder::on(area)
+        .caption(title, ("sans-serif", 17))
+        .margin(12)
+        .x_label_area_size(38)
+        .y_label_area_size(62)
+        .build_cartesian_2d(x0..x1, y0..y1)
+        .map_err(e)?;
+    chart
+        .configure_mesh()
+        .x_desc(xdesc)
+        .y_desc(ydesc)
+        .y_label_formatter(&|y| format_tick(*y))
+        .x_label_formatter(&|x| format_tick(*x))
+        .light_line_style(WHITE.mix(0.0))
+        .draw()
+        .map_err(e)?;
+    for c in curves {
+        let col = c.color;
+        let pts = c
+            .pts
+            .iter()
+            .copied()
+            .filter(|p| p.0.is_finite() && p.1.is_finite());
+        let anno = match c.mark {
+            Mark::Line => chart.draw_series(LineSeries::new(pts, col.stroke_width(2))),
+            Mark::LineDots => {
+                let v: Vec<_> = pts.collect();
+                chart
+                    .draw_series(LineSeries::new(v.clone(), col.stroke_width(2)))
+                    .map_err(e)?;
+                chart.draw_series(v.into_iter().map(|p| Circle::new(p, 4, col.filled())))
+            }
+            Mark::Dots => chart.draw_series(pts.map(|p| Circle::new(p, 1, col.filled()))),
+            Mark::Triangles => {
+                chart.draw_series(pts.map(|p| TriangleMarker::new(p, 6, col.filled())))
+            }
+        }
+        .map_err(e)?;
+        if !c.label.is_empty() {
+            anno.label(c.label.as_str()).legend(move |(x, y)| {
+                PathElement::new(vec![(x, y), (x + 18, y)], col.stroke_width(3))
+            });
+        }
+    }
+    if curves.iter().any(|c| !c.label.is_empty()) {
+        chart
+            .configure_series_labels()
+            .position(SeriesLabelPosition::UpperRight)
+            .background_style(WHITE.mix(0.85))
+            .border_style(BLACK)
+            .draw()
+            .map_err(e)?;
+    }
+    Ok(())
+}
+
+fn format_tick(x: f64) -> String {
+    let a = x.abs();
+    if a == 0.0 {
+        "0".into()
+    } else if !(1e-3..1e4).contains(&a) {
+        format!("{x:.1e}")
+    } else if a < 0.1 {
+        format!("{x:.4}")
+    } else {
+        format!("{x:.3}")
+            .trim_end_matches('0')
+            .trim_end_matches('.')
+            .to_string()
+    }
+}
+
+/// Outline of a probability-density histogram of `values` over `[lo, hi]` with `bins` bins,
+/// as points for a line curve (so several distributions can be overlaid).
+pub(crate) fn density_outline(values: &[f64], lo: f64, hi: f64, bins: usize) -> Vec<(f64, f64)> {
+    let w = (hi - lo) / bins as f64;
+    let mut count = vec![0usize; bins];
+    let mut n = 0usize;
+    for &x in values {
+        if x.is_finite() && x >= lo && x <= hi {
+            let b = (((x - lo) / w) as usize).min(bins - 1);
+            count[b] += 1;
+            n += 1;
+        }
+    }
+    let scale = if n > 0 { 1.0 / (n as f64 * w) } else { 0.0 };
+    let mut pts = vec![(lo, 0.0)];
+    for (b, &c) in count.iter().enumerate() {
+        let h = c as f64 * scale;
+        pts.push((lo + b as f64 * w, h));
+        pts.push((lo + (b + 1) as f64 * w, h));
+    }
+    pts.push((hi, 0.0));
+    pts
+}
+
+/// Central range [q_lo, q_hi] quantiles of several sets together (for histogram limits that
+/// ignore the few extreme points near reversals).
+pub(crate) fn quantile_range(sets: &[&[f64]], q_lo: f64, q_hi: f64) -> (f64, f64) {
+    let mut all: Vec<f64> = sets
+        .iter()
+        .flat_map(|s| s.iter().copied())
+        .filter(|x| x.is_finite())
+        .collect();
+    if all.is_empty() {
+        return (0.0, 1.0);
+    }
+    all.sort_by(f64::total_cmp);
+    let at = |q: f64| all[((all.len() - 1) as f64 * q).round() as usize];
+    let (lo, hi) = (at(q_lo), at(q_hi));
+    if hi > lo {
+        (lo, hi)
+    } else {
+        (lo - 0.5 * lo.abs().max(1e-9), hi + 0.5 * hi.abs().max(1e-9))
+    }
+}

@@ -1,0 +1,4 @@
+//! SVG figures of the commands.
+
+pub mod diag;
+pub mod identify;
