@@ -1241,12 +1241,7 @@ impl Shared {
             .est
             .try_lock()
             .expect("Shared::lock: the estimator is held by a task");
-        self.with_control(|ctl| {
-            f(&mut State {
-                ctl,
-                est: &mut est,
-            })
-        })
+        self.with_control(|ctl| f(&mut State { ctl, est: &mut est }))
     }
 
     /// Wake the stepper task to re-plan now.
@@ -1290,7 +1285,8 @@ impl Shared {
     ) -> ConversionResult {
         let c = self.with_control(|ctl| ctl.on_conversion(raw, t_us));
         sampler.acc.add(raw, &c, t_us);
-        let frame = (sampler.acc.n >= sampler.oversample).then(|| core::mem::take(&mut sampler.acc));
+        let frame =
+            (sampler.acc.n >= sampler.oversample).then(|| core::mem::take(&mut sampler.acc));
         ConversionResult {
             faulted: c.faulted,
             alive: c.alive,
@@ -1382,7 +1378,8 @@ impl Shared {
                 {
                     return Err(CommandError::OutOfRange);
                 }
-                let run = ProtocolRun::new(spec.clone(), cfg.default_accel, &cfg.motion, pos, caps)?;
+                let run =
+                    ProtocolRun::new(spec.clone(), cfg.default_accel, &cfg.motion, pos, caps)?;
                 self.with_control(|c| c.start_protocol(run, &pos, zeroing))?;
             }
             Command::Stop => self.with_control(Control::stop),
@@ -1474,7 +1471,13 @@ impl Shared {
 
     /// A line from the serial port: checksum rules, parse, execute; the reply line (no
     /// terminator) to `out`.
-    pub fn command_raw(&self, est: &mut Estimator, line: RawLine<'_>, now_us: u64, out: &mut impl Write) {
+    pub fn command_raw(
+        &self,
+        est: &mut Estimator,
+        line: RawLine<'_>,
+        now_us: u64,
+        out: &mut impl Write,
+    ) {
         let parsed = self.link.lock(|l| {
             let mut s = l.get();
             let r = line.command(&mut s);

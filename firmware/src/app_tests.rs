@@ -76,7 +76,11 @@ impl S {
     }
     /// Steps issued so far (one per axis pulsed).
     fn steps_taken(&self) -> usize {
-        self.pulses.0.iter().map(|p| p.0.count_ones() as usize).sum()
+        self.pulses
+            .0
+            .iter()
+            .map(|p| p.0.count_ones() as usize)
+            .sum()
     }
     /// Nothing planned: no move, no protocol.
     fn idle(&self) -> bool {

@@ -59,52 +59,49 @@ fn parts(x: f32) -> (u64, i32) {
 }
 
 /// `round(num/den · scale · 2³²)` for finite positive `num`, `den` and `scale < 2²¹`, in
-/// integer arithmetic (≥ 60 significant bits before the rounding); `None` when it does not fit
-/// in a `u64` or is zero.
+/// 64-bit integer arithmetic (the quotient keeps at least 38 significant bits, so its relative
+/// error is below 2⁻³⁸); `None` when it does not fit in a `u64` or rounds to zero.
 fn ratio_q32(num: f32, den: f32, scale: u32) -> Option<u64> {
     let (mn, en) = parts(num);
     let (md, ed) = parts(den);
-    if mn == 0 || md == 0 {
+    if mn == 0 || md == 0 || scale == 0 {
         return None;
     }
-    // value = mn·scale/md · 2^(en − ed + 32); q = (mn·scale·2⁶⁴)/md, value = q · 2^(shift).
-    let q = ((mn as u128 * scale as u128) << 64) / md as u128;
-    let shift = en - ed + 32 - 64;
+    // value = mn·scale/md · 2^(en − ed + 32); normalise the dividend to 63 bits first.
+    let p = mn * scale as u64; // < 2⁴⁵
+    let lz = p.leading_zeros() - 1;
+    let (q, r) = ((p << lz) / md, (p << lz) % md);
+    let q = q + u64::from(2 * r >= md); // ≥ 2³⁸
+    let shift = en - ed + 32 - lz as i32;
     let v = if shift >= 0 {
-        if shift >= 64 || q.leading_zeros() < 64 + shift as u32 {
+        if shift >= 64 || q.leading_zeros() < shift as u32 {
             return None;
         }
         q << shift
     } else {
         let s = (-shift) as u32;
-        if s >= 128 {
+        if s >= 64 {
             return None;
         }
-        (q + (1u128 << (s - 1))) >> s
+        (q >> s) + ((q >> (s - 1)) & 1)
     };
-    u64::try_from(v).ok().filter(|&v| v > 0)
+    (v > 0).then_some(v)
 }
 
-/// ⌊√x⌋ of a `u128` (f32 seed, then integer Newton steps).
-fn isqrt(x: u128) -> u128 {
-    if x == 0 {
+/// `√x` for `x` in Q32 µs² (below 2⁹⁴), in Q32 µs: the `f32` root, then one Newton step on the
+/// exact residual (error far below 10⁻³ µs; no 128-bit division).
+fn sqrt_q32(x_q: u128) -> u64 {
+    if x_q == 0 {
         return 0;
     }
-    let mut y = (libm::sqrtf(x as f32) as u128).max(1);
-    for _ in 0..4 {
-        let next = (y + x / y) / 2;
-        if next == y {
-            break;
-        }
-        y = next;
+    // √(x_q·2³²) = √x_q · 2¹⁶.
+    let y0 = (libm::sqrtf(x_q as f32) * 65_536.0) as u64;
+    if y0 == 0 {
+        return 0;
     }
-    while y * y > x {
-        y -= 1;
-    }
-    while (y + 1) * (y + 1) <= x {
-        y += 1;
-    }
-    y
+    let residual = (x_q << 32) as i128 - (y0 as u128 * y0 as u128) as i128;
+    let corr = residual as f32 / (2.0 * y0 as f32);
+    y0.saturating_add_signed(corr as i64)
 }
 
 /// `k · q` for a Q32 value `q`, as two 32 × 32-bit products (no 128-bit multiply routine).
@@ -194,7 +191,7 @@ impl Trapezoid {
             if x_q >> 94 != 0 {
                 return None; // t_p ≥ 2³¹ µs
             }
-            let t_q = isqrt(x_q << 32);
+            let t_q = sqrt_q32(x_q) as u128;
             p.acc_last = steps / 2;
             p.dec_first = steps / 2 + 1;
             p.end_q = 2 * t_q;
@@ -728,15 +725,31 @@ mod tests {
         // 0.039999999105930328…, so 3999.9999105930328 µs, × 2³²).
         let q = ratio_q32(0.04, 10.0, 1_000_000).unwrap();
         let exact = 0.04f32 as f64 / 10.0 * 1e6 * 4_294_967_296.0;
-        assert!((q as f64 - exact).abs() <= 1.0, "{q} vs {exact}");
+        assert!(
+            (q as f64 - exact).abs() <= exact * 2f64.powi(-38),
+            "{q} vs {exact}"
+        );
         assert_eq!(ratio_q32(1.0, 1.0, 1), Some(1 << 32));
         assert_eq!(ratio_q32(1.0e-30, 1.0e30, 1), None, "rounds to zero");
         assert_eq!(ratio_q32(1.0e30, 1.0e-30, 1), None, "does not fit");
-        for x in [0u128, 1, 2, 3, 4, 15, 16, 17, 1 << 64, (1 << 100) + 12345, u128::MAX >> 1] {
-            let r = isqrt(x);
-            assert!(r * r <= x && (r + 1) * (r + 1) > x, "{x}");
+        for x in [
+            1u128 << 32,
+            3 << 40,
+            (1 << 93) + 12345,
+            987_654_321_987_654_321,
+        ] {
+            let want = (x as f64 * 4_294_967_296.0).sqrt();
+            let got = sqrt_q32(x) as f64;
+            // Within 10⁻⁴ µs (the f64 reference itself is good to 2⁻⁵² relative).
+            assert!(
+                (got - want).abs() <= 1e-4 * 4_294_967_296.0 + want * 1e-15,
+                "{x}"
+            );
         }
-        assert_eq!(mul_q(u32::MAX, u64::MAX), u32::MAX as u128 * u64::MAX as u128);
+        assert_eq!(
+            mul_q(u32::MAX, u64::MAX),
+            u32::MAX as u128 * u64::MAX as u128
+        );
     }
 
     #[test]

@@ -509,13 +509,7 @@ mod tests {
         f.encode(&mut s).unwrap();
         assert!(s.ends_with(" 7"));
         let old = &s[..s.len() - 2];
-        assert_eq!(
-            Frame::decode(old),
-            Ok(Frame {
-                drops: 0,
-                ..f
-            })
-        );
+        assert_eq!(Frame::decode(old), Ok(Frame { drops: 0, ..f }));
         assert_eq!(Frame::decode(&s), Ok(f));
     }
 

@@ -56,6 +56,9 @@ pub struct Rig {
     pub ignored_steps: u64,
     /// Pulses whose planned instant lay before the plant's time (applied late; should stay 0).
     pub late_steps: u64,
+    /// Longest time between a pulse's planned instant and the virtual time the stepper task
+    /// issued it, µs (up to one executor quantum when the board keeps up).
+    pub max_step_delay_us: u64,
     read_waker: Option<Waker>,
     read_pending: bool,
     read_result: Option<[u16; AXES]>,
@@ -100,6 +103,7 @@ impl Rig {
             steps: Vec::new(),
             ignored_steps: 0,
             late_steps: 0,
+            max_step_delay_us: 0,
             read_waker: None,
             read_pending: false,
             read_result: None,
@@ -217,6 +221,7 @@ impl Steppers for SimSteppers {
             return;
         }
         let mut t = at.as_micros();
+        rig.max_step_delay_us = rig.max_step_delay_us.max(now_us().saturating_sub(t));
         if t < rig.plant.time_us(axis) {
             rig.late_steps += 1;
             t = rig.plant.time_us(axis);
@@ -272,7 +277,9 @@ impl SerialPort for SimSerial {
             }
             let mut n = 0;
             while n < buf.len() {
-                let Some(&Rx::Byte(b)) = rig.rx.front() else { break };
+                let Some(&Rx::Byte(b)) = rig.rx.front() else {
+                    break;
+                };
                 rig.rx.pop_front();
                 buf[n] = b;
                 n += 1;

@@ -443,7 +443,10 @@ impl Scenario {
         }
         for (i, f) in self.serial_faults.iter().enumerate() {
             let Some(c) = self.commands.get(f.command) else {
-                return bad(format!("serial_faults[{i}].command = {}: no such command", f.command));
+                return bad(format!(
+                    "serial_faults[{i}].command = {}: no such command",
+                    f.command
+                ));
             };
             if f.byte > c.line.len() {
                 return bad(format!(
@@ -457,7 +460,9 @@ impl Scenario {
             if !(st.start_s.is_finite() && st.start_s >= 0.0 && st.duration_s.is_finite())
                 || st.duration_s < 0.0
             {
-                return bad(format!("telemetry_stalls[{i}]: start_s and duration_s must be ≥ 0"));
+                return bad(format!(
+                    "telemetry_stalls[{i}]: start_s and duration_s must be ≥ 0"
+                ));
             }
         }
         for (i, f) in self.faults.iter().enumerate() {

@@ -30,14 +30,12 @@ use firmware::telemetry::{Event, EventKind, Frame};
 use futures::stream::{FuturesUnordered, StreamExt};
 use futures::task::ArcWake;
 
-use crate::board::{
-    ReadTruth, Rig, Rx, SimAdc, SimSerial, SimSteppers, SimTelemetry, SimWatchdog,
-};
-use crate::scenario::SerialFaultKind;
-use firmware::hal::SerialError;
+use crate::board::{ReadTruth, Rig, Rx, SimAdc, SimSerial, SimSteppers, SimTelemetry, SimWatchdog};
 use crate::plant::{ChamberTruth, Drive, Plant, CHAMBERS};
 use crate::scenario::Scenario;
+use crate::scenario::SerialFaultKind;
 use crate::SimError;
+use firmware::hal::SerialError;
 
 /// One simulation at a time: the MockDriver is process-global.
 static SIM_LOCK: Mutex<()> = Mutex::new(());
@@ -67,6 +65,9 @@ pub struct RunStats {
     pub ignored_steps: u64,
     /// Step pulses whose instant lay behind the plant (must be 0).
     pub late_steps: u64,
+    /// Longest delay between a step's planned instant and its issue in virtual time, µs (at
+    /// most one quantum when the board keeps up).
+    pub max_step_delay_us: u64,
     /// Longest gap between watchdog feeds, µs.
     pub max_watchdog_gap_us: u64,
 }
@@ -295,6 +296,7 @@ pub fn simulate_with(scenario: &Scenario, fw: Config) -> Result<SimRun, SimError
             steps: rig.step_count.iter().sum(),
             ignored_steps: rig.ignored_steps,
             late_steps: rig.late_steps,
+            max_step_delay_us: rig.max_step_delay_us,
             max_watchdog_gap_us: gap,
         },
         step_count: rig.step_count,

@@ -108,12 +108,7 @@ mod device {
     }
 
     #[embassy_executor::task]
-    async fn sampler(
-        shared: &'static Shared,
-        adc: DeviceAdc,
-        tlm: RttSink,
-        wdg: DeviceWatchdog,
-    ) {
+    async fn sampler(shared: &'static Shared, adc: DeviceAdc, tlm: RttSink, wdg: DeviceWatchdog) {
         app::sampler_task(shared, adc, tlm, wdg).await
     }
 
