@@ -24,7 +24,7 @@ fn refused_frames(run: &SimRun) -> Vec<(u64, Frame)> {
 fn check_every_frame_accounted_for(run: &SimRun) {
     let refused = refused_frames(run);
     assert!(!refused.is_empty(), "the stall refused frames");
-    let mut all: Vec<Frame> = run.frames.iter().copied().collect();
+    let mut all: Vec<Frame> = run.frames.to_vec();
     all.extend(refused.iter().map(|(_, f)| *f));
     all.sort_by_key(|f| f.seq);
     for (i, f) in all.iter().enumerate() {
