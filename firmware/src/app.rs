@@ -1443,16 +1443,17 @@ impl Shared {
                 r?;
             }
             Command::Rls { ch, lambda } => est.rls(*ch as usize, *lambda)?,
-            Command::Checksum { require } => self.link.lock(|l| {
-                let mut s = l.get();
-                match require {
-                    Some(r) => s.require = *r,
-                    None => {
-                        let _ = out.write_str(if s.require { " require" } else { " optional" });
-                    }
+            Command::Checksum { require } => match require {
+                Some(r) => self.link.lock(|l| {
+                    let mut s = l.get();
+                    s.require = *r;
+                    l.set(s);
+                }),
+                None => {
+                    let on = self.link.lock(|l| l.get().require);
+                    let _ = out.write_str(if on { " require" } else { " optional" });
                 }
-                l.set(s);
-            }),
+            },
         }
         Ok(())
     }
@@ -1478,12 +1479,11 @@ impl Shared {
         now_us: u64,
         out: &mut impl Write,
     ) {
-        let parsed = self.link.lock(|l| {
-            let mut s = l.get();
-            let r = line.command(&mut s);
-            l.set(s);
-            r
-        });
+        // The link state is copied out and back (two O(1) locks): checking and parsing the line
+        // run with interrupts on. Only the command stream uses it.
+        let mut link = self.link.lock(Cell::get);
+        let parsed = line.command(&mut link);
+        self.link.lock(|l| l.set(link));
         match parsed {
             Ok(cmd) => self.command(est, &cmd, now_us, out),
             Err(e) => {

@@ -722,3 +722,28 @@ mod readback_prop {
         }
     }
 }
+
+#[test]
+fn checksum_mode_is_set_by_command_and_applies_to_every_line() {
+    let shared = Shared::new(Config::default());
+    let reply = |line: &str| {
+        let mut out = String::new();
+        shared.command_line(line.as_bytes(), 0, &mut out);
+        out
+    };
+    let checked = |line: &str| {
+        let mut s = String::new();
+        command::write_checksummed(line, &mut s).unwrap();
+        s
+    };
+    assert_eq!(reply("checksum"), "ok optional");
+    assert_eq!(reply(&checked("stop")), "ok");
+    assert_eq!(reply("checksum require"), "ok");
+    assert_eq!(reply("stop"), "err checksum-required");
+    assert_eq!(reply(&checked("checksum")), "ok require");
+    let mut bad = checked("stop");
+    bad.remove(7); // a byte of the command lost
+    assert_eq!(reply(&bad), "err bad-checksum");
+    assert_eq!(reply(&checked("checksum optional")), "ok");
+    assert_eq!(reply("stop"), "ok");
+}
