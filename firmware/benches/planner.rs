@@ -1,44 +1,51 @@
-//! Cost of the stepper task's per-step work on the host: pick the earliest due axis, check,
-//! record, plan the next instant (the same `State` calls the task makes, minus the timer).
-//! Three axes at 400 mm³/s = 10 000 steps/s each.
+//! Cost of the stepper task's per-step work on the host: the same `Shared::stepper_tick` call the
+//! task makes at each wake-up (pick the due axes, check, record, plan the next instant, pulse),
+//! minus the timer. Three axes at 400 mm³/s = 10 000 steps/s each.
 use criterion::{criterion_group, criterion_main, BatchSize, Criterion, Throughput};
-use firmware::app::{Config, State, StepperWait};
-use firmware::command::parse;
+use embassy_time::Instant;
+use firmware::app::{Config, Sampler, Shared};
+use firmware::hal::{Direction, Steppers};
 
-fn moving_state() -> State {
+/// Pulses go nowhere.
+struct NoPins;
+impl Steppers for NoPins {
+    fn set_direction(&mut self, _: usize, _: Direction) {}
+    fn step(&mut self, _: usize, _: Instant) {}
+    fn set_enabled(&mut self, _: bool) {}
+}
+
+fn moving_state() -> Shared {
     let cfg = Config {
         zero_frames: 1,
         ..Config::default()
     };
-    let mut s = State::new(cfg);
+    let shared = Shared::new(cfg);
+    let mut sampler = Sampler::new(&cfg);
     // Take the (one-frame) pressure zero so motion commands are accepted.
     let mid = firmware::board::kpa_to_counts(0.0).round() as u16;
     for i in 1..=8 {
-        s.on_oversample([mid; 3], i * 5_000);
+        if let Some(acc) = shared.conversion(&mut sampler, [mid; 3], i * 5_000).frame {
+            let mut est = shared.estimator().try_lock().unwrap();
+            shared.finish_frame(&mut est, &acc);
+        }
     }
-    let cmd = parse(b"move all 500 400 10000").unwrap();
-    s.execute(&cmd, 100_000, &mut heapless::String::<192>::new())
-        .unwrap();
-    s
+    let mut reply = String::new();
+    shared.command_line(b"move all 500 400 10000", 100_000, &mut reply);
+    assert_eq!(reply, "ok");
+    shared
 }
 
 fn bench(c: &mut Criterion) {
-    const STEPS: u64 = 3_000;
+    const WAKEUPS: u64 = 1_000;
     let mut g = c.benchmark_group("stepper");
-    g.throughput(Throughput::Elements(STEPS));
-    g.bench_function("poll_and_step_3_axes", |b| {
+    g.throughput(Throughput::Elements(3 * WAKEUPS));
+    g.bench_function("tick_3_axes", |b| {
         b.iter_batched(
             moving_state,
-            |mut s| {
+            |s| {
                 let mut now = 0;
-                for _ in 0..STEPS {
-                    match s.stepper_poll(now, |_, _| {}) {
-                        StepperWait::Step { axis, at_us } => {
-                            now = at_us;
-                            assert!(s.try_step(axis, at_us));
-                        }
-                        other => panic!("{other:?}"),
-                    }
+                for _ in 0..WAKEUPS {
+                    now = s.stepper_tick(now, &mut NoPins);
                 }
                 s
             },

@@ -1,37 +1,53 @@
-//! The application: shared state, and the three tasks that drive it.
+//! The application: its state, split by who needs it how fast, and the three tasks.
 //!
-//! All state lives in one plain [`State`] struct with `&mut self` methods (tested
-//! synchronously below). [`Shared`] puts it behind a critical-section mutex and adds the one
-//! wake-up signal the tasks need. The tasks are plain generic `async fn`s: the board binary
-//! wraps each in an `#[embassy_executor::task]`, the simulator runs them under embassy-time's
-//! mock driver.
+//! # Two halves, two kinds of lock
+//! - [`Control`], the motion side: the planner, the protocol, latched faults, safety limits, the
+//!   event queue. The stepper task needs it at every step, so it sits behind a critical-section
+//!   mutex ([`Shared::with_control`]), and every operation done under that lock is O(1) and
+//!   short (well under 2,000 instructions): it only hands data over. Step instants, move plans
+//!   and protocol profiles are computed outside it.
+//! - [`Estimator`], the estimation side: pressure zero, models, staged model, online RLS, drift
+//!   statistics, frame counter. Only the sampler task (frame estimation) and the command task
+//!   (model and RLS commands) use it, both in thread mode, through an async mutex
+//!   ([`Shared::estimator`]) that never keeps interrupts off while it is held.
 //!
-//! - [`stepper_task`]: sleeps until the earliest planned step instant, re-checks the fault
-//!   state and the volume limit, and steps. It also advances the characterisation protocol.
-//! - [`sampler_task`]: a `Ticker` at 25 Hz × K oversamples; each oversample reads the ADC and,
-//!   under the same lock, the step positions and commanded flows, checks the safety limits
-//!   (a fault stops every axis before its next step) and accumulates; every K-th completes a
-//!   frame (estimation, telemetry). Feeds the watchdog while the stepper task is alive.
-//! - [`command_task`]: reads command lines from the serial port, executes them, replies.
+//! Interrupts are therefore never off for longer than one of [`Control`]'s O(1) operations:
+//! estimation, RLS, drift checks and the formatting of replies and telemetry all run with
+//! interrupts on.
+//!
+//! # Per-tick entry points (what the tasks call, and what tests and benchmarks call)
+//! | function | called by | under the critical section |
+//! | --- | --- | --- |
+//! | [`Shared::stepper_tick`] | stepper task, every wake-up | one short lock per batch of steps due at one instant (protocol advance, DIR changes, fault/limit check, recording); the pulses and the wait follow outside it |
+//! | [`Shared::conversion`] | sampler task, every ADC conversion | one short lock: safety checks, positions, commanded flows ([`Control::on_conversion`]) |
+//! | [`Shared::finish_frame`] | sampler task, every K-th conversion | estimation outside; one short lock to post its events, the new zero and read the latched flags |
+//! | [`Sampler::send_frame`], [`Shared::send_events`] | sampler task | formatting and hand-over outside; one short lock per event popped |
+//! | [`Shared::command_raw`], [`Shared::execute`] | command task, every line | short locks to check and hand over (a `move` is planned outside, then started in O(1)); replies formatted outside |
+//!
+//! The tasks ([`stepper_task`], [`sampler_task`], [`command_task`]) are thin async loops around
+//! these synchronous functions. The board binary wraps each in an `#[embassy_executor::task]`;
+//! the simulator runs them under embassy-time's mock driver.
 
-use core::cell::RefCell;
+use core::cell::{Cell, RefCell};
 use core::fmt::Write;
 
-use embassy_futures::select::{select, Either};
+use embassy_futures::select::select;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::blocking_mutex::Mutex;
+use embassy_sync::mutex::Mutex as AsyncMutex;
 use embassy_sync::signal::Signal;
 use embassy_time::{Duration, Instant, Ticker, Timer};
 use heapless::Deque;
 use model_core::poly::{ArHistory, PolyModel, Scaling, Shape, MAX_AR, MAX_TERMS};
 use model_core::rls::Rls;
-use model_core::stats::KcStats;
 use model_core::ModelError;
 
 use crate::board;
-use crate::command::{self, AxisSet, Command, LineAssembler, ModelCmd, ReadPart};
-use crate::hal::{PressureAdc, SerialPort, Steppers, TelemetrySink, Watchdog, AXES};
-use crate::motion::{Motion, MotionConfig, MotionError};
+use crate::command::{
+    self, AxisSet, Command, LineAssembler, LinkState, ModelCmd, RawLine, ReadPart,
+};
+use crate::hal::{Direction, PressureAdc, SerialPort, Steppers, TelemetrySink, Watchdog, AXES};
+use crate::motion::{Motion, MotionConfig, MotionError, PlannedMove, StepBatch};
 use crate::protocol::{ProtocolPoll, ProtocolRun};
 use crate::reset::ResetCause;
 use crate::store::{Loaded, Persist};
@@ -218,99 +234,121 @@ struct Chamber {
     online: Option<Online>,
 }
 
-/// Running sums for the frame being sampled.
-#[derive(Clone, Copy, Debug, Default)]
-struct FrameAcc {
-    n: u32,
-    t_sum: u64,
-    counts: [u32; AXES],
-    steps: [i64; AXES],
-    flow: [f32; AXES],
-}
-
 /// Largest number of queued event lines.
 const EVENT_QUEUE: usize = 8;
 
-/// The whole application state.
+/// Events produced by one estimator call, posted to the queue afterwards in one short lock.
+pub type EventBuf = heapless::Vec<Event, 4>;
+
+fn push_event(buf: &mut EventBuf, t_us: u64, kind: EventKind) {
+    // At most one zero and three drift events per frame, one model event per command.
+    let _ = buf.push(Event { t_us, kind });
+}
+
+// ==================================================================== motion side
+
+/// What the stepper task waits for after a wake-up.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum StepperWait {
+    /// The next step is planned at `at_us`.
+    Step {
+        /// Planned instant, µs.
+        at_us: u64,
+    },
+    /// Nothing to step before this instant (protocol dwell, or a protocol leg to start now).
+    Until(u64),
+    /// Nothing planned.
+    Idle,
+}
+
+/// What one conversion handed over: positions and commanded flows at its instant, and the
+/// state the sampler acts on.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Conversion {
+    /// Step positions.
+    pub positions: [i32; AXES],
+    /// Commanded flows at the conversion instant, mm³/s.
+    pub flows: [f32; AXES],
+    /// A fault is latched (the stepper is woken to re-plan at once).
+    pub faulted: bool,
+    /// The stepper task ran recently: the watchdog may be fed.
+    pub alive: bool,
+}
+
+/// What `status` reports from the motion side.
+#[derive(Clone, Copy, Debug)]
+struct StatusSnapshot {
+    flags: u32,
+    crc: [u32; AXES],
+    saved: [crate::store::Saved; AXES],
+    moving: u8,
+    run: bool,
+    volumes: [f32; AXES],
+    limits: [ChannelLimits; AXES],
+}
+
+/// The motion side: planner, protocol, latched faults, limits, event queue. Shared with the
+/// stepper task under a critical section ([`Shared::with_control`]); every method is O(1).
 #[derive(Debug)]
-pub struct State {
+pub struct Control {
     cfg: Config,
     motion: Motion,
     protocol: Option<ProtocolRun>,
     /// Latched faults plus the STOPPED bit.
     latched: u32,
-    /// Current (non-latching) warnings.
-    warnings: u32,
+    /// Capacities in steps (from `cfg.limits`).
+    cap_steps: [i32; AXES],
+    /// The pressure zero in force (the estimator's, posted when it changes).
     zero_kpa: [f32; AXES],
-    zeroing: Option<(u32, [f32; AXES])>,
+    /// Last conversion per channel (sensor-jump check); cleared by `clear`.
     last_kpa: [Option<f32>; AXES],
-    acc: FrameAcc,
-    seq: u32,
-    chambers: [Chamber; AXES],
-    staged: Option<Staged>,
     events: Deque<Event, EVENT_QUEUE>,
+    /// Events lost to a full queue since the sampler last looked.
+    lost_events: u32,
     stepper_seen_us: u64,
+    /// Axes whose position is unknown since a reset other than power-on (ORIGIN_NEEDED bits):
+    /// motion on them is refused until `origin`; `clear` does not lift them.
+    origin_needed: u32,
+    /// The estimator is taking the pressure zero (its state, posted here for the checks).
+    zeroing: bool,
     /// The committed models against their flash copies.
     store: Persist,
 }
 
-impl State {
-    /// Boot state: axes at volume 0, SBA1 model on every chamber, pressure zero pending.
+impl Control {
+    /// Boot state: axes at volume 0, no fault (or the watchdog-reset fault), a boot event.
     pub fn new(cfg: Config) -> Self {
-        let chamber = Chamber {
-            model: model_core::poly::sba1(),
-            hist: ArHistory::new(),
-            online: None,
-        };
-        let mut s = Self {
-            motion: Motion::new(cfg.motion),
+        let motion = Motion::new(cfg.motion);
+        let mut c = Self {
+            cap_steps: core::array::from_fn(|a| motion.volume_to_steps(cfg.limits[a].capacity_mm3)),
+            motion,
             protocol: None,
             latched: if cfg.reset_cause.is_fault() {
                 Flags::FAULT_RESET
             } else {
                 0
             },
-            warnings: Flags::NOT_ZEROED
-                | if cfg.reset_cause.positions_trusted() {
-                    0
-                } else {
-                    Flags::ORIGIN_NEEDED * 0b111
-                },
+            origin_needed: if cfg.reset_cause.positions_trusted() {
+                0
+            } else {
+                Flags::ORIGIN_NEEDED * 0b111
+            },
+            zeroing: true,
             zero_kpa: [0.0; AXES],
-            zeroing: Some((cfg.zero_frames, [0.0; AXES])),
             last_kpa: [None; AXES],
-            acc: FrameAcc::default(),
-            seq: 0,
-            chambers: [chamber.clone(), chamber.clone(), chamber],
-            staged: None,
             events: Deque::new(),
+            lost_events: 0,
             stepper_seen_us: 0,
             store: Persist::new(),
             cfg,
         };
-        s.event(
-            0,
-            EventKind::Boot {
+        c.push_event(Event {
+            t_us: 0,
+            kind: EventKind::Boot {
                 cause: cfg.reset_cause,
             },
-        );
-        s
-    }
-
-    /// Boot: install the models found in flash (or the default, `how` saying why) and report
-    /// each channel on a `store` event.
-    pub fn restore_models(&mut self, models: &[(PolyModel, Loaded); AXES], now_us: u64) {
-        for (ch, (model, how)) in models.iter().enumerate() {
-            self.chambers[ch] = Chamber {
-                model: *model,
-                hist: ArHistory::new(),
-                online: None,
-            };
-            let what = self.store.booted(ch, model, *how);
-            let crc = self.store.crc(ch);
-            let ch = ch as u8;
-            self.event(now_us, EventKind::Store { ch, what, crc });
-        }
+        });
+        c
     }
 
     /// The model store's state (CRCs, flash status).
@@ -318,22 +356,33 @@ impl State {
         &self.store
     }
 
-    /// Start writing a pending committed model if the board is at rest ([`Persist::begin`]);
-    /// motion is refused until [`persist_end`](Self::persist_end).
+    /// Start writing a pending committed model if the board is at rest (no motion, no
+    /// protocol, no zero in progress) and the command port is quiet ([`Persist::begin`]);
+    /// motion is refused until [`persist_end`](Self::persist_end). O(1) apart from copying the
+    /// model out.
     pub fn persist_begin(&mut self, now_us: u64) -> Option<(u8, PolyModel)> {
-        let at_rest = self.motion.all_idle() && self.protocol.is_none() && self.zeroing.is_none();
+        let at_rest = self.motion.all_idle() && self.protocol.is_none() && !self.zeroing;
         self.store.begin(at_rest, now_us)
     }
 
-    /// The write started by [`persist_begin`](Self::persist_begin) ended.
-    pub fn persist_end(&mut self, ch: usize, model: &PolyModel, ok: bool, now_us: u64) {
+    /// The write started by [`persist_begin`](Self::persist_begin) ended; `crc` is the
+    /// written model's CRC-32 (computed by the caller, outside the lock).
+    pub fn persist_end(&mut self, ch: usize, crc: u32, ok: bool, now_us: u64) {
         let what = self.store.end(ok);
-        let crc = crate::store::model_crc(model);
         let ch = ch as u8;
-        self.event(now_us, EventKind::Store { ch, what, crc });
+        self.push_event(Event {
+            t_us: now_us,
+            kind: EventKind::Store { ch, what, crc },
+        });
     }
 
-    /// The configuration.
+    /// Every flag the motion side holds: latched faults and STOPPED, the axes whose position
+    /// is unknown, and the store's.
+    pub fn flag_bits(&self) -> u32 {
+        self.latched | self.origin_needed | self.store.flags()
+    }
+
+    /// The configuration, with the limits in force.
     pub fn config(&self) -> &Config {
         &self.cfg
     }
@@ -341,30 +390,28 @@ impl State {
     pub fn motion(&self) -> &Motion {
         &self.motion
     }
-    /// Current flags: latched faults, STOPPED and warnings.
-    pub fn flags(&self) -> Flags {
-        Flags(self.latched | self.warnings | self.store.flags())
+    /// Latched faults and the STOPPED bit.
+    pub fn latched(&self) -> u32 {
+        self.latched
     }
-    /// The model of a chamber.
-    pub fn model(&self, ch: usize) -> &PolyModel {
-        &self.chambers[ch].model
+    /// Whether the characterisation protocol runs.
+    pub fn protocol_running(&self) -> bool {
+        self.protocol.is_some()
     }
-    /// Pressure zero offsets, kPa.
-    pub fn zero_kpa(&self) -> [f32; AXES] {
-        self.zero_kpa
-    }
-    /// Next queued event line, oldest first.
+    /// Next queued event, oldest first.
     pub fn pop_event(&mut self) -> Option<Event> {
         self.events.pop_front()
     }
-
-    fn event(&mut self, t_us: u64, kind: EventKind) {
-        // A full queue drops the new event: events are also reflected in every frame's flags.
-        let _ = self.events.push_back(Event { t_us, kind });
+    /// Events lost to a full queue since the last call.
+    pub fn take_lost_events(&mut self) -> u32 {
+        core::mem::take(&mut self.lost_events)
     }
 
-    fn capacity_steps(&self) -> [i32; AXES] {
-        core::array::from_fn(|a| self.motion.volume_to_steps(self.cfg.limits[a].capacity_mm3))
+    /// Queue an event line; a full queue drops it and counts it (the frame's `drops`).
+    pub fn push_event(&mut self, ev: Event) {
+        if self.events.push_back(ev).is_err() {
+            self.lost_events = self.lost_events.wrapping_add(1);
+        }
     }
 
     /// Latch fault bits; stops every axis and the protocol at once.
@@ -376,51 +423,56 @@ impl State {
         self.latched |= bits;
         self.motion.stop_all();
         self.protocol = None;
-        self.event(
+        self.push_event(Event {
             t_us,
-            EventKind::Fault {
+            kind: EventKind::Fault {
                 flags: self.latched,
             },
-        );
+        });
     }
 
     fn motion_allowed(&self) -> bool {
         self.latched & Flags::FAULT_MASK == 0
     }
 
+    /// Whether the watchdog may be fed at `now_us` (the stepper task is alive).
+    pub fn stepper_alive(&self, now_us: u64) -> bool {
+        now_us.saturating_sub(self.stepper_seen_us) <= self.cfg.stepper_stale_us
+    }
+
     // ---------------------------------------------------------------- stepper side
 
-    /// Called by the stepper task on every wake-up: heartbeat, DIR changes to write now,
-    /// protocol progress. Returns what to wait for: the next step `(axis, instant µs)`, or a
-    /// wake-up instant with nothing to step.
-    pub fn stepper_poll(
+    /// One stepper wake-up at `now_us`: heartbeat, protocol progress, DIR changes to write
+    /// now (through `set_dir`), and the steps due by `now_us` at the earliest planned instant,
+    /// all axes due at that instant together, checked (faults, volume limit) and recorded.
+    /// Returns that batch, for the caller to pulse after the lock, and what to wait for next.
+    pub fn stepper_wake(
         &mut self,
         now_us: u64,
-        mut set_dir: impl FnMut(usize, crate::hal::Direction),
-    ) -> StepperWait {
+        mut set_dir: impl FnMut(usize, Direction),
+    ) -> (Option<StepBatch>, StepperWait) {
         self.stepper_seen_us = now_us;
+        let mut dwell = None;
         // A leg can be empty (already at its target): then the protocol moves on at once,
         // a bounded number of legs per wake-up.
         for _ in 0..4 {
             let Some(run) = &mut self.protocol else { break };
-            let caps = core::array::from_fn(|a| {
-                self.motion.volume_to_steps(self.cfg.limits[a].capacity_mm3)
-            });
-            match run.poll(&mut self.motion, caps, now_us) {
+            match run.poll(&mut self.motion, self.cap_steps, now_us) {
                 Ok(ProtocolPoll::Moving) => {
                     if run.axes().iter().any(|a| !self.motion.is_idle(a)) {
                         break;
                     }
                 }
                 Ok(ProtocolPoll::WaitUntil(t)) => {
-                    while let Some((a, d)) = self.motion.take_direction_change(now_us) {
-                        set_dir(a, d);
-                    }
-                    return StepperWait::Until(t);
+                    dwell = Some(t);
+                    break;
                 }
                 Ok(ProtocolPoll::Done) => {
                     self.protocol = None;
-                    self.event(now_us, EventKind::ProtocolDone);
+                    self.push_event(Event {
+                        t_us: now_us,
+                        kind: EventKind::ProtocolDone,
+                    });
                 }
                 Err(_) => {
                     // Limits changed under the protocol: stop it, keep what was done.
@@ -430,50 +482,56 @@ impl State {
                 }
             }
         }
-        if self.protocol.is_some() && self.motion.all_idle() {
-            return StepperWait::Until(now_us);
-        }
         while let Some((a, d)) = self.motion.take_direction_change(now_us) {
             set_dir(a, d);
         }
-        match self.motion.next_step() {
-            Some((axis, at)) => StepperWait::Step { axis, at_us: at },
-            None => StepperWait::Idle,
-        }
+        let batch = match self.motion.next_batch() {
+            Some(b) if b.at_us <= now_us => self.take_batch(b),
+            _ => None,
+        };
+        let wait = match (self.motion.next_step(), dwell) {
+            (Some((_, at_us)), _) => StepperWait::Step { at_us },
+            (None, Some(t)) => StepperWait::Until(t),
+            // A leg just finished: poll the protocol again now.
+            (None, None) if self.protocol.is_some() => StepperWait::Until(now_us),
+            (None, None) => StepperWait::Idle,
+        };
+        (batch, wait)
     }
 
-    /// Called at a step's instant: re-checks faults and the volume limit, then records the
-    /// step. `false` means do not pulse (fault, stop, or the plan changed meanwhile).
-    pub fn try_step(&mut self, axis: usize, at_us: u64) -> bool {
-        if self.motion.next_step() != Some((axis, at_us)) {
-            return false;
-        }
+    /// Check and record a batch of steps due now: nothing steps while a fault is latched, and a
+    /// step that would leave `0..=capacity` latches the volume-limit fault instead.
+    fn take_batch(&mut self, b: StepBatch) -> Option<StepBatch> {
         if !self.motion_allowed() {
             self.motion.stop_all();
-            return false;
+            return None;
         }
-        if let Some(next) = self.motion.position_after_next_step(axis) {
-            if !(0..=self.capacity_steps()[axis]).contains(&next) {
-                self.raise(Flags::channel(Flags::VOLUME_LIMIT, axis), at_us);
-                return false;
+        for a in b.iter() {
+            if let Some(next) = self.motion.position_after_next_step(a) {
+                if !(0..=self.cap_steps[a]).contains(&next) {
+                    self.raise(Flags::channel(Flags::VOLUME_LIMIT, a), b.at_us);
+                    return None;
+                }
             }
         }
-        self.motion.record_step(axis);
-        true
+        for a in b.iter() {
+            self.motion.record_step(a);
+        }
+        Some(b)
     }
 
     // ---------------------------------------------------------------- sampler side
 
-    /// One oversample: raw conversions taken at `t_us`. Checks the safety limits on each
-    /// conversion (latching a fault stops motion before any further step) and returns the
-    /// frame when this was the K-th oversample.
-    pub fn on_oversample(&mut self, raw: [u16; AXES], t_us: u64) -> Option<Frame> {
+    /// One ADC conversion (raw counts taken at `t_us`): the safety checks on every channel
+    /// (a fault stops every axis before its next step), then the step positions and commanded
+    /// flows at this instant.
+    pub fn on_conversion(&mut self, raw: [u16; AXES], t_us: u64) -> Conversion {
         let mut bits = 0;
         for ch in 0..AXES {
-            let kpa = board::counts_to_kpa(raw[ch] as f32);
             if board::at_rail(raw[ch]) {
                 bits |= Flags::channel(Flags::SENSOR_RAIL, ch);
             } else {
+                let kpa = board::counts_to_kpa(raw[ch] as f32);
                 if let Some(prev) = self.last_kpa[ch] {
                     if libm::fabsf(kpa - prev) > self.cfg.sensor_jump_kpa {
                         bits |= Flags::channel(Flags::SENSOR_JUMP, ch);
@@ -485,48 +543,286 @@ impl State {
                 }
             }
             let pos = self.motion.position(ch);
-            if !(0..=self.capacity_steps()[ch]).contains(&pos) {
+            if !(0..=self.cap_steps[ch]).contains(&pos) {
                 bits |= Flags::channel(Flags::VOLUME_LIMIT, ch);
             }
         }
         if bits != 0 {
             self.raise(bits, t_us);
         }
-        let acc = &mut self.acc;
-        acc.n += 1;
-        acc.t_sum += t_us;
-        for ch in 0..AXES {
-            acc.counts[ch] += raw[ch] as u32;
-            acc.steps[ch] += self.motion.position(ch) as i64;
-            acc.flow[ch] += self.motion.flow_at(ch, t_us);
+        Conversion {
+            positions: core::array::from_fn(|a| self.motion.position(a)),
+            flows: core::array::from_fn(|a| self.motion.flow_at(a, t_us)),
+            faulted: Flags(self.latched).is_fault(),
+            alive: self.stepper_alive(t_us),
         }
-        if acc.n < self.cfg.oversample {
-            return None;
-        }
-        let acc = core::mem::take(&mut self.acc);
-        Some(self.finish_frame(&acc))
     }
 
-    fn finish_frame(&mut self, acc: &FrameAcc) -> Frame {
-        let n = acc.n as f32;
-        let t_us = acc.t_sum / acc.n as u64;
+    // ---------------------------------------------------------------- commands (O(1) parts)
+
+    /// The checks every motion command makes, in order: fault, then zero/protocol, then busy
+    /// axes. `zeroing` is the estimator's state.
+    fn check_can_move(&self, axes: AxisSet, zeroing: bool) -> Result<(), CommandError> {
+        if !self.motion_allowed() {
+            return Err(CommandError::Faulted);
+        }
+        if zeroing || self.protocol.is_some() || self.store.writing() {
+            return Err(CommandError::Busy);
+        }
+        if axes
+            .iter()
+            .any(|a| self.origin_needed & Flags::channel(Flags::ORIGIN_NEEDED, a) != 0)
+        {
+            return Err(CommandError::OriginNeeded);
+        }
+        if axes.iter().any(|a| !self.motion.is_idle(a)) {
+            return Err(CommandError::Busy);
+        }
+        Ok(())
+    }
+
+    /// Positions and capacities for planning outside the lock, after the motion checks.
+    fn plan_snapshot(
+        &self,
+        axes: AxisSet,
+        zeroing: bool,
+    ) -> Result<([i32; AXES], [i32; AXES]), CommandError> {
+        self.check_can_move(axes, zeroing)?;
+        Ok((
+            core::array::from_fn(|a| self.motion.position(a)),
+            self.cap_steps,
+        ))
+    }
+
+    /// Start planned moves (O(1) each) if nothing changed since they were planned.
+    fn start_moves(
+        &mut self,
+        axes: AxisSet,
+        plans: &[Option<PlannedMove>; AXES],
+        zeroing: bool,
+        now_us: u64,
+    ) -> Result<(), CommandError> {
+        self.check_can_move(axes, zeroing)?;
+        if axes
+            .iter()
+            .any(|a| plans[a].is_none_or(|p| p.from != self.motion.position(a)))
+        {
+            return Err(CommandError::Busy);
+        }
+        for a in axes.iter() {
+            if let Some(p) = &plans[a] {
+                self.motion.start_planned(a, p, now_us)?;
+            }
+        }
+        self.latched &= !Flags::STOPPED;
+        Ok(())
+    }
+
+    fn start_protocol(
+        &mut self,
+        run: ProtocolRun,
+        positions: &[i32; AXES],
+        zeroing: bool,
+    ) -> Result<(), CommandError> {
+        let axes = run.axes();
+        self.check_can_move(axes, zeroing)?;
+        if axes.iter().any(|a| positions[a] != self.motion.position(a)) {
+            return Err(CommandError::Busy);
+        }
+        self.protocol = Some(run);
+        self.latched &= !Flags::STOPPED;
+        Ok(())
+    }
+
+    fn stop(&mut self) {
+        self.motion.stop_all();
+        self.protocol = None;
+        self.latched |= Flags::STOPPED;
+    }
+
+    fn clear(&mut self, now_us: u64) {
+        self.latched = 0;
+        // Re-arm the jump check from the next conversion.
+        self.last_kpa = [None; AXES];
+        self.push_event(Event {
+            t_us: now_us,
+            kind: EventKind::Cleared,
+        });
+    }
+
+    fn status_snapshot(&self) -> StatusSnapshot {
+        StatusSnapshot {
+            flags: self.flag_bits(),
+            crc: core::array::from_fn(|ch| self.store.crc(ch)),
+            saved: core::array::from_fn(|ch| self.store.saved(ch)),
+            moving: (0..AXES).fold(0u8, |m, a| m | (u8::from(!self.motion.is_idle(a)) << a)),
+            run: self.protocol.is_some(),
+            volumes: core::array::from_fn(|a| self.motion.volume(a)),
+            limits: self.cfg.limits,
+        }
+    }
+
+    fn set_limits(
+        &mut self,
+        axes: AxisSet,
+        limits: ChannelLimits,
+        steps: i32,
+    ) -> Result<(), CommandError> {
+        if axes.iter().any(|a| self.motion.position(a) > steps) {
+            // Current volume already beyond the new capacity: refuse, do not fault.
+            return Err(CommandError::OutOfRange);
+        }
+        for a in axes.iter() {
+            self.cfg.limits[a] = limits;
+            self.cap_steps[a] = steps;
+        }
+        Ok(())
+    }
+
+    fn set_origin(
+        &mut self,
+        axes: AxisSet,
+        steps: Result<i32, CommandError>,
+    ) -> Result<(), CommandError> {
+        if self.protocol.is_some() || axes.iter().any(|a| !self.motion.is_idle(a)) {
+            return Err(CommandError::Busy);
+        }
+        let steps = steps?;
+        if axes.iter().any(|a| steps > self.cap_steps[a]) {
+            return Err(CommandError::OutOfRange);
+        }
+        for a in axes.iter() {
+            self.motion.set_position(a, steps)?;
+            self.origin_needed &= !Flags::channel(Flags::ORIGIN_NEEDED, a);
+        }
+        Ok(())
+    }
+}
+
+// ==================================================================== estimation side
+
+/// Running sums for the frame being sampled (the sampler's own, no lock).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct FrameAcc {
+    n: u32,
+    t_sum: u64,
+    counts: [u32; AXES],
+    steps: [i64; AXES],
+    flow: [f32; AXES],
+}
+
+impl FrameAcc {
+    fn add(&mut self, raw: [u16; AXES], c: &Conversion, t_us: u64) {
+        self.n += 1;
+        self.t_sum += t_us;
+        for ch in 0..AXES {
+            self.counts[ch] += raw[ch] as u32;
+            self.steps[ch] += c.positions[ch] as i64;
+            self.flow[ch] += c.flows[ch];
+        }
+    }
+}
+
+/// The estimation side: pressure zero, models, staged model, online RLS and drift checks, frame
+/// counter. Used by the sampler (frames) and the command task (model commands) through
+/// [`Shared::estimator`]'s async mutex: nothing here runs with interrupts off.
+#[derive(Debug)]
+pub struct Estimator {
+    cfg: Config,
+    zero_kpa: [f32; AXES],
+    zeroing: Option<(u32, [f32; AXES])>,
+    /// Current (non-latching) warnings.
+    warnings: u32,
+    seq: u32,
+    chambers: [Chamber; AXES],
+    staged: Option<Staged>,
+}
+
+impl Estimator {
+    /// Boot state: SBA1 model on every chamber, pressure zero pending.
+    pub fn new(cfg: Config) -> Self {
+        let chamber = Chamber {
+            model: model_core::poly::sba1(),
+            hist: ArHistory::new(),
+            online: None,
+        };
+        Self {
+            zero_kpa: [0.0; AXES],
+            zeroing: Some((cfg.zero_frames, [0.0; AXES])),
+            warnings: Flags::NOT_ZEROED,
+            seq: 0,
+            chambers: [chamber.clone(), chamber.clone(), chamber],
+            staged: None,
+            cfg,
+        }
+    }
+
+    /// The model of a chamber.
+    pub fn model(&self, ch: usize) -> &PolyModel {
+        &self.chambers[ch].model
+    }
+    /// Pressure zero offsets, kPa.
+    pub fn zero_kpa(&self) -> [f32; AXES] {
+        self.zero_kpa
+    }
+    /// Current warning bits (zero pending, model range, drift, RLS active).
+    pub fn warnings(&self) -> u32 {
+        self.warnings
+    }
+    /// Whether the pressure zero is being taken.
+    /// Boot: install a model found in flash (or the default), without a `model` event.
+    pub fn install_boot(&mut self, ch: usize, model: PolyModel) {
+        self.chambers[ch] = Chamber {
+            model,
+            hist: ArHistory::new(),
+            online: None,
+        };
+    }
+
+    /// Whether the pressure zero is being taken.
+    pub fn zeroing(&self) -> bool {
+        self.zeroing.is_some()
+    }
+    /// Sequence number of the next frame.
+    pub fn seq(&self) -> u32 {
+        self.seq
+    }
+
+    /// Finish a frame from its sums: means, zero, model estimate, residual, k, c, force, and
+    /// the RLS update and drift check of online chambers. Integer and `f32` arithmetic. Returns
+    /// the frame (its flags hold the warnings only) and the new zero when this frame completed
+    /// one; events go to `events`.
+    pub fn finish_frame(
+        &mut self,
+        acc: &FrameAcc,
+        events: &mut EventBuf,
+    ) -> (Frame, Option<[f32; AXES]>) {
+        let n = acc.n.max(1);
+        let nf = n as f32;
+        let t_us = acc.t_sum / n as u64;
         let step = self.cfg.motion.mm3_per_step;
         let mut raw_kpa = [0.0; AXES];
         let mut chambers = [ChamberFrame::default(); AXES];
         for ch in 0..AXES {
-            raw_kpa[ch] = board::counts_to_kpa(acc.counts[ch] as f32 / n);
-            chambers[ch].v = (acc.steps[ch] as f64 / acc.n as f64) as f32 * step;
-            chambers[ch].vdot = acc.flow[ch] / n;
+            raw_kpa[ch] = board::counts_to_kpa(acc.counts[ch] as f32 / nf);
+            // Mean position: whole part and remainder in integers, so f32 sees only what it
+            // holds exactly (the remainder is a multiple of 1/n).
+            let (q, r) = (
+                acc.steps[ch].div_euclid(n as i64),
+                acc.steps[ch].rem_euclid(n as i64),
+            );
+            chambers[ch].v = (q as f32 + r as f32 / nf) * step;
+            chambers[ch].vdot = acc.flow[ch] / nf;
         }
         // The frame that completes the zero is reported zeroed (its flags no longer say
         // NOT_ZEROED, so its pressure must not be raw).
-        self.update_zero(raw_kpa, t_us);
+        let new_zero = self.update_zero(raw_kpa, t_us, events);
         for ch in 0..AXES {
             chambers[ch].p = raw_kpa[ch] - self.zero_kpa[ch];
         }
         self.warnings &= !(Flags::MODEL_RANGE * 0b111);
         for (ch, c) in chambers.iter_mut().enumerate() {
-            if let Err(flag) = self.estimate(ch, c, t_us) {
+            if let Err(flag) = self.estimate(ch, c, t_us, events) {
                 self.warnings |= flag;
             }
         }
@@ -536,34 +832,46 @@ impl State {
         let frame = Frame {
             seq: self.seq,
             t_us,
-            flags: self.flags(),
+            flags: Flags(self.warnings),
             force_n,
             chambers,
+            drops: 0,
         };
         self.seq = self.seq.wrapping_add(1);
-        frame
+        (frame, new_zero)
     }
 
-    fn update_zero(&mut self, raw_kpa: [f32; AXES], t_us: u64) {
-        let Some((left, sum)) = &mut self.zeroing else {
-            return;
-        };
+    fn update_zero(
+        &mut self,
+        raw_kpa: [f32; AXES],
+        t_us: u64,
+        events: &mut EventBuf,
+    ) -> Option<[f32; AXES]> {
+        let (left, sum) = self.zeroing.as_mut()?;
         for ch in 0..AXES {
             sum[ch] += raw_kpa[ch];
         }
         *left = left.saturating_sub(1);
-        if *left == 0 {
-            let n = self.cfg.zero_frames.max(1) as f32;
-            let offset = sum.map(|s| s / n);
-            self.zero_kpa = offset;
-            self.zeroing = None;
-            self.warnings &= !Flags::NOT_ZEROED;
-            self.event(t_us, EventKind::Zeroed { offset_kpa: offset });
+        if *left != 0 {
+            return None;
         }
+        let n = self.cfg.zero_frames.max(1) as f32;
+        let offset = sum.map(|s| s / n);
+        self.zero_kpa = offset;
+        self.zeroing = None;
+        self.warnings &= !Flags::NOT_ZEROED;
+        push_event(events, t_us, EventKind::Zeroed { offset_kpa: offset });
+        Some(offset)
     }
 
     /// P̂, residual, k, c for one chamber; the RLS update and drift check when online.
-    fn estimate(&mut self, ch: usize, c: &mut ChamberFrame, t_us: u64) -> Result<(), u32> {
+    fn estimate(
+        &mut self,
+        ch: usize,
+        c: &mut ChamberFrame,
+        t_us: u64,
+        events: &mut EventBuf,
+    ) -> Result<(), u32> {
         let range = Flags::channel(Flags::MODEL_RANGE, ch);
         let cfg = self.cfg;
         let chamber = &mut self.chambers[ch];
@@ -596,7 +904,8 @@ impl State {
         chamber.hist.push(c.v, c.vdot);
         if let Some((k_mean, c_mean, k_base, c_base)) = drift {
             self.warnings |= Flags::channel(Flags::DRIFT, ch);
-            self.event(
+            push_event(
+                events,
                 t_us,
                 EventKind::Drift {
                     ch: ch as u8,
@@ -608,198 +917,6 @@ impl State {
             );
         }
         result
-    }
-
-    // ---------------------------------------------------------------- commands
-
-    /// Execute a parsed command at `now_us`, writing the reply's fields after `ok` into `out`.
-    pub fn execute(
-        &mut self,
-        cmd: &Command,
-        now_us: u64,
-        out: &mut impl Write,
-    ) -> Result<(), CommandError> {
-        self.store.note_command(now_us);
-        match cmd {
-            Command::Move {
-                axes,
-                volume,
-                flow,
-                accel,
-            } => {
-                self.check_can_move(*axes)?;
-                let flow = flow.unwrap_or(self.cfg.default_flow);
-                let accel = accel.unwrap_or(self.cfg.default_accel);
-                let caps = self.capacity_steps();
-                let target = self.volume_target(*volume)?;
-                // Validate every axis before starting any, so a refused command moves nothing.
-                let mut probe = self.motion.clone();
-                for a in axes.iter() {
-                    probe.start_move(a, target, caps[a], flow, accel, now_us)?;
-                }
-                self.motion = probe;
-                self.latched &= !Flags::STOPPED;
-            }
-            Command::Run(spec) => {
-                self.check_can_move(spec.axes)?;
-                let caps = self.capacity_steps();
-                let hi = self.volume_target(spec.v_high)?;
-                let lo = self.volume_target(spec.v_low)?;
-                let max_flow = self.cfg.motion.max_flow;
-                if hi <= lo
-                    || spec.axes.iter().any(|a| hi > caps[a] || lo < 0)
-                    || spec.flows.iter().any(|&f| f > max_flow)
-                {
-                    return Err(CommandError::OutOfRange);
-                }
-                if spec.axes.iter().any(|a| !self.motion.is_idle(a)) {
-                    return Err(CommandError::Busy);
-                }
-                self.protocol = Some(ProtocolRun::new(spec.clone(), self.cfg.default_accel));
-                self.latched &= !Flags::STOPPED;
-            }
-            Command::Stop => {
-                self.motion.stop_all();
-                self.protocol = None;
-                self.latched |= Flags::STOPPED;
-            }
-            Command::Clear => {
-                self.latched = 0;
-                self.warnings &= !(Flags::DRIFT * 0b111);
-                // Re-arm the jump check from the next conversion.
-                self.last_kpa = [None; AXES];
-                self.event(now_us, EventKind::Cleared);
-            }
-            Command::Zero => {
-                if !self.motion.all_idle() || self.protocol.is_some() {
-                    return Err(CommandError::Busy);
-                }
-                self.zeroing = Some((self.cfg.zero_frames, [0.0; AXES]));
-                self.warnings |= Flags::NOT_ZEROED;
-            }
-            Command::Status => self.status(out),
-            Command::Limit {
-                axes,
-                p_max_kpa,
-                capacity_mm3,
-            } => {
-                let steps = self.motion.volume_to_steps(*capacity_mm3);
-                if axes.iter().any(|a| self.motion.position(a) > steps) {
-                    // Current volume already beyond the new capacity: refuse, do not fault.
-                    return Err(CommandError::OutOfRange);
-                }
-                for a in axes.iter() {
-                    self.cfg.limits[a] = ChannelLimits {
-                        p_max_kpa: *p_max_kpa,
-                        capacity_mm3: *capacity_mm3,
-                    };
-                }
-            }
-            Command::Origin { axes, volume } => {
-                if self.protocol.is_some() || axes.iter().any(|a| !self.motion.is_idle(a)) {
-                    return Err(CommandError::Busy);
-                }
-                let steps = self.volume_target(*volume)?;
-                if axes.iter().any(|a| steps > self.capacity_steps()[a]) {
-                    return Err(CommandError::OutOfRange);
-                }
-                for a in axes.iter() {
-                    self.motion.set_position(a, steps)?;
-                    self.chambers[a].hist.clear();
-                    self.warnings &= !Flags::channel(Flags::ORIGIN_NEEDED, a);
-                }
-            }
-            Command::Model { ch, cmd } => self.model_cmd(*ch, cmd, now_us, out)?,
-            Command::Rls { ch, lambda } => {
-                let ch = *ch as usize;
-                match lambda {
-                    None => self.chambers[ch].online = None,
-                    Some(l) => {
-                        let model = &self.chambers[ch].model;
-                        if model.shape().params() != RLS_PARAMS {
-                            return Err(CommandError::RlsShape);
-                        }
-                        let mut theta = [0.0; RLS_PARAMS];
-                        model.params(&mut theta).map_err(CommandError::Model)?;
-                        let lambda = l.unwrap_or(self.cfg.rls_lambda);
-                        let mut rls =
-                            Rls::new(lambda, self.cfg.rls_p0).map_err(CommandError::Model)?;
-                        rls.set_coeffs(&theta).map_err(CommandError::Model)?;
-                        self.chambers[ch].online = Some(Online {
-                            rls,
-                            frames: 0,
-                            baseline: None,
-                        });
-                    }
-                }
-                let on = self.chambers[ch].online.is_some();
-                let bit = Flags::channel(Flags::RLS_ACTIVE, ch);
-                self.warnings = if on {
-                    self.warnings | bit
-                } else {
-                    self.warnings & !(bit | Flags::channel(Flags::DRIFT, ch))
-                };
-            }
-        }
-        Ok(())
-    }
-
-    fn check_can_move(&self, axes: AxisSet) -> Result<(), CommandError> {
-        if !self.motion_allowed() {
-            return Err(CommandError::Faulted);
-        }
-        if self.zeroing.is_some() || self.protocol.is_some() || self.store.writing() {
-            return Err(CommandError::Busy);
-        }
-        if axes
-            .iter()
-            .any(|a| self.warnings & Flags::channel(Flags::ORIGIN_NEEDED, a) != 0)
-        {
-            return Err(CommandError::OriginNeeded);
-        }
-        if axes.iter().any(|a| !self.motion.is_idle(a)) {
-            return Err(CommandError::Busy);
-        }
-        Ok(())
-    }
-
-    fn volume_target(&self, volume: f32) -> Result<i32, CommandError> {
-        let steps = volume / self.cfg.motion.mm3_per_step;
-        if !(steps.is_finite() && (0.0..=i32::MAX as f32 / 2.0).contains(&libm::roundf(steps))) {
-            return Err(CommandError::OutOfRange);
-        }
-        Ok(self.motion.volume_to_steps(volume))
-    }
-
-    fn status(&self, out: &mut impl Write) {
-        let moving = (0..AXES).fold(0u8, |m, a| m | (u8::from(!self.motion.is_idle(a)) << a));
-        let _ = write!(
-            out,
-            " flags {} seq {} moving {} run {} v",
-            self.flags().0,
-            self.seq,
-            moving,
-            u8::from(self.protocol.is_some())
-        );
-        for a in 0..AXES {
-            let _ = write!(out, " {}", self.motion.volume(a));
-        }
-        let _ = out.write_str(" pmax");
-        for l in &self.cfg.limits {
-            let _ = write!(out, " {}", l.p_max_kpa);
-        }
-        let _ = out.write_str(" cap");
-        for l in &self.cfg.limits {
-            let _ = write!(out, " {}", l.capacity_mm3);
-        }
-        let _ = out.write_str(" crc");
-        for ch in 0..AXES {
-            let _ = write!(out, " {:#010x}", self.store.crc(ch));
-        }
-        let _ = out.write_str(" store");
-        for ch in 0..AXES {
-            let _ = write!(out, " {}", self.store.saved(ch).name());
-        }
     }
 
     /// `model <ch> read …`: the installed model's values, each printed so that it parses back
@@ -822,11 +939,8 @@ impl State {
             }
             ReadPart::Coef { start } => (model.scaled(), start as usize),
             ReadPart::Ar { start } => (model.ar().as_flattened(), start as usize),
-            ReadPart::Crc => {
-                let st = &self.store;
-                let _ = write!(out, " {:#010x} {}", st.crc(ch), st.saved(ch).name());
-                return Ok(());
-            }
+            // The CRC lives with the store on the motion side: `Shared::execute` answers it.
+            ReadPart::Crc => return Ok(()),
         };
         // The index is word 4 of `model <ch> read coef|ar <index>`.
         let chunk = values
@@ -845,6 +959,7 @@ impl State {
         cmd: &ModelCmd,
         now_us: u64,
         out: &mut impl Write,
+        events: &mut EventBuf,
     ) -> Result<(), CommandError> {
         match cmd {
             ModelCmd::Begin { n, m, p, scaling } => {
@@ -903,17 +1018,18 @@ impl State {
                     st.scaling,
                 )
                 .map_err(CommandError::Model)?;
-                self.install(ch as usize, model, now_us);
+                self.install(ch as usize, model, now_us, events);
                 self.staged = None;
             }
-            ModelCmd::Default => self.install(ch as usize, model_core::poly::sba1(), now_us),
+            ModelCmd::Default => {
+                self.install(ch as usize, model_core::poly::sba1(), now_us, events)
+            }
             ModelCmd::Read(part) => self.read_model(ch as usize, *part, out)?,
         }
         Ok(())
     }
 
-    fn install(&mut self, ch: usize, model: PolyModel, now_us: u64) {
-        self.store.committed(ch, &model);
+    fn install(&mut self, ch: usize, model: PolyModel, now_us: u64, events: &mut EventBuf) {
         self.chambers[ch] = Chamber {
             model,
             hist: ArHistory::new(),
@@ -921,12 +1037,37 @@ impl State {
         };
         self.warnings &=
             !(Flags::channel(Flags::RLS_ACTIVE, ch) | Flags::channel(Flags::DRIFT, ch));
-        self.event(now_us, EventKind::ModelLoaded { ch: ch as u8 });
+        push_event(events, now_us, EventKind::ModelLoaded { ch: ch as u8 });
     }
 
-    /// Whether the watchdog may be fed at `now_us` (the stepper task is alive).
-    pub fn stepper_alive(&self, now_us: u64) -> bool {
-        now_us.saturating_sub(self.stepper_seen_us) <= self.cfg.stepper_stale_us
+    fn rls(&mut self, ch: usize, lambda: Option<Option<f32>>) -> Result<(), CommandError> {
+        match lambda {
+            None => self.chambers[ch].online = None,
+            Some(l) => {
+                let model = &self.chambers[ch].model;
+                if model.shape().params() != RLS_PARAMS {
+                    return Err(CommandError::RlsShape);
+                }
+                let mut theta = [0.0; RLS_PARAMS];
+                model.params(&mut theta).map_err(CommandError::Model)?;
+                let lambda = l.unwrap_or(self.cfg.rls_lambda);
+                let mut rls = Rls::new(lambda, self.cfg.rls_p0).map_err(CommandError::Model)?;
+                rls.set_coeffs(&theta).map_err(CommandError::Model)?;
+                self.chambers[ch].online = Some(Online {
+                    rls,
+                    frames: 0,
+                    baseline: None,
+                });
+            }
+        }
+        let on = self.chambers[ch].online.is_some();
+        let bit = Flags::channel(Flags::RLS_ACTIVE, ch);
+        self.warnings = if on {
+            self.warnings | bit
+        } else {
+            self.warnings & !(bit | Flags::channel(Flags::DRIFT, ch))
+        };
+        Ok(())
     }
 }
 
@@ -983,79 +1124,153 @@ fn online_update(
 }
 
 /// Mean k and c of a model over its scaling box: v = v₀ + s_v·{−1, −½, 0, ½, 1},
-/// v̇ = f₀ + s_f·{−1, 0, 1}.
+/// v̇ = f₀ + s_f·{−1, 0, 1}. Plain `f32` sums of the 15 values (no `f64` on the frame path).
 fn grid_kc(model: &PolyModel) -> Option<(f32, f32)> {
     let sc = model.scaling();
-    let mut stats = KcStats::new(0.0).ok()?;
+    let (mut k, mut c) = (0.0f32, 0.0f32);
     for xv in [-1.0, -0.5, 0.0, 0.5, 1.0] {
         for yf in [-1.0, 0.0, 1.0] {
             let v = sc.v_offset + xv * sc.v_scale;
             let f = sc.f_offset + yf * sc.f_scale;
             let e = model.eval(v, f).ok()?;
-            stats.push(e.k, e.c, f).ok()?;
+            k += e.k;
+            c += e.c;
         }
     }
-    Some((stats.k_all.mean()?, stats.c_all.mean()?))
+    (k.is_finite() && c.is_finite()).then_some((k / 15.0, c / 15.0))
 }
 
-/// What the stepper task waits for.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum StepperWait {
-    /// Step `axis` at `at_us`.
-    Step {
-        /// Axis.
-        axis: usize,
-        /// Planned instant, µs.
-        at_us: u64,
-    },
-    /// Nothing to step before this instant (protocol dwell).
-    Until(u64),
-    /// Nothing planned.
-    Idle,
+// ==================================================================== the sampler's own state
+
+/// The sampler task's own state: the frame being accumulated, the telemetry line buffer and
+/// the count of lines dropped. Not shared: no lock.
+#[derive(Debug)]
+pub struct Sampler {
+    acc: FrameAcc,
+    oversample: u32,
+    period_us: u64,
+    line: LineBuf,
+    drops: u32,
+}
+
+impl Sampler {
+    /// For the configuration's frame rate and oversampling.
+    pub fn new(cfg: &Config) -> Self {
+        Self {
+            acc: FrameAcc::default(),
+            oversample: cfg.oversample.max(1),
+            period_us: cfg.oversample_period_us(),
+            line: LineBuf::new(),
+            drops: 0,
+        }
+    }
+    /// Conversion period, µs.
+    pub fn period_us(&self) -> u64 {
+        self.period_us
+    }
+    /// Telemetry lines dropped so far (wrapping).
+    pub fn drops(&self) -> u32 {
+        self.drops
+    }
+
+    /// Hand `self.line` plus `\n` to the sink; count it if refused.
+    fn send(&mut self, tlm: &mut impl TelemetrySink) -> bool {
+        let ok = self.line.push('\n').is_ok() && tlm.try_send(&self.line);
+        if !ok {
+            self.drops = self.drops.wrapping_add(1);
+        }
+        ok
+    }
+
+    /// Format a frame (with the drop count so far) and hand it over; `false` if the transport
+    /// refused it (counted). Runs outside any lock.
+    pub fn send_frame(&mut self, frame: &mut Frame, tlm: &mut impl TelemetrySink) -> bool {
+        frame.drops = self.drops;
+        self.line.clear();
+        if frame.encode(&mut self.line).is_err() {
+            self.drops = self.drops.wrapping_add(1);
+            return false;
+        }
+        self.send(tlm)
+    }
+
+    /// Format an event line and hand it over; `false` if refused (counted).
+    pub fn send_event(&mut self, ev: &Event, tlm: &mut impl TelemetrySink) -> bool {
+        self.line.clear();
+        if ev.encode(&mut self.line).is_err() {
+            self.drops = self.drops.wrapping_add(1);
+            return false;
+        }
+        self.send(tlm)
+    }
+}
+
+/// What one conversion produced for the sampler task.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ConversionResult {
+    /// A fault is latched.
+    pub faulted: bool,
+    /// The watchdog may be fed.
+    pub alive: bool,
+    /// The frame's sums when this was its K-th conversion.
+    pub frame: Option<FrameAcc>,
+}
+
+// ==================================================================== the two together
+
+/// Read access to both halves at once (tests and host tools: [`Shared::lock`]).
+pub struct State<'a> {
+    ctl: &'a mut Control,
+    est: &'a mut Estimator,
+}
+
+impl State<'_> {
+    /// The motion side.
+    pub fn control(&mut self) -> &mut Control {
+        self.ctl
+    }
+    /// The estimation side.
+    pub fn estimator(&mut self) -> &mut Estimator {
+        self.est
+    }
+    /// The configuration, with the limits in force.
+    pub fn config(&self) -> &Config {
+        self.ctl.config()
+    }
+    /// The motion planner (read-only).
+    pub fn motion(&self) -> &Motion {
+        self.ctl.motion()
+    }
+    /// Current flags: latched faults, STOPPED and warnings.
+    pub fn flags(&self) -> Flags {
+        Flags(self.ctl.flag_bits() | self.est.warnings)
+    }
+    /// The model of a chamber.
+    pub fn model(&self, ch: usize) -> &PolyModel {
+        self.est.model(ch)
+    }
+    /// Pressure zero offsets, kPa.
+    pub fn zero_kpa(&self) -> [f32; AXES] {
+        self.est.zero_kpa()
+    }
+    /// The model store's state (CRCs, flash status).
+    pub fn store(&self) -> &Persist {
+        self.ctl.store()
+    }
 }
 
 /// The state shared by the tasks, plus the signal that wakes the stepper task.
 pub struct Shared {
-    /// All application state; locked briefly (no await inside).
-    state: Mutex<CriticalSectionRawMutex, RefCell<State>>,
+    /// Configuration at boot (constants; the limits in force are [`Control::config`]'s).
+    cfg: Config,
+    /// The motion side, under a critical section held only for O(1) hand-overs.
+    ctl: Mutex<CriticalSectionRawMutex, RefCell<Control>>,
+    /// The estimation side, under an async mutex (interrupts stay on while it is held).
+    est: AsyncMutex<CriticalSectionRawMutex, Estimator>,
+    /// Checksum policy of the command stream.
+    link: Mutex<CriticalSectionRawMutex, Cell<LinkState>>,
     /// Wakes the stepper task when the plan changes (new move, stop, fault).
     wake: Signal<CriticalSectionRawMutex, ()>,
-}
-
-impl Shared {
-    /// Fresh shared state for one board (or one simulation).
-    pub fn new(cfg: Config) -> Self {
-        Self {
-            state: Mutex::new(RefCell::new(State::new(cfg))),
-            wake: Signal::new(),
-        }
-    }
-
-    /// Run `f` on the state under the lock. `f` must not block.
-    pub fn lock<R>(&self, f: impl FnOnce(&mut State) -> R) -> R {
-        self.state.lock(|s| f(&mut s.borrow_mut()))
-    }
-
-    /// Parse and execute one command line, writing the reply line (no terminator) to `out`.
-    pub fn command_line(&self, line: &[u8], now_us: u64, out: &mut impl Write) {
-        match command::parse(line) {
-            Ok(cmd) => self.command(&cmd, now_us, out),
-            Err(e) => {
-                let _ = write!(out, "err {e}");
-            }
-        }
-    }
-
-    /// Execute a parsed command, writing the reply line to `out`, and wake the stepper task.
-    pub fn command(&self, cmd: &Command, now_us: u64, out: &mut impl Write) {
-        let mut fields: heapless::String<REPLY_LEN> = heapless::String::new();
-        let r = self.lock(|s| s.execute(cmd, now_us, &mut fields));
-        self.wake.signal(());
-        let _ = match r {
-            Ok(()) => write!(out, "ok{fields}"),
-            Err(e) => write!(out, "err {e}"),
-        };
-    }
 }
 
 /// Longest reply line (the longest is `status` with every field at its widest, ≈ 230 bytes).
@@ -1064,7 +1279,372 @@ pub const REPLY_LEN: usize = 256;
 /// Longest the stepper task sleeps with nothing to do (its heartbeat for the watchdog), µs.
 const STEPPER_IDLE_US: u64 = 50_000;
 
-/// Drive the stepper outputs: sleep until the earliest planned step, re-check, step.
+/// Most batches one stepper wake-up issues before returning to the executor (a wake-up far
+/// behind schedule, as in a simulation quantum, catches up in bounded slices).
+const STEPPER_BATCHES: u32 = 64;
+
+impl Shared {
+    /// Fresh shared state for one board (or one simulation).
+    pub fn new(cfg: Config) -> Self {
+        Self {
+            cfg,
+            ctl: Mutex::new(RefCell::new(Control::new(cfg))),
+            est: AsyncMutex::new(Estimator::new(cfg)),
+            link: Mutex::new(Cell::new(LinkState::default())),
+            wake: Signal::new(),
+        }
+    }
+
+    /// The configuration the board booted with.
+    pub fn config(&self) -> &Config {
+        &self.cfg
+    }
+
+    /// Run `f` on the motion side under the critical section (interrupts off on the board).
+    /// `f` must be O(1) and short: hand data over, compute outside.
+    pub fn with_control<R>(&self, f: impl FnOnce(&mut Control) -> R) -> R {
+        self.ctl.lock(|c| f(&mut c.borrow_mut()))
+    }
+
+    /// The estimation side's async mutex (interrupts stay on while it is held).
+    pub fn estimator(&self) -> &AsyncMutex<CriticalSectionRawMutex, Estimator> {
+        &self.est
+    }
+
+    /// Run `f` on both halves: for tests and host tools, where nothing else runs. It holds the
+    /// critical section for as long as `f` runs, so the tasks never call it. Panics if the
+    /// estimator is held elsewhere.
+    pub fn lock<R>(&self, f: impl FnOnce(&mut State<'_>) -> R) -> R {
+        let mut est = self
+            .est
+            .try_lock()
+            .expect("Shared::lock: the estimator is held by a task");
+        self.with_control(|ctl| f(&mut State { ctl, est: &mut est }))
+    }
+
+    /// Boot: install the models found in flash (or the default, `how` saying why) and report
+    /// each channel on a `store` event (its CRC computed outside the lock).
+    pub async fn restore_models(&self, models: &[(PolyModel, Loaded); AXES], now_us: u64) {
+        let mut est = self.est.lock().await;
+        for (ch, (model, how)) in models.iter().enumerate() {
+            est.install_boot(ch, *model);
+            let crc = crate::store::model_crc(model);
+            self.with_control(|c| {
+                let what = c.store.booted(ch, model, *how, crc);
+                let ch = ch as u8;
+                c.push_event(Event {
+                    t_us: now_us,
+                    kind: EventKind::Store { ch, what, crc },
+                });
+            });
+        }
+    }
+
+    /// One pass of the persist task's bookkeeping around a flash write: the model to write,
+    /// if any ([`Control::persist_begin`], one short lock).
+    pub fn persist_begin(&self, now_us: u64) -> Option<(u8, PolyModel)> {
+        self.with_control(|c| c.persist_begin(now_us))
+    }
+
+    /// The write of `model` on `ch` ended ([`Control::persist_end`]; CRC outside the lock).
+    pub fn persist_end(&self, ch: usize, model: &PolyModel, ok: bool, now_us: u64) {
+        let crc = crate::store::model_crc(model);
+        self.with_control(|c| c.persist_end(ch, crc, ok, now_us));
+    }
+
+    /// Wake the stepper task to re-plan now.
+    pub fn wake_stepper(&self) {
+        self.wake.signal(());
+    }
+
+    // ---------------------------------------------------------------- stepper
+
+    /// One wake-up of the stepper task at `now_us`: issues every step due by then, each batch
+    /// of same-instant steps back to back (one short lock per batch: [`Control::stepper_wake`];
+    /// the pulses come after it), and returns the instant to sleep until.
+    pub fn stepper_tick(&self, now_us: u64, steppers: &mut impl Steppers) -> u64 {
+        for _ in 0..STEPPER_BATCHES {
+            let (batch, wait) =
+                self.with_control(|c| c.stepper_wake(now_us, |a, d| steppers.set_direction(a, d)));
+            if let Some(b) = batch {
+                steppers.step_axes(b.axes, Instant::from_micros(b.at_us));
+            }
+            let deadline = match wait {
+                StepperWait::Step { at_us } => at_us,
+                StepperWait::Until(t) => t.min(now_us + STEPPER_IDLE_US),
+                StepperWait::Idle => now_us + STEPPER_IDLE_US,
+            };
+            if deadline > now_us {
+                return deadline;
+            }
+        }
+        now_us
+    }
+
+    // ---------------------------------------------------------------- sampler
+
+    /// One conversion at `t_us` (one short lock: [`Control::on_conversion`]), added to the
+    /// sampler's frame; the frame's sums when it is complete.
+    pub fn conversion(
+        &self,
+        sampler: &mut Sampler,
+        raw: [u16; AXES],
+        t_us: u64,
+    ) -> ConversionResult {
+        let c = self.with_control(|ctl| ctl.on_conversion(raw, t_us));
+        sampler.acc.add(raw, &c, t_us);
+        let frame =
+            (sampler.acc.n >= sampler.oversample).then(|| core::mem::take(&mut sampler.acc));
+        ConversionResult {
+            faulted: c.faulted,
+            alive: c.alive,
+            frame,
+        }
+    }
+
+    /// Finish a frame: estimation on `est` (no lock), then one short lock to post its events
+    /// and new zero and to read the latched flags into the frame.
+    pub fn finish_frame(&self, est: &mut Estimator, acc: &FrameAcc) -> Frame {
+        let mut events = EventBuf::new();
+        let (mut frame, new_zero) = est.finish_frame(acc, &mut events);
+        let zeroing = est.zeroing();
+        let latched = self.with_control(|c| {
+            if let Some(z) = new_zero {
+                c.zero_kpa = z;
+            }
+            c.zeroing = zeroing;
+            for e in events {
+                c.push_event(e);
+            }
+            c.flag_bits()
+        });
+        frame.flags = Flags(frame.flags.0 | latched);
+        frame
+    }
+
+    /// Hand every queued event line to the sink (one short lock per event; formatting outside).
+    pub fn send_events(&self, sampler: &mut Sampler, tlm: &mut impl TelemetrySink) {
+        loop {
+            let (ev, lost) = self.with_control(|c| (c.pop_event(), c.take_lost_events()));
+            sampler.drops = sampler.drops.wrapping_add(lost);
+            let Some(ev) = ev else { return };
+            sampler.send_event(&ev, tlm);
+        }
+    }
+
+    // ---------------------------------------------------------------- commands
+
+    fn volume_target(&self, volume: f32) -> Result<i32, CommandError> {
+        let steps = volume / self.cfg.motion.mm3_per_step;
+        if !(steps.is_finite() && (0.0..=i32::MAX as f32 / 2.0).contains(&libm::roundf(steps))) {
+            return Err(CommandError::OutOfRange);
+        }
+        Ok(self.cfg.motion.volume_to_steps(volume))
+    }
+
+    fn post(&self, events: EventBuf) {
+        if !events.is_empty() {
+            self.with_control(|c| events.into_iter().for_each(|e| c.push_event(e)));
+        }
+    }
+
+    /// Execute a parsed command at `now_us`, writing the reply's fields after `ok` into `out`.
+    /// The estimator is held by the caller; the motion side is locked only for O(1) checks and
+    /// hand-overs (moves and protocols are planned before, replies formatted after).
+    pub fn execute(
+        &self,
+        est: &mut Estimator,
+        cmd: &Command,
+        now_us: u64,
+        out: &mut impl Write,
+    ) -> Result<(), CommandError> {
+        let cfg = &self.cfg;
+        let zeroing = est.zeroing();
+        self.with_control(|c| c.store.note_command(now_us));
+        match cmd {
+            Command::Move {
+                axes,
+                volume,
+                flow,
+                accel,
+            } => {
+                let (pos, caps) = self.with_control(|c| c.plan_snapshot(*axes, zeroing))?;
+                let flow = flow.unwrap_or(cfg.default_flow);
+                let accel = accel.unwrap_or(cfg.default_accel);
+                let target = self.volume_target(*volume)?;
+                // Plan every axis before starting any, so a refused command moves nothing.
+                let mut plans = [None; AXES];
+                for a in axes.iter() {
+                    plans[a] = Some(cfg.motion.plan(pos[a], target, caps[a], flow, accel)?);
+                }
+                self.with_control(|c| c.start_moves(*axes, &plans, zeroing, now_us))?;
+            }
+            Command::Run(spec) => {
+                let (pos, caps) = self.with_control(|c| c.plan_snapshot(spec.axes, zeroing))?;
+                let hi = self.volume_target(spec.v_high)?;
+                let lo = self.volume_target(spec.v_low)?;
+                if hi <= lo
+                    || spec.axes.iter().any(|a| hi > caps[a] || lo < 0)
+                    || spec.flows.iter().any(|&f| f > cfg.motion.max_flow)
+                {
+                    return Err(CommandError::OutOfRange);
+                }
+                let run =
+                    ProtocolRun::new(spec.clone(), cfg.default_accel, &cfg.motion, pos, caps)?;
+                self.with_control(|c| c.start_protocol(run, &pos, zeroing))?;
+            }
+            Command::Stop => self.with_control(Control::stop),
+            Command::Clear => {
+                self.with_control(|c| c.clear(now_us));
+                est.warnings &= !(Flags::DRIFT * 0b111);
+            }
+            Command::Zero => {
+                let busy = self.with_control(|c| !c.motion.all_idle() || c.protocol.is_some());
+                if busy {
+                    return Err(CommandError::Busy);
+                }
+                est.zeroing = Some((est.cfg.zero_frames, [0.0; AXES]));
+                est.warnings |= Flags::NOT_ZEROED;
+                self.with_control(|c| c.zeroing = true);
+            }
+            Command::Status => {
+                let s = self.with_control(|c| c.status_snapshot());
+                let _ = write!(
+                    out,
+                    " flags {} seq {} moving {} run {} v",
+                    s.flags | est.warnings,
+                    est.seq,
+                    s.moving,
+                    u8::from(s.run)
+                );
+                for v in s.volumes {
+                    let _ = write!(out, " {v}");
+                }
+                let _ = out.write_str(" pmax");
+                for l in &s.limits {
+                    let _ = write!(out, " {}", l.p_max_kpa);
+                }
+                let _ = out.write_str(" cap");
+                for l in &s.limits {
+                    let _ = write!(out, " {}", l.capacity_mm3);
+                }
+                let _ = out.write_str(" crc");
+                for c in s.crc {
+                    let _ = write!(out, " {c:#010x}");
+                }
+                let _ = out.write_str(" store");
+                for v in s.saved {
+                    let _ = write!(out, " {}", v.name());
+                }
+            }
+            Command::Limit {
+                axes,
+                p_max_kpa,
+                capacity_mm3,
+            } => {
+                let steps = cfg.motion.volume_to_steps(*capacity_mm3);
+                let limits = ChannelLimits {
+                    p_max_kpa: *p_max_kpa,
+                    capacity_mm3: *capacity_mm3,
+                };
+                self.with_control(|c| c.set_limits(*axes, limits, steps))?;
+            }
+            Command::Origin { axes, volume } => {
+                let steps = self.volume_target(*volume);
+                self.with_control(|c| c.set_origin(*axes, steps))?;
+                for a in axes.iter() {
+                    est.chambers[a].hist.clear();
+                }
+            }
+            Command::Model {
+                ch,
+                cmd: ModelCmd::Read(ReadPart::Crc),
+            } => {
+                let ch = *ch as usize;
+                let (crc, saved) = self.with_control(|c| (c.store.crc(ch), c.store.saved(ch)));
+                let _ = write!(out, " {crc:#010x} {}", saved.name());
+            }
+            Command::Model { ch, cmd } => {
+                let mut events = EventBuf::new();
+                let r = est.model_cmd(*ch, cmd, now_us, out, &mut events);
+                if r.is_ok() && matches!(cmd, ModelCmd::Commit | ModelCmd::Default) {
+                    // The committed model waits for rest to be written to flash; its CRC is
+                    // computed here, outside the lock.
+                    let ch = *ch as usize;
+                    let model = *est.model(ch);
+                    let crc = crate::store::model_crc(&model);
+                    self.with_control(|c| c.store.committed(ch, &model, crc));
+                }
+                self.post(events);
+                r?;
+            }
+            Command::Rls { ch, lambda } => est.rls(*ch as usize, *lambda)?,
+            Command::Checksum { require } => match require {
+                Some(r) => self.link.lock(|l| {
+                    let mut s = l.get();
+                    s.require = *r;
+                    l.set(s);
+                }),
+                None => {
+                    let on = self.link.lock(|l| l.get().require);
+                    let _ = out.write_str(if on { " require" } else { " optional" });
+                }
+            },
+        }
+        Ok(())
+    }
+
+    /// Execute a parsed command, write the reply line (no terminator) to `out`, and wake the
+    /// stepper task.
+    pub fn command(&self, est: &mut Estimator, cmd: &Command, now_us: u64, out: &mut impl Write) {
+        let mut fields: heapless::String<REPLY_LEN> = heapless::String::new();
+        let r = self.execute(est, cmd, now_us, &mut fields);
+        self.wake.signal(());
+        let _ = match r {
+            Ok(()) => write!(out, "ok{fields}"),
+            Err(e) => write!(out, "err {e}"),
+        };
+    }
+
+    /// A line from the serial port: checksum rules, parse, execute; the reply line (no
+    /// terminator) to `out`.
+    pub fn command_raw(
+        &self,
+        est: &mut Estimator,
+        line: RawLine<'_>,
+        now_us: u64,
+        out: &mut impl Write,
+    ) {
+        // The link state is copied out and back (two O(1) locks): checking and parsing the line
+        // run with interrupts on. Only the command stream uses it.
+        let mut link = self.link.lock(Cell::get);
+        let parsed = line.command(&mut link);
+        self.link.lock(|l| l.set(link));
+        match parsed {
+            Ok(cmd) => self.command(est, &cmd, now_us, out),
+            Err(e) => {
+                let _ = write!(out, "err {e}");
+            }
+        }
+    }
+
+    /// Check, parse and execute one command line (without its terminator; a checksummed line is
+    /// checked first), writing the reply line to `out`. For callers outside the tasks (tests,
+    /// host tools); `err busy` if a task holds the estimator.
+    pub fn command_line(&self, line: &[u8], now_us: u64, out: &mut impl Write) {
+        match self.est.try_lock() {
+            Ok(mut est) => self.command_raw(&mut est, RawLine::Ok(line), now_us, out),
+            Err(_) => {
+                let _ = write!(out, "err {}", CommandError::Busy);
+            }
+        }
+    }
+}
+
+// ==================================================================== tasks
+
+/// Drive the stepper outputs: sleep until the earliest planned step, then
+/// [`Shared::stepper_tick`].
 ///
 /// A fault latched by the sampler (or a `stop`) is seen at the next step instant at the
 /// latest, before the pulse; the wake signal makes the task re-plan at once.
@@ -1072,86 +1652,69 @@ pub async fn stepper_task<S: Steppers>(shared: &Shared, mut steppers: S) -> ! {
     steppers.set_enabled(true);
     loop {
         let now = Instant::now().as_micros();
-        let wait = shared.lock(|s| s.stepper_poll(now, |a, d| steppers.set_direction(a, d)));
-        let (deadline, step) = match wait {
-            StepperWait::Step { axis, at_us } => (at_us, Some(axis)),
-            StepperWait::Until(t) => (t.min(now + STEPPER_IDLE_US), None),
-            StepperWait::Idle => (now + STEPPER_IDLE_US, None),
-        };
-        match select(
+        let deadline = shared.stepper_tick(now, &mut steppers);
+        select(
             Timer::at(Instant::from_micros(deadline)),
             shared.wake.wait(),
         )
-        .await
-        {
-            Either::First(()) => {
-                if let Some(axis) = step {
-                    if shared.lock(|s| s.try_step(axis, deadline)) {
-                        steppers.step(axis, Instant::from_micros(deadline));
-                    }
-                }
-            }
-            Either::Second(()) => {}
-        }
+        .await;
     }
 }
 
-/// Sample the sensors at 25 Hz × K, check the limits, estimate, and send telemetry.
+/// Sample the sensors at 25 Hz × K, check the limits, estimate, and send telemetry without
+/// ever waiting for the host.
 pub async fn sampler_task<A: PressureAdc, T: TelemetrySink, W: Watchdog>(
     shared: &Shared,
     mut adc: A,
     mut tlm: T,
     mut wdg: W,
 ) -> ! {
-    let period = shared.lock(|s| s.config().oversample_period_us());
-    let mut ticker = Ticker::every(Duration::from_micros(period));
-    let mut line = LineBuf::new();
+    let mut sampler = Sampler::new(shared.config());
+    let mut ticker = Ticker::every(Duration::from_micros(sampler.period_us()));
     loop {
         ticker.next().await;
         let raw = adc.read().await;
         let now = Instant::now().as_micros();
-        let (frame, alive, faulted) = shared.lock(|s| {
-            let f = s.on_oversample(raw, now);
-            (f, s.stepper_alive(now), s.flags().is_fault())
-        });
-        if faulted {
+        let c = shared.conversion(&mut sampler, raw, now);
+        if c.faulted {
             // The stepper re-checks before every pulse anyway; this makes it re-plan now.
             shared.wake.signal(());
         }
-        if alive {
+        if c.alive {
             wdg.feed();
         }
-        if let Some(frame) = frame {
-            line.clear();
-            if frame.encode(&mut line).is_ok() {
-                tlm.line(&line);
-            }
+        if let Some(acc) = c.frame {
+            let mut frame = {
+                let mut est = shared.est.lock().await;
+                shared.finish_frame(&mut est, &acc)
+            };
+            sampler.send_frame(&mut frame, &mut tlm);
         }
-        while let Some(ev) = shared.lock(|s| s.pop_event()) {
-            line.clear();
-            if ev.encode(&mut line).is_ok() {
-                tlm.line(&line);
-            }
-        }
+        shared.send_events(&mut sampler, &mut tlm);
     }
 }
 
-/// Read command lines from the serial port, execute them, reply one line each (`\r\n`).
+/// Read command lines from the serial port, execute them, reply one line each (`\r\n`). A
+/// receive error rejects the line it hit (`err line-corrupt`).
 pub async fn command_task<U: SerialPort>(shared: &Shared, mut port: U) -> ! {
     let mut asm = LineAssembler::new();
     let mut buf = [0u8; 32];
     let mut reply: heapless::String<{ REPLY_LEN + 8 }> = heapless::String::new();
     loop {
-        let n = port.read(&mut buf).await.min(buf.len());
+        let n = match port.read(&mut buf).await {
+            Ok(n) => n.min(buf.len()),
+            Err(_) => {
+                asm.error();
+                0
+            }
+        };
         for &b in &buf[..n] {
-            let Some(parsed) = asm.push(b) else { continue };
+            let Some(line) = asm.push(b) else { continue };
             reply.clear();
             let now = Instant::now().as_micros();
-            match parsed {
-                Ok(cmd) => shared.command(&cmd, now, &mut reply),
-                Err(e) => {
-                    let _ = write!(reply, "err {e}");
-                }
+            {
+                let mut est = shared.est.lock().await;
+                shared.command_raw(&mut est, line, now, &mut reply);
             }
             let _ = reply.push_str("\r\n");
             port.write_all(reply.as_bytes()).await;

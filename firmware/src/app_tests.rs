@@ -1,10 +1,93 @@
 //! Synchronous tests of the application state: safety, zero, estimation, commands, RLS.
+//!
+//! They drive the same per-tick functions the tasks call ([`Shared::conversion`],
+//! [`Shared::finish_frame`], [`Shared::stepper_tick`], [`Shared::execute`]) through a small
+//! harness with the old one-struct interface.
 
 use super::*;
 use crate::board::{counts_to_kpa, kpa_to_counts};
 use crate::telemetry::Flags;
 use std::string::String;
 use std::vec::Vec;
+
+/// Records the pulses `stepper_tick` issues: (axis mask, planned instant).
+#[derive(Default)]
+struct Pulses(Vec<(u8, u64)>);
+
+impl Steppers for Pulses {
+    fn set_direction(&mut self, _: usize, _: Direction) {}
+    fn step(&mut self, axis: usize, at: Instant) {
+        self.0.push((1 << axis, at.as_micros()));
+    }
+    fn step_axes(&mut self, axes: u8, at: Instant) {
+        self.0.push((axes, at.as_micros()));
+    }
+    fn set_enabled(&mut self, _: bool) {}
+}
+
+/// The board's state with the tasks' entry points behind the old single-state interface.
+struct S {
+    shared: Shared,
+    sampler: Sampler,
+    pulses: Pulses,
+}
+
+impl S {
+    fn new(cfg: Config) -> Self {
+        Self {
+            shared: Shared::new(cfg),
+            sampler: Sampler::new(&cfg),
+            pulses: Pulses::default(),
+        }
+    }
+    /// One conversion (and the frame it completes): what the sampler task does.
+    fn on_oversample(&mut self, raw: [u16; AXES], t_us: u64) -> Option<Frame> {
+        let c = self.shared.conversion(&mut self.sampler, raw, t_us);
+        c.frame.map(|acc| {
+            let mut est = self.shared.estimator().try_lock().unwrap();
+            self.shared.finish_frame(&mut est, &acc)
+        })
+    }
+    fn flags(&self) -> Flags {
+        self.shared.lock(|s| s.flags())
+    }
+    fn zero_kpa(&self) -> [f32; AXES] {
+        self.shared.lock(|s| s.zero_kpa())
+    }
+    fn pop_event(&mut self) -> Option<Event> {
+        self.shared.with_control(|c| c.pop_event())
+    }
+    fn motion(&self) -> Motion {
+        self.shared.with_control(|c| c.motion().clone())
+    }
+    fn model(&self, ch: usize) -> PolyModel {
+        self.shared.lock(|s| *s.model(ch))
+    }
+    fn raise(&mut self, bits: u32, t_us: u64) {
+        self.shared.with_control(|c| c.raise(bits, t_us));
+    }
+    fn execute(&mut self, c: &Command, now: u64, out: &mut String) -> Result<(), CommandError> {
+        let mut est = self.shared.estimator().try_lock().unwrap();
+        self.shared.execute(&mut est, c, now, out)
+    }
+    /// One stepper wake-up at `now`; returns its deadline.
+    fn tick(&mut self, now: u64) -> u64 {
+        self.shared.stepper_tick(now, &mut self.pulses)
+    }
+    /// Steps issued so far (one per axis pulsed).
+    fn steps_taken(&self) -> usize {
+        self.pulses
+            .0
+            .iter()
+            .map(|p| p.0.count_ones() as usize)
+            .sum()
+    }
+    /// Nothing planned: no move, no protocol.
+    fn idle(&self) -> bool {
+        self.shared
+            .with_control(|c| c.motion().all_idle() && !c.protocol_running())
+    }
+}
 
 const K: u64 = 8; // oversamples per frame
 const DT: u64 = 5_000; // oversampling period, µs
@@ -16,8 +99,8 @@ fn code(kpa: f32) -> u16 {
 
 /// A booted state whose pressure zero has been taken at `offset` kPa; returns the state and
 /// the next oversample instant.
-fn zeroed(offset: f32) -> (State, u64) {
-    let mut s = State::new(Config::default());
+fn zeroed(offset: f32) -> (S, u64) {
+    let mut s = S::new(Config::default());
     let mut t = 0;
     for _ in 0..25 * K {
         t += DT;
@@ -27,26 +110,23 @@ fn zeroed(offset: f32) -> (State, u64) {
     (s, t)
 }
 
-fn cmd(s: &mut State, line: &str, now: u64) -> Result<String, CommandError> {
+fn cmd(s: &mut S, line: &str, now: u64) -> Result<String, CommandError> {
     let c = command::parse(line.as_bytes()).expect("test lines parse");
     let mut out = String::new();
     s.execute(&c, now, &mut out).map(|()| out)
 }
 
-/// Take every step due up to `until`; returns how many were taken.
-fn step_until(s: &mut State, until: u64) -> usize {
-    let mut n = 0;
+/// Take every step due up to `until`, waking the stepper at each deadline it asks for; returns
+/// how many were taken.
+fn step_until(s: &mut S, until: u64) -> usize {
+    let before = s.steps_taken();
     let mut now = 0;
     loop {
-        match s.stepper_poll(now, |_, _| {}) {
-            StepperWait::Step { axis, at_us } if at_us <= until => {
-                now = at_us;
-                if s.try_step(axis, at_us) {
-                    n += 1;
-                }
-            }
-            _ => return n,
+        let deadline = s.tick(now);
+        if deadline > until || s.idle() {
+            return s.steps_taken() - before;
         }
+        now = deadline;
     }
 }
 
@@ -83,7 +163,7 @@ fn boot_zero_is_the_mean_reading_and_is_subtracted() {
 fn every_frame_not_flagged_not_zeroed_is_zeroed() {
     // A sensor reading 2 kPa at rest: the frames that take the zero carry NOT_ZEROED, and every
     // frame without it, the one completing the zero included, reads 0 (to one ADC code).
-    let mut s = State::new(Config::default());
+    let mut s = S::new(Config::default());
     let (mut t, mut flagged, mut clear) = (0, 0, 0);
     for _ in 0..30 * K {
         t += DT;
@@ -103,7 +183,7 @@ fn every_frame_not_flagged_not_zeroed_is_zeroed() {
 
 #[test]
 fn motion_commands_are_refused_while_zeroing() {
-    let mut s = State::new(Config::default());
+    let mut s = S::new(Config::default());
     assert_eq!(cmd(&mut s, "move 0 10", 0), Err(CommandError::Busy));
 }
 
@@ -138,13 +218,13 @@ fn fault_between_steps_blocks_the_next_pulse() {
     let (mut s, t) = zeroed(0.0);
     cmd(&mut s, "move 2 10 20", t).unwrap();
     step_until(&mut s, t + 200_000);
-    let StepperWait::Step { axis, at_us } = s.stepper_poll(t + 200_000, |_, _| {}) else {
-        panic!("moving")
-    };
+    let at_us = s.tick(t + 200_000);
+    assert!(!s.motion().all_idle() && at_us > t + 200_000, "moving");
     // The sampler latches a fault while the stepper sleeps towards `at_us`.
     s.raise(Flags::channel(Flags::SENSOR_JUMP, 0), at_us - 1);
-    let pos = s.motion().position(2);
-    assert!(!s.try_step(axis, at_us));
+    let (pos, taken) = (s.motion().position(2), s.steps_taken());
+    s.tick(at_us);
+    assert_eq!(s.steps_taken(), taken, "no pulse at the next step instant");
     assert_eq!(s.motion().position(2), pos);
 }
 
@@ -176,7 +256,7 @@ fn volume_limit_stops_at_the_capacity_step() {
 #[test]
 fn sensor_rail_and_jump_are_faults() {
     let (mut s, t) = zeroed(0.0);
-    let moving = |s: &mut State, now| {
+    let moving = |s: &mut S, now| {
         cmd(s, "move all 5 10", now).unwrap();
         step_until(s, now + 100_000);
         assert!(!s.motion().all_idle());
@@ -302,7 +382,7 @@ fn model_loads_in_chunks_and_is_used() {
     // scale by model-core) leaves the old one.
     assert!(command::parse(b"model 1 begin 1 1 0 100 0 0 50").is_err());
     cmd(&mut s, "model 1 default", t).unwrap();
-    assert_eq!(s.model(1), &model_core::poly::sba1());
+    assert_eq!(s.model(1), model_core::poly::sba1());
 }
 
 #[test]
@@ -350,15 +430,12 @@ fn run_protocol_through_commands_and_stop() {
     let mut now = t;
     let mut peak = 0;
     while s.flags().0 & Flags::STOPPED == 0 {
-        match s.stepper_poll(now, |_, _| {}) {
-            StepperWait::Step { axis, at_us } => {
-                now = at_us;
-                s.try_step(axis, at_us);
-                peak = peak.max(s.motion().position(0));
-            }
-            StepperWait::Until(w) => now = w,
-            StepperWait::Idle => break,
+        let deadline = s.tick(now);
+        peak = peak.max(s.motion().position(0));
+        if s.idle() {
+            break;
         }
+        now = deadline;
     }
     assert_eq!(peak, 50);
     assert_eq!(s.motion().position(0), 0);
@@ -368,10 +445,11 @@ fn run_protocol_through_commands_and_stop() {
     assert!(kinds.contains(&EventKind::ProtocolDone));
     // Stop cancels a running protocol at once.
     cmd(&mut s, "run 0 0 2 2 10 20", now).unwrap();
-    s.stepper_poll(now, |_, _| {});
+    s.tick(now);
     cmd(&mut s, "stop", now).unwrap();
     assert!(s.motion().all_idle());
-    assert!(matches!(s.stepper_poll(now, |_, _| {}), StepperWait::Idle));
+    assert_eq!(s.tick(now), now + STEPPER_IDLE_US, "nothing planned");
+    assert!(s.idle());
 }
 
 /// Online RLS on a moving chamber whose plant is the SBA1 model scaled by `gain`: the model
@@ -382,7 +460,7 @@ fn rls_tracks_the_plant_and_warns_on_drift() {
         drift_window: 100,
         ..Config::default()
     };
-    let mut s = State::new(cfg);
+    let mut s = S::new(cfg);
     let mut t = 0;
     for _ in 0..25 * K {
         t += DT;
@@ -436,7 +514,7 @@ fn rls_tracks_the_plant_and_warns_on_drift() {
 /// The chamber-0 model matches `gain` × Table IV over the exercised range: 50..500 mm³ at
 /// the cruise flow ±100 mm³/s to `tol` kPa, at ±60 mm³/s (crossed only while accelerating)
 /// to twice that.
-fn assert_learned(s: &State, gain: f64, tol: f64) {
+fn assert_learned(s: &S, gain: f64, tol: f64) {
     for v in [60.0f32, 150.0, 275.0, 400.0, 490.0] {
         for f in [-100.0f32, -60.0, 60.0, 100.0] {
             let p = s.model(0).eval(v, f).unwrap().p as f64;
@@ -450,15 +528,13 @@ fn assert_learned(s: &State, gain: f64, tol: f64) {
     }
 }
 
-fn step_until_now(s: &mut State, until: u64) {
-    loop {
-        match s.stepper_poll(until, |_, _| {}) {
-            StepperWait::Step { axis, at_us } if at_us <= until => {
-                s.try_step(axis, at_us);
-            }
-            _ => return,
+fn step_until_now(s: &mut S, until: u64) {
+    for _ in 0..1_000 {
+        if s.tick(until) > until {
+            return;
         }
     }
+    panic!("the stepper never caught up with {until} µs");
 }
 
 #[test]
@@ -651,4 +727,29 @@ mod readback_prop {
             prop_assert_eq!(bits(installed.ar().as_flattened()), a);
         }
     }
+}
+
+#[test]
+fn checksum_mode_is_set_by_command_and_applies_to_every_line() {
+    let shared = Shared::new(Config::default());
+    let reply = |line: &str| {
+        let mut out = String::new();
+        shared.command_line(line.as_bytes(), 0, &mut out);
+        out
+    };
+    let checked = |line: &str| {
+        let mut s = String::new();
+        command::write_checksummed(line, &mut s).unwrap();
+        s
+    };
+    assert_eq!(reply("checksum"), "ok optional");
+    assert_eq!(reply(&checked("stop")), "ok");
+    assert_eq!(reply("checksum require"), "ok");
+    assert_eq!(reply("stop"), "err checksum-required");
+    assert_eq!(reply(&checked("checksum")), "ok require");
+    let mut bad = checked("stop");
+    bad.remove(7); // a byte of the command lost
+    assert_eq!(reply(&bad), "err bad-checksum");
+    assert_eq!(reply(&checked("checksum optional")), "ok");
+    assert_eq!(reply("stop"), "ok");
 }

@@ -153,6 +153,20 @@ pub mod device {
             cortex_m::asm::delay(STEP_PULSE_CYCLES);
             self.step[axis].set_low();
         }
+        fn step_axes(&mut self, axes: u8, _at: Instant) {
+            // All STEP lines rise within a few cycles, share one pulse width, fall together.
+            for a in 0..AXES {
+                if axes & (1 << a) != 0 {
+                    self.step[a].set_high();
+                }
+            }
+            cortex_m::asm::delay(STEP_PULSE_CYCLES);
+            for a in 0..AXES {
+                if axes & (1 << a) != 0 {
+                    self.step[a].set_low();
+                }
+            }
+        }
         fn set_enabled(&mut self, enabled: bool) {
             // The drivers' EN input is active low.
             self.enable
@@ -194,6 +208,10 @@ pub mod device {
         pub tx: Peri<'static, embassy_stm32::peripherals::PA2>,
         /// USART2 RX (ST-LINK VCP).
         pub rx: Peri<'static, embassy_stm32::peripherals::PA3>,
+        /// USART2 TX DMA (DMA1 stream 6, channel 4).
+        pub tx_dma: Peri<'static, embassy_stm32::peripherals::DMA1_CH6>,
+        /// USART2 RX DMA (DMA1 stream 5, channel 4).
+        pub rx_dma: Peri<'static, embassy_stm32::peripherals::DMA1_CH5>,
         /// Watchdog.
         pub iwdg: Peri<'static, IWDG>,
         /// Flash controller (the model store).
@@ -230,6 +248,8 @@ pub mod device {
             usart: p.USART2,
             tx: p.PA2,
             rx: p.PA3,
+            tx_dma: p.DMA1_CH6,
+            rx_dma: p.DMA1_CH5,
             iwdg: p.IWDG,
             flash: p.FLASH,
         };

@@ -23,9 +23,30 @@
 //! | `model <ch> read` | `ok <n> <m> <p> <v_off> <v_scale> <f_off> <f_scale>` of the installed model |
 //! | `model <ch> read coef <index>` / `model <ch> read ar <index>` | `ok` and up to 8 installed (scaled, flattened AR) coefficients from `index` |
 //! | `rls <ch> on [<lambda>]` / `rls <ch> off` | online RLS identification (chamber force-free!) |
+//! | `checksum require` / `checksum optional` / `checksum` | require a checksum on every line, or not; alone: `ok require` or `ok optional` |
 //!
 //! Replies: `ok` (possibly followed by fields) or `err <code> [<detail>]`. The parser never
 //! panics; every bad line gets an `err` reply naming the argument.
+//!
+//! # Checksummed lines
+//! A line may carry a checksum in front of its command: `*LLCC <command>`, where `LL` is the
+//! command's length in bytes and `CC` its CRC-8 (SMBus polynomial 0x07, initial value 0), each
+//! two upper-case hex digits, and exactly one space separates them from the command
+//! ([`write_checksummed`] builds such a line). Any line that holds a `*` is checked as one:
+//! a wrong length, CRC or layout is refused with `err bad-checksum`. Every single byte dropped,
+//! duplicated or replaced in a checksummed line is refused without being executed:
+//! - in the command: a drop or duplication changes the length, a replacement the CRC (a CRC-8
+//!   catches every error confined to 8 consecutive bits);
+//! - in the prefix: the layout breaks, or the length/CRC no longer match; a lost `*` leaves a
+//!   first word of four hex digits, which is no command;
+//! - a byte turned into a line break splits the line in two: the first part fails its check,
+//!   and the line after a failed check must itself carry a checksum (`err checksum-required`),
+//!   so the second part is refused too; a byte turned into `\r` is dropped (`\r` is ignored).
+//!
+//! `checksum require` makes the checksum mandatory (`err checksum-required` otherwise);
+//! `checksum optional` (the default at boot) accepts plain lines too. A receive error on the
+//! serial port (framing, overrun, noise, parity) rejects the line being received with
+//! `err line-corrupt`, whatever the mode.
 
 use core::fmt;
 use core::str::FromStr;
@@ -185,6 +206,12 @@ pub enum Command {
         /// `Some(lambda)` to switch on (configured default if not given), `None` for off.
         lambda: Option<Option<f32>>,
     },
+    /// Require a checksum on every line (`Some(true)`), accept plain lines (`Some(false)`), or
+    /// report the mode (`None`).
+    Checksum {
+        /// The new mode.
+        require: Option<bool>,
+    },
 }
 
 /// Why a line did not parse. `index` counts words from 0 (the command name).
@@ -219,6 +246,14 @@ pub enum ParseError {
         /// Word index of the first extra one.
         index: u8,
     },
+    /// The serial port reported a receive error (framing, overrun, noise, parity) while the
+    /// line arrived: some of its bytes may be lost or wrong.
+    LineCorrupt,
+    /// The line holds a `*` but not a valid `*LLCC ` prefix, or its length or CRC do not match.
+    BadChecksum,
+    /// The line has no checksum, but one is required (`checksum require`, or the line follows a
+    /// line that failed its checksum).
+    ChecksumRequired,
 }
 
 impl ParseError {
@@ -233,6 +268,9 @@ impl ParseError {
             Self::Invalid { .. } => "invalid-argument",
             Self::OutOfRange { .. } => "out-of-range",
             Self::TooMany { .. } => "too-many-arguments",
+            Self::LineCorrupt => "line-corrupt",
+            Self::BadChecksum => "bad-checksum",
+            Self::ChecksumRequired => "checksum-required",
         }
     }
 }
@@ -454,6 +492,14 @@ pub fn parse(line: &[u8]) -> Result<Command, ParseError> {
             };
             Command::Model { ch, cmd }
         }
+        "checksum" => Command::Checksum {
+            require: match w.next_word() {
+                None => None,
+                Some((_, "require")) => Some(true),
+                Some((_, "optional")) => Some(false),
+                Some((i, _)) => return Err(ParseError::Invalid { index: i }),
+            },
+        },
         "rls" => {
             let ch = w.channel()?;
             let (i, verb) = w.word()?;
@@ -470,12 +516,128 @@ pub fn parse(line: &[u8]) -> Result<Command, ParseError> {
     Ok(cmd)
 }
 
-/// Assembles command lines from serial bytes: `\n` ends a line, `\r` is dropped, and an
-/// over-long line is reported once (as [`ParseError::TooLong`]) when its terminator arrives.
+/// CRC-8/SMBus (polynomial 0x07, initial value 0, no reflection) of a command.
+const CRC8: crc::Crc<u8> = crc::Crc::<u8>::new(&crc::CRC_8_SMBUS);
+
+/// Length of the `*LLCC ` prefix of a checksummed line.
+pub const CHECKSUM_PREFIX: usize = 6;
+
+fn hex_digit(b: u8) -> Option<u8> {
+    match b {
+        b'0'..=b'9' => Some(b - b'0'),
+        b'A'..=b'F' => Some(b - b'A' + 10),
+        _ => None,
+    }
+}
+
+fn hex_byte(hi: u8, lo: u8) -> Option<u8> {
+    Some(hex_digit(hi)? << 4 | hex_digit(lo)?)
+}
+
+const HEX: &[u8; 16] = b"0123456789ABCDEF";
+
+/// The `*LLCC` prefix for `command` (length mod 256 and CRC-8, upper-case hex), without the
+/// space that follows it.
+pub fn checksum_prefix(command: &[u8]) -> [u8; 5] {
+    let len = command.len() as u8;
+    let crc = CRC8.checksum(command);
+    [
+        b'*',
+        HEX[(len >> 4) as usize],
+        HEX[(len & 15) as usize],
+        HEX[(crc >> 4) as usize],
+        HEX[(crc & 15) as usize],
+    ]
+}
+
+/// Write `command` as a checksummed line, `*LLCC <command>` (no terminator): what a host sends
+/// so that any single corrupted byte is refused (see the module docs). `Err` if the command
+/// holds `*`, `\r` or `\n`, or the line would be longer than [`MAX_LINE`].
+pub fn write_checksummed(command: &str, out: &mut impl fmt::Write) -> fmt::Result {
+    let bytes = command.as_bytes();
+    if bytes.iter().any(|b| matches!(b, b'*' | b'\r' | b'\n'))
+        || bytes.len() + CHECKSUM_PREFIX > MAX_LINE
+    {
+        return Err(fmt::Error);
+    }
+    let prefix = checksum_prefix(bytes);
+    for &b in &prefix {
+        out.write_char(b as char)?;
+    }
+    out.write_char(' ')?;
+    out.write_str(command)
+}
+
+/// Checksum policy and state of one command stream.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct LinkState {
+    /// Every line must carry a checksum (`checksum require`).
+    pub require: bool,
+    /// The previous line failed its checksum: this one must carry one.
+    after_bad: bool,
+}
+
+impl LinkState {
+    /// Check one received line (terminator removed, a trailing `\r` allowed) against the
+    /// checksum rules and return the command text to parse.
+    pub fn check<'a>(&mut self, line: &'a [u8]) -> Result<&'a [u8], ParseError> {
+        let line = line.strip_suffix(b"\r").unwrap_or(line);
+        let after_bad = core::mem::take(&mut self.after_bad);
+        if !line.contains(&b'*') {
+            if self.require || after_bad {
+                return Err(ParseError::ChecksumRequired);
+            }
+            return Ok(line);
+        }
+        let verified = (|| {
+            let (prefix, command) = line.split_at_checked(CHECKSUM_PREFIX)?;
+            let [b'*', l1, l2, c1, c2, b' '] = *prefix else {
+                return None;
+            };
+            let ok = hex_byte(l1, l2)? == command.len() as u8
+                && hex_byte(c1, c2)? == CRC8.checksum(command);
+            ok.then_some(command)
+        })();
+        verified.ok_or_else(|| {
+            self.after_bad = true;
+            ParseError::BadChecksum
+        })
+    }
+}
+
+/// A complete line from the serial port.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum RawLine<'a> {
+    /// The line's bytes (terminator and `\r` removed).
+    Ok(&'a [u8]),
+    /// Longer than [`MAX_LINE`].
+    TooLong,
+    /// A receive error was reported while it arrived.
+    Corrupt,
+}
+
+impl<'a> RawLine<'a> {
+    /// The command in the line: checksum rules ([`LinkState::check`]), then [`parse`].
+    pub fn command(self, link: &mut LinkState) -> Result<Command, ParseError> {
+        match self {
+            RawLine::Ok(bytes) => parse(link.check(bytes)?),
+            RawLine::TooLong => Err(ParseError::TooLong),
+            RawLine::Corrupt => Err(ParseError::LineCorrupt),
+        }
+    }
+}
+
+/// Assembles command lines from serial bytes: `\n` ends a line, `\r` is dropped, an
+/// over-long line is reported once (as [`RawLine::TooLong`]) when its terminator arrives, and a
+/// line during which the port reported a receive error ([`error`](Self::error)) is reported as
+/// [`RawLine::Corrupt`].
 #[derive(Debug, Default)]
 pub struct LineAssembler {
     buf: Vec<u8, MAX_LINE>,
     overflow: bool,
+    corrupt: bool,
+    /// The last call returned a line: clear before the next byte.
+    done: bool,
 }
 
 impl LineAssembler {
@@ -484,21 +646,38 @@ impl LineAssembler {
         Self {
             buf: Vec::new(),
             overflow: false,
+            corrupt: false,
+            done: false,
         }
     }
 
-    /// Feed one byte; returns the finished line's parse result at a `\n`.
-    pub fn push(&mut self, b: u8) -> Option<Result<Command, ParseError>> {
+    /// A receive error: the line being received (up to its `\n`) is corrupt.
+    pub fn error(&mut self) {
+        self.start();
+        self.corrupt = true;
+    }
+
+    fn start(&mut self) {
+        if core::mem::take(&mut self.done) {
+            self.buf.clear();
+            self.overflow = false;
+            self.corrupt = false;
+        }
+    }
+
+    /// Feed one byte; returns the finished line at a `\n`.
+    pub fn push(&mut self, b: u8) -> Option<RawLine<'_>> {
+        self.start();
         match b {
             b'\n' => {
-                let r = if self.overflow {
-                    Err(ParseError::TooLong)
+                self.done = true;
+                Some(if self.corrupt {
+                    RawLine::Corrupt
+                } else if self.overflow {
+                    RawLine::TooLong
                 } else {
-                    parse(&self.buf)
-                };
-                self.buf.clear();
-                self.overflow = false;
-                Some(r)
+                    RawLine::Ok(&self.buf)
+                })
             }
             b'\r' => None,
             _ => {
@@ -705,24 +884,117 @@ mod tests {
         assert_eq!(parse(&[b'a'; MAX_LINE + 1]), Err(ParseError::TooLong));
     }
 
+    /// Feed bytes through an assembler and the checksum rules; every line's outcome.
+    fn lines(bytes: &[u8], link: &mut LinkState) -> std::vec::Vec<Result<Command, ParseError>> {
+        let mut a = LineAssembler::new();
+        bytes
+            .iter()
+            .filter_map(|&b| a.push(b).map(|raw| raw.command(link)))
+            .collect()
+    }
+
     #[test]
     fn assembler_splits_lines_and_reports_overflow_once() {
+        let mut link = LinkState::default();
+        assert_eq!(
+            lines(b"stop\r\nzero\n", &mut link),
+            [Ok(Command::Stop), Ok(Command::Zero)]
+        );
         let mut a = LineAssembler::new();
-        let mut out = std::vec::Vec::new();
-        for &b in b"stop\r\nzero\n".iter() {
-            if let Some(r) = a.push(b) {
-                out.push(r);
-            }
-        }
-        assert_eq!(out, [Ok(Command::Stop), Ok(Command::Zero)]);
         for _ in 0..1000 {
             assert_eq!(a.push(b'x'), None);
         }
-        assert_eq!(a.push(b'\n'), Some(Err(ParseError::TooLong)));
+        assert_eq!(a.push(b'\n'), Some(RawLine::TooLong));
         for &b in b"status" {
             a.push(b);
         }
-        assert_eq!(a.push(b'\n'), Some(Ok(Command::Status)));
+        assert_eq!(
+            a.push(b'\n').map(|r| r.command(&mut link)),
+            Some(Ok(Command::Status))
+        );
+    }
+
+    #[test]
+    fn a_receive_error_rejects_the_line_it_hit() {
+        let mut a = LineAssembler::new();
+        let mut link = LinkState::default();
+        for &b in b"move 0 1" {
+            a.push(b);
+        }
+        a.error();
+        for &b in b"2.5" {
+            a.push(b);
+        }
+        assert_eq!(a.push(b'\n'), Some(RawLine::Corrupt));
+        assert_eq!(
+            RawLine::Corrupt.command(&mut link),
+            Err(ParseError::LineCorrupt)
+        );
+        // The next line is clean again; an error between lines rejects the next one.
+        for &b in b"stop" {
+            a.push(b);
+        }
+        assert_eq!(a.push(b'\n'), Some(RawLine::Ok(b"stop")));
+        a.error();
+        for &b in b"zero" {
+            a.push(b);
+        }
+        assert_eq!(a.push(b'\n'), Some(RawLine::Corrupt));
+    }
+
+    #[test]
+    fn checksummed_lines_by_hand() {
+        // The prefix by an independent bitwise CRC; the README's example line.
+        fn crc8(bytes: &[u8]) -> u8 {
+            let mut c = 0u8;
+            for &b in bytes {
+                c ^= b;
+                for _ in 0..8 {
+                    c = if c & 0x80 != 0 {
+                        (c << 1) ^ 0x07
+                    } else {
+                        c << 1
+                    };
+                }
+            }
+            c
+        }
+        let mut s = std::string::String::new();
+        write_checksummed("stop", &mut s).unwrap();
+        assert_eq!(s, std::format!("*04{:02X} stop", crc8(b"stop")));
+        assert_eq!(CRC8.checksum(b"123456789"), 0xF4, "CRC-8/SMBus check value");
+        let mut readme = std::string::String::new();
+        write_checksummed("move 0 12.5", &mut readme).unwrap();
+        assert_eq!(readme, "*0BE1 move 0 12.5");
+        let mut link = LinkState::default();
+        assert_eq!(link.check(s.as_bytes()), Ok(&b"stop"[..]));
+        assert_eq!(link.check(b"*04ZZ stop"), Err(ParseError::BadChecksum));
+        // After a failed check the next line needs a checksum; then plain lines pass again.
+        assert_eq!(link.check(b"stop"), Err(ParseError::ChecksumRequired));
+        assert_eq!(link.check(b"stop"), Ok(&b"stop"[..]));
+        link.require = true;
+        assert_eq!(link.check(b"stop"), Err(ParseError::ChecksumRequired));
+        assert_eq!(link.check(s.as_bytes()), Ok(&b"stop"[..]));
+        // Lower-case hex is not the checksum's form.
+        assert_eq!(
+            link.check(b"*0be1 move 0 12.5"),
+            Err(ParseError::BadChecksum)
+        );
+        assert!(write_checksummed("a*b", &mut std::string::String::new()).is_err());
+        assert_eq!(
+            p("checksum require"),
+            Ok(Command::Checksum {
+                require: Some(true)
+            })
+        );
+        assert_eq!(
+            p("checksum optional"),
+            Ok(Command::Checksum {
+                require: Some(false)
+            })
+        );
+        assert_eq!(p("checksum"), Ok(Command::Checksum { require: None }));
+        assert_eq!(p("checksum maybe"), Err(ParseError::Invalid { index: 1 }));
     }
 
     /// Render a command back into a line (test oracle: the documented grammar).
@@ -769,9 +1041,95 @@ mod tests {
                     write!(s, " {f:?}").unwrap();
                 }
             }
+            Command::Stop => s.push_str("stop"),
+            Command::Clear => s.push_str("clear"),
+            Command::Zero => s.push_str("zero"),
+            Command::Status => s.push_str("status"),
+            Command::Origin { axes: a, volume } => {
+                write!(s, "origin {} {volume:?}", axes(*a)).unwrap()
+            }
+            Command::Rls { ch, lambda } => match lambda {
+                None => write!(s, "rls {ch} off").unwrap(),
+                Some(None) => write!(s, "rls {ch} on").unwrap(),
+                Some(Some(l)) => write!(s, "rls {ch} on {l:?}").unwrap(),
+            },
             _ => unreachable!(),
         }
         s
+    }
+
+    /// Any command `render` knows, with random arguments.
+    fn any_command() -> impl Strategy<Value = Command> {
+        let mv = (
+            axes(),
+            0.0f32..1000.0,
+            0.01f32..400.0,
+            0.1f32..10_000.0,
+            0usize..3,
+        )
+            .prop_map(|(a, volume, flow, accel, extras)| Command::Move {
+                axes: a,
+                volume,
+                flow: (extras >= 1).then_some(flow),
+                accel: (extras >= 2).then_some(accel),
+            });
+        let run = (
+            axes(),
+            0.0f32..200.0,
+            0.1f32..400.0,
+            1u16..100,
+            0u32..10_000,
+            proptest::collection::vec(0.5f32..400.0, 1..=8),
+        )
+            .prop_map(|(a, lo, span, cycles, dwell, flows)| {
+                Command::Run(ProtocolSpec {
+                    axes: a,
+                    v_low: lo,
+                    v_high: lo + span,
+                    cycles,
+                    dwell_ms: dwell,
+                    flows: Vec::from_slice(&flows).unwrap(),
+                })
+            });
+        let limit = (axes(), 1.0f32..200.0, 1.0f32..1000.0).prop_map(|(a, p, c)| Command::Limit {
+            axes: a,
+            p_max_kpa: p,
+            capacity_mm3: c,
+        });
+        let origin =
+            (axes(), 0.0f32..550.0).prop_map(|(a, v)| Command::Origin { axes: a, volume: v });
+        let rls = (
+            0u8..3,
+            proptest::option::of(proptest::option::of(0.5f32..1.0)),
+        )
+            .prop_map(|(ch, lambda)| Command::Rls { ch, lambda });
+        prop_oneof![
+            mv,
+            run,
+            limit,
+            origin,
+            rls,
+            Just(Command::Stop),
+            Just(Command::Clear),
+            Just(Command::Zero),
+            Just(Command::Status),
+        ]
+    }
+
+    /// Every single-byte corruption of `line` (without its terminator): each drop, each
+    /// duplication, and each replacement by every other byte value.
+    fn corruptions(line: &[u8]) -> impl Iterator<Item = std::vec::Vec<u8>> + '_ {
+        let n = line.len();
+        let drops = (0..n).map(move |i| [&line[..i], &line[i + 1..]].concat());
+        let dups = (0..n).map(move |i| [&line[..=i], &line[i..]].concat());
+        let flips = (0..n).flat_map(move |i| {
+            (0..=255u8).filter(move |&b| b != line[i]).map(move |b| {
+                let mut v = line.to_vec();
+                v[i] = b;
+                v
+            })
+        });
+        drops.chain(dups).chain(flips)
     }
 
     fn axes() -> impl Strategy<Value = AxisSet> {
@@ -784,8 +1142,9 @@ mod tests {
         #[test]
         fn never_panics_on_bytes(bytes in proptest::collection::vec(any::<u8>(), 0..260)) {
             let _ = parse(&bytes);
-            let mut a = LineAssembler::new();
-            for b in bytes { let _ = a.push(b); }
+            let mut link = LinkState::default();
+            let _ = lines(&bytes, &mut link);
+            let _ = link.check(&bytes);
         }
 
         #[test]
@@ -866,6 +1225,30 @@ mod tests {
             prop_assert_eq!(p(&render(&c)), Ok(c));
             let l = Command::Limit { axes: a, p_max_kpa: pmax, capacity_mm3: cap };
             prop_assert_eq!(p(&render(&l)), Ok(l));
+        }
+
+        /// A checksummed line is accepted and parses to the same command; every single-byte
+        /// drop, duplication or replacement of it is refused (every line it turns into gets an
+        /// `err`), whether the checksum is required or optional.
+        #[test]
+        fn every_single_byte_corruption_of_a_checksummed_line_is_refused(
+            c in any_command(), require in any::<bool>(),
+        ) {
+            let plain = render(&c);
+            let mut line = std::string::String::new();
+            write_checksummed(&plain, &mut line).unwrap();
+            let fresh = LinkState { require, ..LinkState::default() };
+            let mut link = fresh;
+            let mut intact = line.clone().into_bytes();
+            intact.push(b'\n');
+            prop_assert_eq!(lines(&intact, &mut link), [Ok(c.clone())]);
+            for mut bad in corruptions(line.as_bytes()) {
+                bad.push(b'\n');
+                let mut link = fresh;
+                for r in lines(&bad, &mut link) {
+                    prop_assert!(r.is_err(), "{:?} accepted as {:?}", String::from_utf8_lossy(&bad), r);
+                }
+            }
         }
 
         /// Any non-finite number in a numeric position is refused, naming that word.

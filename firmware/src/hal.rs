@@ -26,6 +26,16 @@ pub trait Steppers {
     /// Emit one STEP pulse on `axis`. `at` is the instant the motion plan scheduled it for: real
     /// hardware pulses now (the caller already waited until `at`), the simulator uses `at` exactly.
     fn step(&mut self, axis: usize, at: Instant);
+    /// Emit STEP pulses on every axis in `axes` (bit `a` = axis `a`), all planned for `at`, back
+    /// to back. The default pulses them one after the other; the board raises all of them
+    /// together so they land within a few cycles of each other.
+    fn step_axes(&mut self, axes: u8, at: Instant) {
+        for a in 0..AXES {
+            if axes & (1 << a) != 0 {
+                self.step(a, at);
+            }
+        }
+    }
     /// Enable or disable all drivers (disabled drivers hold no torque).
     fn set_enabled(&mut self, enabled: bool);
 }
@@ -36,18 +46,34 @@ pub trait PressureAdc {
     async fn read(&mut self) -> [u16; AXES];
 }
 
+/// A receive error of the serial port: some bytes were lost or are wrong.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub enum SerialError {
+    /// A stop bit was not where it should be.
+    Framing,
+    /// A byte arrived before the previous one was taken (the receive buffer overflowed).
+    Overrun,
+    /// Noise on the line while a byte was sampled.
+    Noise,
+    /// Wrong parity.
+    Parity,
+}
+
 /// The command serial port (ST-LINK virtual COM port on the Nucleo).
 pub trait SerialPort {
-    /// Read at least one byte into `buf`, returning how many were read.
-    async fn read(&mut self, buf: &mut [u8]) -> usize;
+    /// Read at least one byte into `buf`, returning how many were read, or report a receive
+    /// error (the bytes around it may be lost: the line being received is corrupt).
+    async fn read(&mut self, buf: &mut [u8]) -> Result<usize, SerialError>;
     /// Write all of `data`.
     async fn write_all(&mut self, data: &[u8]);
 }
 
-/// Where telemetry lines go (defmt-RTT on the board, a buffer in the simulator).
+/// Where telemetry lines go (an RTT up-channel on the board, a buffer in the simulator).
 pub trait TelemetrySink {
-    /// One complete telemetry or event line, without a line terminator.
-    fn line(&mut self, line: &str);
+    /// Hand over one complete line (ending in `\n`) whole, now, or not at all: `false` when the
+    /// transport cannot take it at once (the host is not reading). Never waits.
+    fn try_send(&mut self, line: &str) -> bool;
 }
 
 /// The independent watchdog.

@@ -19,126 +19,252 @@
 //! intervals, so rounding does not accumulate (no drift) and the last step lands at `T`.
 //! The commanded volume is reached to the step: a move counts its steps, it does not integrate
 //! a velocity.
+//!
+//! # Arithmetic (no `f64` on the step path)
+//! The Cortex-M4F has a single-precision FPU and no double-precision unit, so the per-step
+//! work uses integers and `f32` only. In µs, with `I = Δ/v` (the cruise step interval),
+//! `H = v/(2a)` (half the acceleration time) and `C = 2Δ/a` (µs² per step):
+//!
+//! ```text
+//! acceleration   k ≤ K_a:        t_k = √(k·C)                      (f32, from the move's start)
+//! cruise         K_a < k ≤ N−K_a: t_k = k·I + H                     (Q32.32 fixed point)
+//! deceleration   k > N − K_a:     t_k = T − √((N − k)·C)            (f32, back from the end)
+//! ```
+//!
+//! with `K_a = s_a/Δ` and `T = N·I + 2H` (trapezoid) or `T = 2·√(N·C/2)` (triangle). `I`, `H`
+//! and `T` are computed once per move in integer arithmetic ([`Trapezoid::new`], outside any
+//! critical section), to better than 2⁻³⁸ relative, so the cruise instants and the last step
+//! are exact to the µs over any move length. The square roots are measured from the phase's
+//! own start (acceleration) or end (deceleration), so `f32` keeps its precision where it is
+//! used: a correctly rounded `√` of an argument with two roundings is within 2⁻²³ relative,
+//! i.e. within `δ·2⁻²³` of the exact instant, `δ` the time from the phase start or end (under
+//! 0.12 µs for phases up to 1 s, 0.5 µs at 4 s) — then rounded to the µs tick.
+//! A step costs one `f32` square root in the ramps, or one 32 × 64-bit product while cruising.
 
 use crate::hal::{Direction, AXES};
 
-/// √x in f64 without a software square root: the FPU's single-precision root as the seed,
-/// then one Newton step `y ← (y + x/y)/2`, which turns the seed's relative error δ ≤ 1.5·2⁻²⁴
-/// (rounding x to f32, then the f32 root) into δ²/2 < 2⁻⁴⁷ ≈ 7e-15: 1 ns after a day and a
-/// half of motion, far below the µs tick. The Cortex-M4F
-/// has no double-precision unit, and a bitwise soft `sqrt` per step would cost more than the
-/// rest of the step.
-fn sqrt64(x: f64) -> f64 {
-    if x <= 0.0 {
-        return 0.0;
+/// 2⁻³² as `f32` (exact).
+const TWO_POW_M32: f32 = 1.0 / 4_294_967_296.0;
+
+/// `x = m·2^e` with an integer mantissa (finite, non-negative `x`).
+fn parts(x: f32) -> (u64, i32) {
+    let b = x.to_bits();
+    let e = ((b >> 23) & 0xff) as i32;
+    let f = (b & 0x7f_ffff) as u64;
+    if e == 0 {
+        (f, -149)
+    } else {
+        (f | 0x80_0000, e - 150)
     }
-    let y = libm::sqrtf(x as f32) as f64;
-    if y == 0.0 {
-        // x below f32's range: √x < 1e-22, nothing at µs resolution.
-        return 0.0;
-    }
-    0.5 * (y + x / y)
 }
 
-/// One move's velocity profile (pure math, seconds and mm³).
+/// `round(num/den · scale · 2³²)` for finite positive `num`, `den` and `scale < 2²¹`, in
+/// 64-bit integer arithmetic (the quotient keeps at least 38 significant bits, so its relative
+/// error is below 2⁻³⁸); `None` when it does not fit in a `u64` or rounds to zero.
+fn ratio_q32(num: f32, den: f32, scale: u32) -> Option<u64> {
+    let (mn, en) = parts(num);
+    let (md, ed) = parts(den);
+    if mn == 0 || md == 0 || scale == 0 {
+        return None;
+    }
+    // value = mn·scale/md · 2^(en − ed + 32); normalise the dividend to 63 bits first.
+    let p = mn * scale as u64; // < 2⁴⁵
+    let lz = p.leading_zeros() - 1;
+    let (q, r) = ((p << lz) / md, (p << lz) % md);
+    let q = q + u64::from(2 * r >= md); // ≥ 2³⁸
+    let shift = en - ed + 32 - lz as i32;
+    let v = if shift >= 0 {
+        if shift >= 64 || q.leading_zeros() < shift as u32 {
+            return None;
+        }
+        q << shift
+    } else {
+        let s = (-shift) as u32;
+        if s >= 64 {
+            return None;
+        }
+        (q >> s) + ((q >> (s - 1)) & 1)
+    };
+    (v > 0).then_some(v)
+}
+
+/// `√x` for `x` in Q32 µs² (below 2⁹⁴), in Q32 µs: the `f32` root, then one Newton step on the
+/// exact residual (error far below 10⁻³ µs; no 128-bit division).
+fn sqrt_q32(x_q: u128) -> u64 {
+    if x_q == 0 {
+        return 0;
+    }
+    // √(x_q·2³²) = √x_q · 2¹⁶.
+    let y0 = (libm::sqrtf(x_q as f32) * 65_536.0) as u64;
+    if y0 == 0 {
+        return 0;
+    }
+    let residual = (x_q << 32) as i128 - (y0 as u128 * y0 as u128) as i128;
+    let corr = residual as f32 / (2.0 * y0 as f32);
+    y0.saturating_add_signed(corr as i64)
+}
+
+/// `k · q` for a Q32 value `q`, as two 32 × 32-bit products (no 128-bit multiply routine).
+fn mul_q(k: u32, q: u64) -> u128 {
+    let lo = k as u64 * (q & 0xffff_ffff);
+    let hi = k as u64 * (q >> 32);
+    ((hi as u128) << 32) + lo as u128
+}
+
+/// A Q32 µs value rounded to whole µs.
+fn round_q(t: u128) -> u64 {
+    ((t + (1 << 31)) >> 32) as u64
+}
+
+/// One move's velocity profile, ready for per-step evaluation (see the module docs).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Trapezoid {
     steps: u32,
-    step_mm3: f64,
-    accel: f64,
-    v_peak: f64,
-    s_acc: f64,
-    t_acc: f64,
-    t_cruise: f64,
+    /// Last step timed by the acceleration formula (`⌊K_a⌋`).
+    acc_last: u32,
+    /// First step timed by the deceleration formula.
+    dec_first: u32,
+    /// `C = 2Δ/a`, µs² per step.
+    c_us2: f32,
+    /// Cruise step interval `I`, Q32 µs.
+    interval_q: u64,
+    /// Cruise offset `H = t_a − s_a/v_p` (= `v/(2a)`), Q32 µs.
+    offset_q: u64,
+    /// Duration `T`, Q32 µs.
+    end_q: u128,
+    /// Acceleration time `t_a`, Q32 µs.
+    acc_q: u64,
+    /// Peak flow actually reached, mm³/s.
+    v_peak: f32,
+    /// Acceleration, mm³/s².
+    accel: f32,
+    /// Volume per step, mm³.
+    step_mm3: f32,
 }
 
 impl Trapezoid {
+    /// Longest acceleration (or deceleration) phase, µs: 2³¹ µs ≈ 36 min.
+    pub const MAX_RAMP_US: u64 = 1 << 31;
+
     /// Profile for `steps` steps of `step_mm3` each, speed limit `flow` mm³/s and acceleration
-    /// `accel` mm³/s². `flow`, `accel` and `step_mm3` must be finite and positive (checked by
-    /// the caller: they come from validated commands and configuration).
+    /// `accel` mm³/s². Panics where [`try_new`](Self::try_new) returns `None`.
     pub fn new(steps: u32, step_mm3: f32, flow: f32, accel: f32) -> Self {
-        assert!(step_mm3 > 0.0 && flow > 0.0 && accel > 0.0);
-        let (step_mm3, flow, accel) = (step_mm3 as f64, flow as f64, accel as f64);
-        let d = steps as f64 * step_mm3;
-        let s_full = flow * flow / (2.0 * accel);
-        let (v_peak, t_cruise) = if 2.0 * s_full >= d {
-            (sqrt64(accel * d), 0.0)
-        } else {
-            (flow, (d - 2.0 * s_full) / flow)
-        };
-        Self {
-            steps,
-            step_mm3,
-            accel,
-            v_peak,
-            s_acc: v_peak * v_peak / (2.0 * accel),
-            t_acc: v_peak / accel,
-            t_cruise,
+        Self::try_new(steps, step_mm3, flow, accel).expect("a profile the planner can time")
+    }
+
+    /// The profile, or `None` when an input is not finite and positive, a cruise step would
+    /// take 2³² µs or more, or a ramp longer than [`MAX_RAMP_US`](Self::MAX_RAMP_US) (flows and
+    /// accelerations far below anything a syringe pump is run at). Integer and `f32`
+    /// arithmetic; runs once per move, outside any critical section.
+    pub fn try_new(steps: u32, step_mm3: f32, flow: f32, accel: f32) -> Option<Self> {
+        let ok = |x: f32| x.is_finite() && x > 0.0;
+        if !(ok(step_mm3) && ok(flow) && ok(accel)) {
+            return None;
         }
+        // C = 2·(Δ/a·10⁶)·10⁶ µs², from the exact ratio: one rounding to f32.
+        let r = ratio_q32(step_mm3, accel, 1_000_000)?;
+        let c_us2 = (r as u128 * 2_000_000) as f32 * TWO_POW_M32;
+        if !ok(c_us2) {
+            return None;
+        }
+        let mut p = Self {
+            steps,
+            acc_last: 0,
+            dec_first: steps.max(1),
+            c_us2,
+            interval_q: 0,
+            offset_q: 0,
+            end_q: 0,
+            acc_q: 0,
+            v_peak: 0.0,
+            accel,
+            step_mm3,
+        };
+        if steps == 0 {
+            return Some(p);
+        }
+        // Steps covered while accelerating to `flow`: K = v²/(2aΔ) (∞ when it overflows).
+        let k_full = flow * flow / (2.0 * accel * step_mm3);
+        if 2.0 * k_full >= steps as f32 {
+            // Triangle: t_p² = N·Δ/a (µs² · 10⁻¹²), T = 2·t_p.
+            let x_q = steps as u128 * r as u128 * 1_000_000;
+            if x_q >> 94 != 0 {
+                return None; // t_p ≥ 2³¹ µs
+            }
+            let t_q = sqrt_q32(x_q) as u128;
+            p.acc_last = steps / 2;
+            p.dec_first = steps / 2 + 1;
+            p.end_q = 2 * t_q;
+            p.acc_q = t_q as u64;
+            p.v_peak = libm::sqrtf(accel * steps as f32 * step_mm3);
+        } else {
+            p.interval_q = ratio_q32(step_mm3, flow, 1_000_000)?;
+            p.offset_q = ratio_q32(flow, accel, 500_000)?;
+            if p.offset_q >> 62 != 0 || p.interval_q >> 63 != 0 {
+                return None; // t_a = 2H ≥ 2³¹ µs
+            }
+            // Step k accelerates while k ≤ K_a, decelerates when k > N − K_a.
+            let whole = k_full as u32; // < N/2
+            p.acc_last = whole;
+            p.dec_first = steps - whole + u32::from(whole as f32 == k_full);
+            p.end_q = mul_q(steps, p.interval_q) + 2 * p.offset_q as u128;
+            p.acc_q = 2 * p.offset_q;
+            p.v_peak = flow;
+        }
+        Some(p)
     }
 
     /// Number of steps.
     pub fn steps(&self) -> u32 {
         self.steps
     }
-    /// Total distance, mm³.
-    pub fn distance(&self) -> f64 {
-        self.steps as f64 * self.step_mm3
-    }
-    /// Peak speed actually reached, mm³/s.
-    pub fn peak_flow(&self) -> f64 {
+    /// Peak flow actually reached, mm³/s.
+    pub fn peak_flow(&self) -> f32 {
         self.v_peak
     }
-    /// Duration `T`, s.
-    pub fn duration(&self) -> f64 {
-        2.0 * self.t_acc + self.t_cruise
+    /// Duration `T`, whole µs.
+    pub fn duration_us(&self) -> u64 {
+        round_q(self.end_q)
     }
 
-    /// Time (s after the start) at which the profile has covered `s` mm³ (`0 ≤ s ≤ D`).
-    pub fn time_at_distance(&self, s: f64) -> f64 {
-        let d = self.distance();
-        if s <= self.s_acc {
-            sqrt64(2.0 * s / self.accel)
-        } else if s <= d - self.s_acc {
-            self.t_acc + (s - self.s_acc) / self.v_peak
+    /// Instant of step `k` (1..=N), in whole µs after the start (see the module docs for the
+    /// arithmetic and its precision).
+    pub fn step_offset_us(&self, k: u32) -> u64 {
+        if k <= self.acc_last {
+            // y < 2³¹, so y + 0.5 is exact below 2²³ and the conversion truncates: round(y).
+            let y = libm::sqrtf(k as f32 * self.c_us2);
+            (y + 0.5) as u32 as u64
+        } else if k < self.dec_first {
+            round_q(mul_q(k, self.interval_q) + self.offset_q as u128)
+        } else if k >= self.steps {
+            round_q(self.end_q)
         } else {
-            self.duration() - sqrt64(2.0 * (d - s) / self.accel)
+            // T − δ, T = ti + tf: round(T − δ) = ti − ⌈δ − tf − ½⌉.
+            let d = libm::sqrtf((self.steps - k) as f32 * self.c_us2);
+            let ti = (self.end_q >> 32) as u64;
+            let tf = (self.end_q as u32) as f32 * TWO_POW_M32;
+            let y = d - tf - 0.5;
+            let mut c = y as i32;
+            if (c as f32) < y {
+                c += 1;
+            }
+            ti.saturating_add_signed(-(c as i64))
         }
     }
 
-    /// Instant of step `k` (1..=N), in whole µs after the start.
-    pub fn step_offset_us(&self, k: u32) -> u64 {
-        libm::round(self.time_at_distance(k as f64 * self.step_mm3) * 1e6) as u64
-    }
-
-    /// Speed (unsigned, mm³/s) at `t` s after the start; 0 outside the move.
-    pub fn flow_at(&self, t: f64) -> f64 {
-        let total = self.duration();
-        if t <= 0.0 || t >= total {
+    /// Speed (unsigned, mm³/s) at `t_us` µs after the start; 0 outside the move. `f32` only.
+    pub fn flow_at_us(&self, t_us: u64) -> f32 {
+        let t_q = (t_us as u128) << 32;
+        if t_us == 0 || t_q >= self.end_q {
             0.0
-        } else if t < self.t_acc {
-            self.accel * t
-        } else if t <= self.t_acc + self.t_cruise {
+        } else if t_q < self.acc_q as u128 {
+            self.accel * (t_us as f32 * 1e-6)
+        } else if t_q + self.acc_q as u128 <= self.end_q {
             self.v_peak
         } else {
-            self.accel * (total - t)
-        }
-    }
-
-    /// Distance covered (mm³) at `t` s after the start.
-    pub fn distance_at(&self, t: f64) -> f64 {
-        let total = self.duration();
-        if t <= 0.0 {
-            0.0
-        } else if t >= total {
-            self.distance()
-        } else if t < self.t_acc {
-            0.5 * self.accel * t * t
-        } else if t <= self.t_acc + self.t_cruise {
-            self.s_acc + self.v_peak * (t - self.t_acc)
-        } else {
-            let r = total - t;
-            self.distance() - 0.5 * self.accel * r * r
+            let rest = self.end_q - t_q; // < t_a < 2³¹ µs
+            let us = (rest >> 32) as u32 as f32 + (rest as u32) as f32 * TWO_POW_M32;
+            self.accel * (us * 1e-6)
         }
     }
 }
@@ -151,8 +277,21 @@ pub enum MotionError {
     Busy,
     /// Target volume outside `0..=capacity`.
     OutOfRange,
-    /// Flow or acceleration not finite, not positive, or above the firmware's maximum.
+    /// Flow or acceleration not finite, not positive, above the firmware's maximum, or so low
+    /// that the move cannot be timed (see [`Trapezoid::try_new`]).
     BadRate,
+}
+
+/// A move planned ahead (outside any critical section), started later by
+/// [`Motion::start_planned`] in O(1).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PlannedMove {
+    /// Position the plan starts from, steps.
+    pub from: i32,
+    /// Target position, steps.
+    pub target: i32,
+    /// The profile (`None` for a zero-length move).
+    pub profile: Option<Trapezoid>,
 }
 
 /// A move in progress on one axis.
@@ -210,6 +349,64 @@ impl Default for MotionConfig {
     }
 }
 
+impl MotionConfig {
+    /// Steps for a volume, rounded to the nearest step.
+    pub fn volume_to_steps(&self, mm3: f32) -> i32 {
+        libm::roundf(mm3 / self.mm3_per_step) as i32
+    }
+
+    /// Plan a move from `from` to the absolute `target` (steps), limited to `capacity_steps`.
+    /// Pure computation (the profile's constants): call it outside any critical section, then
+    /// start it with [`Motion::start_planned`].
+    pub fn plan(
+        &self,
+        from: i32,
+        target: i32,
+        capacity_steps: i32,
+        flow: f32,
+        accel: f32,
+    ) -> Result<PlannedMove, MotionError> {
+        let rate_ok = |x: f32, max: f32| x.is_finite() && x > 0.0 && x <= max;
+        if !rate_ok(flow, self.max_flow) || !rate_ok(accel, self.max_accel) {
+            return Err(MotionError::BadRate);
+        }
+        if !(0..=capacity_steps).contains(&target) {
+            return Err(MotionError::OutOfRange);
+        }
+        let delta = target as i64 - from as i64;
+        let profile = if delta == 0 {
+            None
+        } else {
+            let n = u32::try_from(delta.unsigned_abs()).map_err(|_| MotionError::OutOfRange)?;
+            Some(
+                Trapezoid::try_new(n, self.mm3_per_step, flow, accel)
+                    .ok_or(MotionError::BadRate)?,
+            )
+        };
+        Ok(PlannedMove {
+            from,
+            target,
+            profile,
+        })
+    }
+}
+
+/// Axes that step together at one instant (bit `a` = axis `a`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct StepBatch {
+    /// The planned instant, µs.
+    pub at_us: u64,
+    /// Axis mask.
+    pub axes: u8,
+}
+
+impl StepBatch {
+    /// The axes, ascending.
+    pub fn iter(self) -> impl Iterator<Item = usize> {
+        (0..AXES).filter(move |&a| self.axes & (1 << a) != 0)
+    }
+}
+
 /// The three axes' motion state.
 #[derive(Clone, Debug)]
 pub struct Motion {
@@ -233,7 +430,7 @@ impl Motion {
 
     /// Steps for a volume, rounded to the nearest step.
     pub fn volume_to_steps(&self, mm3: f32) -> i32 {
-        libm::roundf(mm3 / self.cfg.mm3_per_step) as i32
+        self.cfg.volume_to_steps(mm3)
     }
 
     /// Position of `axis` in steps.
@@ -259,16 +456,14 @@ impl Motion {
     /// Commanded flow of `axis` at `t_us` (signed, mm³/s: positive inflates), from the profile.
     pub fn flow_at(&self, axis: usize, t_us: u64) -> f32 {
         match &self.axes[axis].mv {
-            Some(m) if t_us > m.start_us => {
-                let t = (t_us - m.start_us) as f64 * 1e-6;
-                (m.sign as f64 * m.profile.flow_at(t)) as f32
-            }
+            Some(m) if t_us > m.start_us => m.sign as f32 * m.profile.flow_at_us(t_us - m.start_us),
             _ => 0.0,
         }
     }
 
-    /// Start a move of `axis` to the absolute `target` steps at `now_us`, limited to
-    /// `capacity_steps`. A zero-length move succeeds and does nothing.
+    /// Plan and start a move of `axis` to the absolute `target` steps at `now_us`, limited to
+    /// `capacity_steps` ([`MotionConfig::plan`] then [`start_planned`](Self::start_planned)).
+    /// A zero-length move succeeds and does nothing.
     pub fn start_move(
         &mut self,
         axis: usize,
@@ -278,23 +473,30 @@ impl Motion {
         accel: f32,
         now_us: u64,
     ) -> Result<(), MotionError> {
-        let cfg = self.cfg;
-        let rate_ok = |x: f32, max: f32| x.is_finite() && x > 0.0 && x <= max;
-        if !rate_ok(flow, cfg.max_flow) || !rate_ok(accel, cfg.max_accel) {
-            return Err(MotionError::BadRate);
-        }
-        if !(0..=capacity_steps).contains(&target) {
-            return Err(MotionError::OutOfRange);
-        }
+        let plan = self
+            .cfg
+            .plan(self.axes[axis].pos, target, capacity_steps, flow, accel)?;
+        self.start_planned(axis, &plan, now_us)
+    }
+
+    /// Start a planned move of `axis` at `now_us` (its profile's time zero is `now_us` plus the
+    /// start lead). O(1): one step instant is computed. `Busy` if the axis moves or is no longer
+    /// where the plan starts from.
+    pub fn start_planned(
+        &mut self,
+        axis: usize,
+        plan: &PlannedMove,
+        now_us: u64,
+    ) -> Result<(), MotionError> {
+        let lead = self.cfg.start_lead_us as u64;
         let a = &mut self.axes[axis];
-        if a.mv.is_some() {
+        if a.mv.is_some() || a.pos != plan.from {
             return Err(MotionError::Busy);
         }
-        let delta = target - a.pos;
-        if delta == 0 {
+        let Some(profile) = plan.profile else {
             return Ok(());
-        }
-        let dir = if delta > 0 {
+        };
+        let dir = if plan.target > plan.from {
             Direction::Inflate
         } else {
             Direction::Deflate
@@ -302,11 +504,10 @@ impl Motion {
         if a.dir.map(|(d, _)| d) != Some(dir) {
             a.pending_dir = Some(dir);
         }
-        let start_us = now_us + cfg.start_lead_us as u64;
-        let profile = Trapezoid::new(delta.unsigned_abs(), cfg.mm3_per_step, flow, accel);
+        let start_us = now_us + lead;
         a.mv = Some(ActiveMove {
             start_us,
-            sign: delta.signum(),
+            sign: (plan.target - plan.from).signum(),
             profile,
             next: 1,
             next_at_us: start_us + profile.step_offset_us(1),
@@ -326,27 +527,35 @@ impl Motion {
         None
     }
 
-    /// The earliest due step over all axes: `(axis, instant µs)`.
+    /// The instant `axis` is due to step next, if it has a step and its DIR line is written.
     ///
     /// The instant is the planned one, except that a step never comes sooner than the driver's
     /// set-up time after its DIR change (only possible if the task woke later than the start
     /// lead allows for).
+    fn due(&self, axis: usize) -> Option<u64> {
+        let a = &self.axes[axis];
+        let m = a.mv.as_ref()?;
+        if a.pending_dir.is_some() {
+            // DIR not written yet: the task writes it before sleeping; plan after it.
+            return None;
+        }
+        let earliest = a.dir.map_or(0, |(_, t)| t + self.cfg.dir_setup_us as u64);
+        Some(m.next_at_us.max(earliest))
+    }
+
+    /// The earliest due step over all axes: `(axis, instant µs)` (the lowest axis on a tie).
     pub fn next_step(&self) -> Option<(usize, u64)> {
-        let setup = self.cfg.dir_setup_us as u64;
-        self.axes
-            .iter()
-            .enumerate()
-            .filter_map(|(i, a)| {
-                let m = a.mv.as_ref()?;
-                if a.pending_dir.is_some() {
-                    // DIR not written yet: the task writes it before sleeping; plan after it.
-                    return None;
-                }
-                let planned = m.next_at_us;
-                let earliest = a.dir.map_or(0, |(_, t)| t + setup);
-                Some((i, planned.max(earliest)))
-            })
+        (0..AXES)
+            .filter_map(|i| Some((i, self.due(i)?)))
             .min_by_key(|&(_, t)| t)
+    }
+
+    /// Every axis due at the earliest instant, together: the steps the task issues in one go.
+    pub fn next_batch(&self) -> Option<StepBatch> {
+        let due: [Option<u64>; AXES] = core::array::from_fn(|i| self.due(i));
+        let at_us = due.iter().flatten().copied().min()?;
+        let axes = (0..AXES).fold(0u8, |m, i| m | (u8::from(due[i] == Some(at_us)) << i));
+        Some(StepBatch { at_us, axes })
     }
 
     /// Record the step of `axis` that [`next_step`](Self::next_step) returned. Returns the new
@@ -383,7 +592,7 @@ impl Motion {
         self.axes[axis]
             .mv
             .as_ref()
-            .map(|m| m.start_us + m.profile.step_offset_us(m.profile.steps()))
+            .map(|m| m.start_us + m.profile.duration_us())
     }
 
     /// Declare the current position of `axis` to be `steps` (e.g. after a manual refill).
@@ -405,11 +614,91 @@ mod tests {
 
     const DELTA: f32 = 0.04;
 
+    /// The f64 closed-form trapezoid (the planner's former arithmetic): the test oracle.
+    struct Reference {
+        steps: u32,
+        step: f64,
+        accel: f64,
+        v_peak: f64,
+        s_acc: f64,
+        t_acc: f64,
+        t_cruise: f64,
+    }
+
+    impl Reference {
+        fn new(steps: u32, step_mm3: f32, flow: f32, accel: f32) -> Self {
+            let (step, flow, accel) = (step_mm3 as f64, flow as f64, accel as f64);
+            let d = steps as f64 * step;
+            let s_full = flow * flow / (2.0 * accel);
+            let (v_peak, t_cruise) = if 2.0 * s_full >= d {
+                ((accel * d).sqrt(), 0.0)
+            } else {
+                (flow, (d - 2.0 * s_full) / flow)
+            };
+            Self {
+                steps,
+                step,
+                accel,
+                v_peak,
+                s_acc: v_peak * v_peak / (2.0 * accel),
+                t_acc: v_peak / accel,
+                t_cruise,
+            }
+        }
+        fn distance(&self) -> f64 {
+            self.steps as f64 * self.step
+        }
+        fn duration(&self) -> f64 {
+            2.0 * self.t_acc + self.t_cruise
+        }
+        /// Distance covered (mm³) at `t` s after the start.
+        fn distance_at(&self, t: f64) -> f64 {
+            let total = self.duration();
+            if t <= 0.0 {
+                0.0
+            } else if t >= total {
+                self.distance()
+            } else if t < self.t_acc {
+                0.5 * self.accel * t * t
+            } else if t <= self.t_acc + self.t_cruise {
+                self.s_acc + self.v_peak * (t - self.t_acc)
+            } else {
+                let r = total - t;
+                self.distance() - 0.5 * self.accel * r * r
+            }
+        }
+        /// Speed at `t` s.
+        fn flow_at(&self, t: f64) -> f64 {
+            let total = self.duration();
+            if t <= 0.0 || t >= total {
+                0.0
+            } else if t < self.t_acc {
+                self.accel * t
+            } else if t <= self.t_acc + self.t_cruise {
+                self.v_peak
+            } else {
+                self.accel * (total - t)
+            }
+        }
+        /// Time from the nearer ramp end (start of acceleration, end of deceleration) when step
+        /// `k` falls in a ramp, µs; 0 while cruising.
+        fn ramp_offset_us(&self, k: u32) -> f64 {
+            let s = k as f64 * self.step;
+            if s <= self.s_acc {
+                (2.0 * s / self.accel).sqrt() * 1e6
+            } else if s <= self.distance() - self.s_acc {
+                0.0
+            } else {
+                (2.0 * (self.distance() - s) / self.accel).sqrt() * 1e6
+            }
+        }
+    }
+
     #[test]
     fn hand_computed_trapezoid() {
         // 10 mm³ at 10 mm³/s, 100 mm³/s²: s_a = 0.5 mm³, t_a = 0.1 s, cruise 0.9 s, T = 1.1 s.
         let p = Trapezoid::new(250, DELTA, 10.0, 100.0);
-        assert!((p.duration() - 1.1).abs() < 1e-6);
+        assert_eq!(p.duration_us(), 1_100_000);
         // Step 1 (0.04 mm³, accelerating): √(2·0.04/100) = 0.0282843 s.
         assert_eq!(p.step_offset_us(1), 28_284);
         // Step 125 (5 mm³, cruising): 0.1 + 4.5/10 = 0.55 s.
@@ -428,6 +717,53 @@ mod tests {
         assert!((p.peak_flow() - 10.0).abs() < 1e-6);
         assert_eq!(p.step_offset_us(25), 200_000);
         assert_eq!(p.step_offset_us(13), 102_020);
+    }
+
+    #[test]
+    fn integer_helpers_by_hand() {
+        // 0.04 / 10 · 10⁶ = 4000 µs exactly (0.04 is not exact in binary: the f32 value is
+        // 0.039999999105930328…, so 3999.9999105930328 µs, × 2³²).
+        let q = ratio_q32(0.04, 10.0, 1_000_000).unwrap();
+        let exact = 0.04f32 as f64 / 10.0 * 1e6 * 4_294_967_296.0;
+        assert!(
+            (q as f64 - exact).abs() <= exact * 2f64.powi(-38),
+            "{q} vs {exact}"
+        );
+        assert_eq!(ratio_q32(1.0, 1.0, 1), Some(1 << 32));
+        assert_eq!(ratio_q32(1.0e-30, 1.0e30, 1), None, "rounds to zero");
+        assert_eq!(ratio_q32(1.0e30, 1.0e-30, 1), None, "does not fit");
+        for x in [
+            1u128 << 32,
+            3 << 40,
+            (1 << 93) + 12345,
+            987_654_321_987_654_321,
+        ] {
+            let want = (x as f64 * 4_294_967_296.0).sqrt();
+            let got = sqrt_q32(x) as f64;
+            // Within 10⁻⁴ µs (the f64 reference itself is good to 2⁻⁵² relative).
+            assert!(
+                (got - want).abs() <= 1e-4 * 4_294_967_296.0 + want * 1e-15,
+                "{x}"
+            );
+        }
+        assert_eq!(
+            mul_q(u32::MAX, u64::MAX),
+            u32::MAX as u128 * u64::MAX as u128
+        );
+    }
+
+    #[test]
+    fn untimeable_profiles_are_refused() {
+        assert!(Trapezoid::try_new(10, DELTA, f32::NAN, 100.0).is_none());
+        assert!(Trapezoid::try_new(10, DELTA, 10.0, 0.0).is_none());
+        // A cruise step of 4000 s (1e-5 mm³/s): refused, as is a ramp of 2³¹ µs or more.
+        assert!(Trapezoid::try_new(10_000, DELTA, 1.0e-5, 100.0).is_none());
+        assert!(Trapezoid::try_new(1_000_000, DELTA, 100.0, 1.0e-6).is_none());
+        let m = MotionConfig::default();
+        assert_eq!(
+            m.plan(0, 100, 1000, 1.0e-9, 100.0),
+            Err(MotionError::BadRate)
+        );
     }
 
     /// Run a planner until every move finishes, recording (axis, instant, position).
@@ -472,7 +808,11 @@ mod tests {
                 let d = DELTA as f64;
                 let start = MotionConfig::default().start_lead_us as f64 * 1e-6;
                 let t: std::vec::Vec<f64> = steps.iter().map(|&u| u as f64 * 1e-6).collect();
-                let q = 1e-6; // instants are rounded to the µs tick: ±0.5 µs each
+                // Each instant is the exact one rounded to the µs (±0.5 µs) plus the f32 error
+                // of the ramps' square roots (≤ 0.25 µs for these ramps of at most 2 s, see the
+                // module docs): within q = 1 µs, so an interval within 2q (it was q with the
+                // former f64 arithmetic).
+                let q = 1e-6;
                 // From rest with |acceleration| ≤ a: k·Δ ≤ ½·a·t_k².
                 for (k, &tk) in t.iter().enumerate() {
                     let el = tk - start + q;
@@ -481,47 +821,58 @@ mod tests {
                 // Speed: each interval covers Δ no faster than v.
                 let iv: std::vec::Vec<f64> = t.windows(2).map(|w| w[1] - w[0]).collect();
                 for &dt in &iv {
-                    prop_assert!(d / (dt + q) <= v * (1.0 + 1e-9), "dt {} v {}", dt, v);
+                    prop_assert!(d / (dt + 2.0 * q) <= v * (1.0 + 1e-9), "dt {} v {}", dt, v);
                 }
                 // Acceleration: mean speeds over adjacent intervals differ by at most a times
                 // the span of both intervals (mean-value theorem), widened by the rounding.
                 for w in iv.windows(2) {
-                    let lo = d / (w[0] + q) - d / (w[1] - q);
-                    let hi = d / (w[0] - q) - d / (w[1] + q);
+                    let (q2, w0, w1) = (2.0 * q, w[0], w[1]);
+                    let lo = d / (w0 + q2) - d / (w1 - q2);
+                    let hi = d / (w0 - q2) - d / (w1 + q2);
                     let dv = if lo <= 0.0 && hi >= 0.0 { 0.0 } else { lo.abs().min(hi.abs()) };
-                    prop_assert!(dv <= a * (w[0] + w[1] + 2.0 * q) * (1.0 + 1e-9));
+                    prop_assert!(dv <= a * (w0 + w1 + 2.0 * q2) * (1.0 + 1e-9));
                 }
             }
         }
 
         /// Each instant is the analytic trapezoid's crossing of k·Δ, rounded to the µs: check by
-        /// evaluating the closed-form distance s(t) (a different formula from the t(s) used by
-        /// the planner) half a tick either side of the instant.
+        /// evaluating the closed-form distance s(t) of the f64 reference (a different formula
+        /// from the t(s) used by the planner) half a tick either side of the instant. The ramps'
+        /// f32 square roots may move an instant by δ·2⁻²³ (δ: time from the ramp's start or end,
+        /// see the module docs) before the rounding: the window is widened by twice that bound
+        /// (≤ 1 µs here: ramps of at most 4 s); cruise instants and the last step are exact.
         #[test]
         fn step_instants_match_the_analytic_trapezoid(
             steps in 1u32..20_000, flow in 1.0f32..400.0, accel in 50.0f32..10_000.0,
         ) {
             let p = Trapezoid::new(steps, DELTA, flow, accel);
+            let r = Reference::new(steps, DELTA, flow, accel);
             let d = DELTA as f64;
             let tol = 1e-9 * steps as f64 * d;
             for k in (1..=steps).step_by(1 + steps as usize / 500) {
                 let t = p.step_offset_us(k) as f64 * 1e-6;
+                let slack = 0.5e-6 + r.ramp_offset_us(k) * 2f64.powi(-22) * 1e-6;
                 let target = k as f64 * d;
-                prop_assert!(p.distance_at(t - 0.5e-6) <= target + tol, "k {} early", k);
-                prop_assert!(p.distance_at(t + 0.5e-6) >= target - tol, "k {} late", k);
+                prop_assert!(r.distance_at(t - slack) <= target + tol, "k {} early", k);
+                prop_assert!(r.distance_at(t + slack) >= target - tol, "k {} late", k);
             }
-            prop_assert_eq!(p.step_offset_us(steps), libm::round(p.duration() * 1e6) as u64);
+            prop_assert_eq!(p.step_offset_us(steps), libm::round(r.duration() * 1e6) as u64);
+            prop_assert_eq!(p.duration_us(), libm::round(r.duration() * 1e6) as u64);
+            prop_assert!((p.peak_flow() as f64 - r.v_peak).abs() <= 1e-6 * r.v_peak);
         }
-    }
 
-    proptest! {
+        /// The f32 flow at a sampling instant is the reference's to f32 precision.
         #[test]
-        fn sqrt64_matches_a_correctly_rounded_root(m in 1.0f64..2.0, e in -60i32..60) {
-            let x = m * 2f64.powi(e);
-            let r = sqrt64(x);
-            // δ²/2 < 2⁻⁴⁷ (see sqrt64), plus f64 rounding of the Newton step.
-            let bound = (2f64.powi(-47) + 2.0 * f64::EPSILON) * x.sqrt();
-            prop_assert!((r - x.sqrt()).abs() <= bound, "{} {}", r, x.sqrt());
+        fn flow_matches_the_reference(
+            steps in 1u32..20_000, flow in 1.0f32..400.0, accel in 50.0f32..10_000.0,
+            frac in 0.0f64..1.0,
+        ) {
+            let p = Trapezoid::new(steps, DELTA, flow, accel);
+            let r = Reference::new(steps, DELTA, flow, accel);
+            let t_us = (frac * r.duration() * 1e6) as u64;
+            let want = r.flow_at(t_us as f64 * 1e-6);
+            let got = p.flow_at_us(t_us) as f64;
+            prop_assert!((got - want).abs() <= 1e-5 * r.v_peak + 1e-6, "{} vs {}", got, want);
         }
     }
 
@@ -553,6 +904,9 @@ mod tests {
             m.start_move(0, 20, 50, 10.0, 100.0, 0),
             Err(MotionError::Busy)
         );
+        // A plan made from another position is refused (the axis moved since).
+        let plan = m.config().plan(5, 20, 50, 10.0, 100.0).unwrap();
+        assert_eq!(m.start_planned(1, &plan, 0), Err(MotionError::Busy));
     }
 
     #[test]
@@ -576,6 +930,22 @@ mod tests {
         m.set_position(1, 50).unwrap();
         m.start_move(1, 0, 1000, 50.0, 500.0, 9_000_000).unwrap();
         assert_eq!(m.take_direction_change(9_000_000), None);
+    }
+
+    #[test]
+    fn same_instant_steps_form_one_batch() {
+        let mut m = Motion::new(MotionConfig::default());
+        for a in 0..AXES {
+            m.start_move(a, 50, 1000, 20.0, 500.0, 0).unwrap();
+        }
+        while m.take_direction_change(0).is_some() {}
+        let b = m.next_batch().unwrap();
+        assert_eq!(b.axes, 0b111);
+        assert_eq!(b.iter().collect::<std::vec::Vec<_>>(), [0, 1, 2]);
+        // Axis 1 one step ahead: it alone is due first.
+        m.record_step(1);
+        let b = m.next_batch().unwrap();
+        assert_eq!(b.axes, 0b101);
     }
 
     #[test]

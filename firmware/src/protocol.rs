@@ -7,7 +7,8 @@
 //! does not drift by the stepper task's latency.
 
 use crate::command::ProtocolSpec;
-use crate::motion::{Motion, MotionError};
+use crate::hal::AXES;
+use crate::motion::{Motion, MotionConfig, MotionError, PlannedMove, Trapezoid};
 
 /// Where the protocol is.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -21,15 +22,25 @@ enum Leg {
 }
 
 /// A protocol in progress.
+///
+/// Every profile it will run is planned when it is created (outside any critical section): the
+/// prime move of each axis, and one `v_low`↔`v_high` profile per flow rate (up and down legs
+/// share it). Starting a leg is then O(1) per axis, inside the stepper's short lock.
 #[derive(Clone, Debug)]
 pub struct ProtocolRun {
     spec: ProtocolSpec,
-    accel: f32,
     leg: Leg,
     flow_idx: usize,
     cycle: u16,
     /// When the current leg's moves end (planned, µs); `None` before the first leg starts.
     leg_end_us: Option<u64>,
+    /// `v_low`, `v_high` in steps.
+    lo: i32,
+    hi: i32,
+    /// The prime move per axis.
+    prime: [Option<PlannedMove>; AXES],
+    /// The cycle profile per flow rate.
+    cycles: heapless::Vec<Trapezoid, { crate::command::MAX_FLOWS }>,
 }
 
 /// What the protocol wants next.
@@ -44,16 +55,40 @@ pub enum ProtocolPoll {
 }
 
 impl ProtocolRun {
-    /// A protocol about to start; `accel` is used for every move.
-    pub fn new(spec: ProtocolSpec, accel: f32) -> Self {
-        Self {
+    /// A protocol about to start from `positions`, within `capacity_steps`, with `accel` for
+    /// every move: plans every profile it will need (or the reason one cannot run).
+    pub fn new(
+        spec: ProtocolSpec,
+        accel: f32,
+        cfg: &MotionConfig,
+        positions: [i32; AXES],
+        capacity_steps: [i32; AXES],
+    ) -> Result<Self, MotionError> {
+        let lo = cfg.volume_to_steps(spec.v_low);
+        let hi = cfg.volume_to_steps(spec.v_high);
+        let first = *spec.flows.first().ok_or(MotionError::BadRate)?;
+        let mut prime = [None; AXES];
+        for a in spec.axes.iter() {
+            prime[a] = Some(cfg.plan(positions[a], lo, capacity_steps[a], first, accel)?);
+        }
+        let mut cycles = heapless::Vec::new();
+        for &f in &spec.flows {
+            // Up and down legs cover the same distance: one profile serves both.
+            let up = cfg.plan(lo, hi, i32::MAX, f, accel)?;
+            let profile = up.profile.ok_or(MotionError::OutOfRange)?;
+            let _ = cycles.push(profile);
+        }
+        Ok(Self {
             spec,
-            accel,
             leg: Leg::Prime,
             flow_idx: 0,
             cycle: 0,
             leg_end_us: None,
-        }
+            lo,
+            hi,
+            prime,
+            cycles,
+        })
     }
 
     /// The axes the protocol drives.
@@ -61,11 +96,12 @@ impl ProtocolRun {
         self.spec.axes
     }
 
-    /// Advance: start the next leg when the axes are idle and the dwell is over.
+    /// Advance: start the next leg when the axes are idle and the dwell is over. O(1) per axis
+    /// (the profiles were planned by [`new`](Self::new)).
     pub fn poll(
         &mut self,
         motion: &mut Motion,
-        capacity_steps: [i32; crate::hal::AXES],
+        capacity_steps: [i32; AXES],
         now_us: u64,
     ) -> Result<ProtocolPoll, MotionError> {
         if !self.spec.axes.iter().all(|a| motion.is_idle(a)) {
@@ -95,20 +131,31 @@ impl ProtocolRun {
                         self.leg = Leg::Up;
                     }
                 }
-                // The planned instant: start_move adds its start lead to it.
+                // The planned instant: start_planned adds its start lead to it.
                 due
             }
         };
-        let target = if self.leg == Leg::Up {
-            self.spec.v_high
-        } else {
-            self.spec.v_low
-        };
-        let flow = self.spec.flows[self.flow_idx];
         let mut end = start;
         for a in self.spec.axes.iter() {
-            let steps = motion.volume_to_steps(target);
-            motion.start_move(a, steps, capacity_steps[a], flow, self.accel, start)?;
+            let plan = match self.leg {
+                Leg::Prime => self.prime[a].ok_or(MotionError::Busy)?,
+                Leg::Up | Leg::Down => {
+                    let (from, target) = if self.leg == Leg::Up {
+                        (self.lo, self.hi)
+                    } else {
+                        (self.hi, self.lo)
+                    };
+                    PlannedMove {
+                        from,
+                        target,
+                        profile: Some(self.cycles[self.flow_idx]),
+                    }
+                }
+            };
+            if !(0..=capacity_steps[a]).contains(&plan.target) {
+                return Err(MotionError::OutOfRange);
+            }
+            motion.start_planned(a, &plan, start)?;
             end = end.max(motion.move_end_us(a).unwrap_or(start));
         }
         self.leg_end_us = Some(end);
@@ -133,9 +180,9 @@ mod tests {
             dwell_ms: 100,
             flows: heapless::Vec::from_slice(&[10.0, 20.0]).unwrap(),
         };
-        let mut run = ProtocolRun::new(spec, 500.0);
         let mut m = Motion::new(MotionConfig::default());
         let cap = [13_750; 3];
+        let mut run = ProtocolRun::new(spec, 500.0, m.config(), [0; 3], cap).unwrap();
         let mut now = 0u64;
         let mut legs = std::vec::Vec::new(); // (start µs, target steps of axis 0)
         let mut reversals = 0;

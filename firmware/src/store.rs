@@ -312,10 +312,11 @@ impl Persist {
         }
     }
 
-    /// Channel `ch` booted on `model`, found as `how`; returns the event to report.
-    pub fn booted(&mut self, ch: usize, model: &PolyModel, how: Loaded) -> StoreEvent {
+    /// Channel `ch` booted on `model` (CRC-32 `crc`, [`model_crc`]), found as `how`; returns
+    /// the event to report.
+    pub fn booted(&mut self, ch: usize, model: &PolyModel, how: Loaded, crc: u32) -> StoreEvent {
         self.committed[ch] = *model;
-        self.crc[ch] = model_crc(model);
+        self.crc[ch] = crc;
         let (saved, ev) = match how {
             Loaded::Stored => (Saved::Flash, StoreEvent::Loaded),
             Loaded::Empty => (Saved::Default, StoreEvent::Empty),
@@ -325,10 +326,11 @@ impl Persist {
         ev
     }
 
-    /// A model was committed on `ch`: it waits for rest to be written.
-    pub fn committed(&mut self, ch: usize, model: &PolyModel) {
+    /// A model was committed on `ch` (CRC-32 `crc`, [`model_crc`], computed by the caller
+    /// outside any critical section): it waits for rest to be written.
+    pub fn committed(&mut self, ch: usize, model: &PolyModel, crc: u32) {
         self.committed[ch] = *model;
-        self.crc[ch] = model_crc(model);
+        self.crc[ch] = crc;
         self.saved[ch] = Saved::Pending;
         self.generation[ch] = self.generation[ch].wrapping_add(1);
     }
@@ -427,14 +429,14 @@ pub async fn persist_once<F: NorFlash, G: FlashGuard>(
     guard: &mut G,
 ) -> bool {
     let now = embassy_time::Instant::now().as_micros();
-    let Some((ch, model)) = shared.lock(|s| s.persist_begin(now)) else {
+    let Some((ch, model)) = shared.persist_begin(now) else {
         return false;
     };
     guard.before();
     let r = store.save(ch, &model).await;
     guard.after();
     let now = embassy_time::Instant::now().as_micros();
-    shared.lock(|s| s.persist_end(ch as usize, &model, r.is_ok(), now));
+    shared.persist_end(ch as usize, &model, r.is_ok(), now);
     true
 }
 

@@ -2,7 +2,7 @@
 //! sequential-storage's mock flash, corrupt stores, and the application's write gating.
 
 use super::*;
-use crate::app::{CommandError, Config, Shared, State};
+use crate::app::{CommandError, Config, Sampler, Shared};
 use crate::command;
 use embassy_futures::block_on;
 use proptest::prelude::*;
@@ -279,7 +279,7 @@ fn an_erased_or_corrupt_store_boots_on_the_default_and_announces_it() {
     for f in [flash(), garbage] {
         let mut st = store(f);
         let models = block_on(st.load_all());
-        let mut s = State::new(Config::default());
+        let mut s = App::new();
         events(&mut s);
         s.restore_models(&models, 3);
         let d = model_core::poly::sba1();
@@ -292,8 +292,8 @@ fn an_erased_or_corrupt_store_boots_on_the_default_and_announces_it() {
                 }
                 other => panic!("{other:?}"),
             }
-            assert_eq!(*s.model(ch), d);
-            assert_eq!(s.store().saved(ch), Saved::Default);
+            assert_eq!(s.model(ch), d);
+            assert_eq!(s.saved(ch), Saved::Default);
         }
     }
 }
@@ -306,34 +306,85 @@ fn a_range_that_is_not_two_whole_pages_is_refused() {
 
 // ------------------------------------------------------------------ the application's side
 
-fn cmd(s: &mut State, line: &str, now: u64) -> Result<String, CommandError> {
-    let c = command::parse(line.as_bytes()).expect("test lines parse");
-    let mut out = String::new();
-    s.execute(&c, now, &mut out).map(|()| out)
+/// The board's state driven through the tasks' own entry points (as `app_tests` does).
+struct App {
+    shared: Shared,
+    sampler: Sampler,
 }
 
-fn events(s: &mut State) -> Vec<crate::telemetry::EventKind> {
+impl App {
+    fn new() -> Self {
+        let cfg = Config::default();
+        Self {
+            shared: Shared::new(cfg),
+            sampler: Sampler::new(&cfg),
+        }
+    }
+    fn restore_models(&mut self, models: &[(PolyModel, Loaded); AXES], now: u64) {
+        block_on(self.shared.restore_models(models, now));
+    }
+    fn pop_event(&mut self) -> Option<crate::telemetry::Event> {
+        self.shared.with_control(|c| c.pop_event())
+    }
+    fn on_oversample(&mut self, raw: [u16; AXES], t_us: u64) {
+        let c = self.shared.conversion(&mut self.sampler, raw, t_us);
+        if let Some(acc) = c.frame {
+            let mut est = self.shared.estimator().try_lock().unwrap();
+            self.shared.finish_frame(&mut est, &acc);
+        }
+    }
+    fn model(&self, ch: usize) -> PolyModel {
+        self.shared.lock(|s| *s.model(ch))
+    }
+    fn saved(&self, ch: usize) -> Saved {
+        self.shared.lock(|s| s.store().saved(ch))
+    }
+    fn flags(&self) -> Flags {
+        self.shared.lock(|s| s.flags())
+    }
+    fn persist_begin(&self, now: u64) -> Option<(u8, PolyModel)> {
+        self.shared.persist_begin(now)
+    }
+    fn persist_end(&self, ch: usize, model: &PolyModel, ok: bool, now: u64) {
+        self.shared.persist_end(ch, model, ok, now);
+    }
+}
+
+fn cmd(s: &mut App, line: &str, now: u64) -> Result<String, CommandError> {
+    let c = command::parse(line.as_bytes()).expect("test lines parse");
+    let mut out = String::new();
+    let mut est = s.shared.estimator().try_lock().unwrap();
+    s.shared.execute(&mut est, &c, now, &mut out).map(|()| out)
+}
+
+fn events(s: &mut App) -> Vec<crate::telemetry::EventKind> {
     core::iter::from_fn(|| s.pop_event())
         .map(|e| e.kind)
         .collect()
 }
 
-/// A state past its pressure zero at `t`.
-fn ready() -> (State, u64) {
-    let mut s = State::new(Config::default());
+/// Zero every channel at rest (25 frames of 8 conversions); returns the last instant.
+fn zero(s: &mut App) -> u64 {
     let mut t = 0;
     let code = crate::board::kpa_to_counts(0.0).round() as u16;
     for _ in 0..25 * 8 {
         t += 5_000;
         s.on_oversample([code; 3], t);
     }
+    t
+}
+
+/// A state past its pressure zero at `t`.
+fn ready() -> (App, u64) {
+    let mut s = App::new();
+    let t = zero(&mut s);
     events(&mut s);
     (s, t)
 }
 
 #[test]
 fn boot_announces_what_each_channel_loaded() {
-    let mut s = State::new(Config::default());
+    let mut s = App::new();
     events(&mut s);
     let d = model_core::poly::sba1();
     s.restore_models(
@@ -365,7 +416,7 @@ fn boot_announces_what_each_channel_loaded() {
             },
         ]
     );
-    assert_eq!(*s.model(0), ar_model());
+    assert_eq!(s.model(0), ar_model());
     let out = cmd(&mut s, "model 0 read crc", 8).unwrap();
     assert_eq!(out, std::format!(" {:#010x} flash", model_crc(&ar_model())));
     let out = cmd(&mut s, "model 2 read crc", 8).unwrap();
@@ -378,7 +429,7 @@ fn a_commit_is_written_only_at_rest_and_after_the_port_is_quiet() {
     let (mut s, t) = ready();
     cmd(&mut s, "model 1 default", t).unwrap();
     assert!(s.flags().has(Flags::MODEL_UNSAVED));
-    assert_eq!(s.store().saved(1), Saved::Pending);
+    assert_eq!(s.saved(1), Saved::Pending);
     // Too soon after the command.
     assert_eq!(s.persist_begin(t + QUIET_US - 1), None);
     // Moving: deferred.
@@ -392,7 +443,7 @@ fn a_commit_is_written_only_at_rest_and_after_the_port_is_quiet() {
     assert_eq!(cmd(&mut s, "move 0 10", now), Err(CommandError::Busy));
     assert_eq!(s.persist_begin(now + QUIET_US), None);
     s.persist_end(1, &model, true, now + 1);
-    assert_eq!(s.store().saved(1), Saved::Flash);
+    assert_eq!(s.saved(1), Saved::Flash);
     assert!(!s.flags().has(Flags::MODEL_UNSAVED));
     assert!(cmd(&mut s, "move 0 10", now + 2).is_ok());
 }
@@ -404,7 +455,7 @@ fn a_failed_write_is_flagged_and_a_commit_during_a_write_stays_pending() {
     let now = t + QUIET_US;
     let (_, m) = s.persist_begin(now).unwrap();
     s.persist_end(0, &m, false, now);
-    assert_eq!(s.store().saved(0), Saved::Failed);
+    assert_eq!(s.saved(0), Saved::Failed);
     assert!(s.flags().has(Flags::STORE_FAILED | Flags::MODEL_UNSAVED));
     let out = cmd(&mut s, "status", now).unwrap();
     assert!(out.ends_with(" store failed default default"), "{out}");
@@ -416,27 +467,22 @@ fn a_failed_write_is_flagged_and_a_commit_during_a_write_stays_pending() {
     cmd(&mut s, "model 2 default", now).unwrap();
     s.persist_end(2, &m, true, now);
     // Same model committed again: still pending, so written again.
-    assert_eq!(s.store().saved(2), Saved::Pending);
+    assert_eq!(s.saved(2), Saved::Pending);
 }
 
 #[test]
 fn the_persist_task_writes_the_committed_model_to_flash() {
-    let shared = Shared::new(Config::default());
+    let mut app = App::new();
     let mut st = store(flash());
     let mut reply = String::new();
     // Far enough in the past that the port is quiet at the mock clock's current instant.
-    shared.command_line(b"model 2 default", 0, &mut reply);
+    app.shared.command_line(b"model 2 default", 0, &mut reply);
     embassy_time::MockDriver::get().advance(embassy_time::Duration::from_micros(QUIET_US));
     // Not zeroed yet at boot: the zero is in progress, so nothing is written.
-    assert!(!block_on(persist_once(&shared, &mut st, &mut ())));
-    shared.lock(|s| {
-        let code = crate::board::kpa_to_counts(0.0).round() as u16;
-        for k in 1..=25 * 8 {
-            s.on_oversample([code; 3], k * 5_000);
-        }
-    });
-    assert!(block_on(persist_once(&shared, &mut st, &mut ())));
-    assert_eq!(shared.lock(|s| s.store().saved(2)), Saved::Flash);
+    assert!(!block_on(persist_once(&app.shared, &mut st, &mut ())));
+    zero(&mut app);
+    assert!(block_on(persist_once(&app.shared, &mut st, &mut ())));
+    assert_eq!(app.saved(2), Saved::Flash);
     let mut st = store(st.into_flash());
     assert_eq!(block_on(st.load(2)), Ok(model_core::poly::sba1()));
     assert_eq!(block_on(st.load(0)), Err(Loaded::Empty));

@@ -1,18 +1,24 @@
 //! Telemetry: one text line per 25 Hz frame, plus event lines.
 //!
-//! The board prints each line through defmt (`defmt::println!("{=str}", line)`); the simulator
-//! collects them through [`TelemetrySink`](crate::hal::TelemetrySink); the host tool parses the
-//! output of `probe-rs run` with [`parse_line`], which skips whatever the printer put in front
-//! of the `$` marker (timestamps, log level).
+//! The board hands each line, whole or not at all, to a non-blocking
+//! [`TelemetrySink`](crate::hal::TelemetrySink) (an RTT up-channel of its own on the device, a
+//! buffer in the simulator): a line the transport cannot take at once is dropped and counted,
+//! never waited for. The host tool parses the output of `probe-rs run` with [`parse_line`],
+//! which skips whatever the printer put in front of the `$` marker (timestamps, log level).
 //!
 //! # Frame line
 //! ```text
-//! $F <seq> <t_us> <flags> <force_n> {<v> <vdot> <p> <p_hat> <residual> <k> <c>} × 3 chambers
+//! $F <seq> <t_us> <flags> <force_n> {<v> <vdot> <p> <p_hat> <residual> <k> <c>} × 3 chambers <drops>
 //! ```
-//! 25 space-separated fields after `$F`. `seq` (u32) counts frames from 0 and `t_us` (u64) is
+//! 26 space-separated fields after `$F`. `seq` (u32) counts frames from 0 and `t_us` (u64) is
 //! the frame's mean sampling instant in µs since boot: a frame lost anywhere shows as a gap in
 //! `seq` (and a `t_us` step of more than one period). `flags` is the [`Flags`] bit set in
-//! decimal. Units: v mm³, vdot mm³/s, p / p_hat / residual kPa, k kPa/mm³, c kPa·s/mm³,
+//! decimal. `drops` (u32, wrapping) counts the telemetry lines (frames and events) the board
+//! dropped since boot because the transport was full (plus events lost to a full event queue):
+//! the change of `drops` between two received frames is the number of lines the board dropped
+//! between them, so a `seq` gap that `drops` does not account for was lost on the way (the
+//! host's side). Lines written before this field existed (25 fields) still decode, with
+//! `drops = 0`. Units: v mm³, vdot mm³/s, p / p_hat / residual kPa, k kPa/mm³, c kPa·s/mm³,
 //! force N. Floats are printed in the shortest decimal that reads back to the same `f32`
 //! (plain for 1e-5 ≤ |x| < 1e9, else exponent form such as `1.5e-7`), so
 //! `Frame::decode(encode(f)) == f` bit for bit (every NaN reads back as NaN).
@@ -118,6 +124,8 @@ pub struct Frame {
     pub force_n: f32,
     /// Per chamber.
     pub chambers: [ChamberFrame; AXES],
+    /// Telemetry lines dropped by the board since boot (wrapping), as of this frame.
+    pub drops: u32,
 }
 
 /// Why a telemetry line did not decode.
@@ -179,6 +187,9 @@ impl<'a> Fields<'a> {
             .parse()
             .map_err(|_| TelemetryError::BadNumber { index })
     }
+    fn has_more(&self) -> bool {
+        self.it.clone().next().is_some()
+    }
     fn end(mut self) -> Result<(), TelemetryError> {
         match self.it.next() {
             None => Ok(()),
@@ -203,8 +214,8 @@ pub(crate) fn num(out: &mut impl Write, x: f32) -> fmt::Result {
 pub const FRAME_TAG: &str = "$F";
 /// Event line tag.
 pub const EVENT_TAG: &str = "$E";
-/// Longest frame line: 25 fields of at most 20 characters plus separators.
-pub const MAX_LINE: usize = 540;
+/// Longest frame line: 26 fields of at most 20 characters plus separators and the `\n`.
+pub const MAX_LINE: usize = 560;
 
 impl Frame {
     /// Write the frame line (no terminator).
@@ -220,10 +231,11 @@ impl Frame {
                 num(out, x)?;
             }
         }
-        Ok(())
+        write!(out, " {}", self.drops)
     }
 
-    /// Parse a frame line as written by [`Frame::encode`] (surrounding whitespace allowed).
+    /// Parse a frame line as written by [`Frame::encode`] (surrounding whitespace allowed), or
+    /// by firmware before the `drops` field (25 fields: `drops` reads as 0).
     pub fn decode(line: &str) -> Result<Frame, TelemetryError> {
         let mut f = Fields::after_tag(line, FRAME_TAG)?;
         let mut frame = Frame {
@@ -243,6 +255,9 @@ impl Frame {
                 k: f.num()?,
                 c: f.num()?,
             };
+        }
+        if f.has_more() {
+            frame.drops = f.num()?;
         }
         f.end()?;
         Ok(frame)
@@ -481,13 +496,15 @@ mod tests {
         #[test]
         fn frame_round_trips_bit_for_bit(
             seq in any::<u32>(), t_us in any::<u64>(), flags in any::<u32>(), force in any_f32(),
-            c0 in chamber(), c1 in chamber(), c2 in chamber(),
+            c0 in chamber(), c1 in chamber(), c2 in chamber(), drops in any::<u32>(),
         ) {
-            let f = Frame { seq, t_us, flags: Flags(flags), force_n: force, chambers: [c0, c1, c2] };
+            let f = Frame {
+                seq, t_us, flags: Flags(flags), force_n: force, chambers: [c0, c1, c2], drops,
+            };
             let mut s = LineBuf::new();
             f.encode(&mut s).expect("a frame fits MAX_LINE");
             let g = Frame::decode(&s).unwrap();
-            prop_assert_eq!((g.seq, g.t_us, g.flags), (seq, t_us, Flags(flags)));
+            prop_assert_eq!((g.seq, g.t_us, g.flags, g.drops), (seq, t_us, Flags(flags), drops));
             // NaN payloads: Rust prints every NaN as "NaN", so compare NaN-ness, others bitwise.
             let (a, b) = (bits(&f), bits(&g));
             for k in 0..22 {
@@ -529,9 +546,27 @@ mod tests {
             flags: Flags(u32::MAX),
             force_n: long,
             chambers: [c; 3],
+            drops: u32::MAX,
         };
         let mut s = LineBuf::new();
         f.encode(&mut s).expect("fits");
+        s.push('\n').expect("with its terminator");
+    }
+
+    #[test]
+    fn a_line_without_the_drop_counter_still_decodes() {
+        let f = Frame {
+            seq: 3,
+            t_us: 120_000,
+            drops: 7,
+            ..Frame::default()
+        };
+        let mut s = LineBuf::new();
+        f.encode(&mut s).unwrap();
+        assert!(s.ends_with(" 7"));
+        let old = &s[..s.len() - 2];
+        assert_eq!(Frame::decode(old), Ok(Frame { drops: 0, ..f }));
+        assert_eq!(Frame::decode(&s), Ok(f));
     }
 
     #[test]
@@ -675,6 +710,11 @@ mod tests {
         assert_eq!(
             Frame::decode("$F 1 2 3"),
             Err(TelemetryError::MissingField { index: 3 })
+        );
+        let bad_drops = std::format!("{s}x");
+        assert_eq!(
+            Frame::decode(&bad_drops),
+            Err(TelemetryError::BadNumber { index: 25 })
         );
         assert_eq!(
             Frame::decode("$F 1 x 3"),

@@ -51,7 +51,7 @@ impl hal::PressureAdc for Adc {
 
 struct Serial(Rc<Rig>);
 impl hal::SerialPort for Serial {
-    async fn read(&mut self, buf: &mut [u8]) -> usize {
+    async fn read(&mut self, buf: &mut [u8]) -> Result<usize, hal::SerialError> {
         poll_fn(|_| {
             let mut rx = self.0.rx.borrow_mut();
             if rx.is_empty() {
@@ -61,7 +61,7 @@ impl hal::SerialPort for Serial {
             for b in buf.iter_mut().take(n) {
                 *b = rx.pop_front().unwrap();
             }
-            Poll::Ready(n)
+            Poll::Ready(Ok(n))
         })
         .await
     }
@@ -72,8 +72,10 @@ impl hal::SerialPort for Serial {
 
 struct Sink(Rc<Rig>);
 impl hal::TelemetrySink for Sink {
-    fn line(&mut self, line: &str) {
-        self.0.lines.borrow_mut().push(line.to_string());
+    fn try_send(&mut self, line: &str) -> bool {
+        assert!(line.ends_with('\n'), "one whole line");
+        self.0.lines.borrow_mut().push(line.trim_end().to_string());
+        true
     }
 }
 

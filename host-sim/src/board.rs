@@ -8,8 +8,10 @@
 //! - [`SimAdc`]: a conversion request stays pending until the simulation loop has run every task
 //!   to a standstill at the current instant (so every step due by then has been applied), then
 //!   samples the plant at exactly that instant. The result does not depend on task polling order.
-//! - [`SimSerial`]: command bytes queued by the scenario; replies are captured with their time.
-//! - [`SimTelemetry`]: every line captured with its time.
+//! - [`SimSerial`]: command bytes queued by the scenario, with the receive errors a scenario
+//!   injects; replies are captured with their time.
+//! - [`SimTelemetry`]: every line handed over is captured with its time; during a scenario's
+//!   telemetry stall (the host not reading) every line is refused, and kept apart.
 //! - [`SimWatchdog`]: feeds are timed; the longest gap is reported.
 
 use std::cell::RefCell;
@@ -18,7 +20,9 @@ use std::rc::Rc;
 use std::task::{Poll, Waker};
 
 use embassy_time::Instant;
-use firmware::hal::{Direction, PressureAdc, SerialPort, Steppers, TelemetrySink, Watchdog, AXES};
+use firmware::hal::{
+    Direction, PressureAdc, SerialError, SerialPort, Steppers, TelemetrySink, Watchdog, AXES,
+};
 
 use crate::plant::{ChamberTruth, Plant};
 use crate::sim::FrameTruth;
@@ -52,6 +56,9 @@ pub struct Rig {
     pub ignored_steps: u64,
     /// Pulses whose planned instant lay before the plant's time (applied late; should stay 0).
     pub late_steps: u64,
+    /// Longest time between a pulse's planned instant and the virtual time the stepper task
+    /// issued it, µs (up to one executor quantum when the board keeps up).
+    pub max_step_delay_us: u64,
     read_waker: Option<Waker>,
     read_pending: bool,
     read_result: Option<[u16; AXES]>,
@@ -63,13 +70,17 @@ pub struct Rig {
     group: Vec<ReadTruth>,
     /// Truth per completed frame (mean over its conversions).
     pub frame_truth: Vec<FrameTruth>,
-    rx: VecDeque<u8>,
+    rx: VecDeque<Rx>,
     rx_waker: Option<Waker>,
     /// Reply lines from the command port with their time, µs.
     pub replies: Vec<(u64, String)>,
     reply_buf: String,
     /// Telemetry lines with their time, µs.
     pub telemetry: Vec<(u64, String)>,
+    /// Times the host does not read telemetry, `[start, end)` µs.
+    pub stalls: Vec<(u64, u64)>,
+    /// Lines refused during a stall, with their time, µs.
+    pub refused: Vec<(u64, String)>,
     last_feed_us: u64,
     /// Longest time between two watchdog feeds (or from boot to the first), µs.
     pub max_feed_gap_us: u64,
@@ -92,6 +103,7 @@ impl Rig {
             steps: Vec::new(),
             ignored_steps: 0,
             late_steps: 0,
+            max_step_delay_us: 0,
             read_waker: None,
             read_pending: false,
             read_result: None,
@@ -101,6 +113,8 @@ impl Rig {
             replies: Vec::new(),
             reply_buf: String::new(),
             telemetry: Vec::new(),
+            stalls: Vec::new(),
+            refused: Vec::new(),
             last_feed_us: 0,
             max_feed_gap_us: 0,
         }
@@ -136,7 +150,12 @@ impl Rig {
 
     /// Queue bytes on the command port and wake its reader.
     pub fn send(&mut self, bytes: &[u8]) {
-        self.rx.extend(bytes);
+        self.send_with(bytes.iter().map(|&b| Rx::Byte(b)));
+    }
+
+    /// Queue bytes and receive errors on the command port and wake its reader.
+    pub fn send_with(&mut self, items: impl IntoIterator<Item = Rx>) {
+        self.rx.extend(items);
         if let Some(w) = self.rx_waker.take() {
             w.wake();
         }
@@ -171,6 +190,15 @@ fn mean_truth(group: &[ReadTruth]) -> FrameTruth {
     }
 }
 
+/// What the simulated UART receives: a byte, or a receive error reported at that point.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Rx {
+    /// A received byte.
+    Byte(u8),
+    /// A receive error.
+    Error(SerialError),
+}
+
 /// Shared handle to the rig.
 pub type RigRef = Rc<RefCell<Rig>>;
 
@@ -193,6 +221,7 @@ impl Steppers for SimSteppers {
             return;
         }
         let mut t = at.as_micros();
+        rig.max_step_delay_us = rig.max_step_delay_us.max(now_us().saturating_sub(t));
         if t < rig.plant.time_us(axis) {
             rig.late_steps += 1;
             t = rig.plant.time_us(axis);
@@ -234,18 +263,28 @@ impl PressureAdc for SimAdc {
 pub struct SimSerial(pub RigRef);
 
 impl SerialPort for SimSerial {
-    async fn read(&mut self, buf: &mut [u8]) -> usize {
+    /// Bytes up to the next receive error; the error itself on the read after them.
+    async fn read(&mut self, buf: &mut [u8]) -> Result<usize, SerialError> {
         futures::future::poll_fn(|cx| {
             let mut rig = self.0.borrow_mut();
             if rig.rx.is_empty() || buf.is_empty() {
                 rig.rx_waker = Some(cx.waker().clone());
                 return Poll::Pending;
             }
-            let n = buf.len().min(rig.rx.len());
-            for (b, x) in buf.iter_mut().zip(rig.rx.drain(..n)) {
-                *b = x;
+            if let Some(&Rx::Error(e)) = rig.rx.front() {
+                rig.rx.pop_front();
+                return Poll::Ready(Err(e));
             }
-            Poll::Ready(n)
+            let mut n = 0;
+            while n < buf.len() {
+                let Some(&Rx::Byte(b)) = rig.rx.front() else {
+                    break;
+                };
+                rig.rx.pop_front();
+                buf[n] = b;
+                n += 1;
+            }
+            Poll::Ready(Ok(n))
         })
         .await
     }
@@ -266,9 +305,16 @@ impl SerialPort for SimSerial {
 pub struct SimTelemetry(pub RigRef);
 
 impl TelemetrySink for SimTelemetry {
-    fn line(&mut self, line: &str) {
+    fn try_send(&mut self, line: &str) -> bool {
         let t = now_us();
-        self.0.borrow_mut().telemetry.push((t, line.to_string()));
+        let mut rig = self.0.borrow_mut();
+        let line = line.trim_end_matches('\n').to_string();
+        if rig.stalls.iter().any(|&(a, b)| (a..b).contains(&t)) {
+            rig.refused.push((t, line));
+            return false;
+        }
+        rig.telemetry.push((t, line));
+        true
     }
 }
 

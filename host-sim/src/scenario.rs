@@ -48,6 +48,17 @@
 //! at_s = 1.5
 //! line = "run all 0 550 20 200 20 40 60 80 100"
 //!
+//! [[serial_faults]]                 # a byte of one command line goes wrong on the UART
+//! command = 0                       # index into `commands` (in file order)
+//! byte = 7                          # byte of the line as sent (0-based; the `\n` is byte len)
+//! kind = "lose"                     # lose: lost, the UART reports an overrun
+//!                                   # flag: arrives, with a framing error reported
+//!                                   # drop: lost, no error reported (only a checksum can tell)
+//!
+//! [[telemetry_stalls]]              # the host stops reading telemetry: the transport is full
+//! start_s = 3.0
+//! duration_s = 4.0
+//!
 //! [[faults]]                        # injected hardware faults
 //! at_s = 5.0
 //! unplug = 1                        # sensor 1's connector comes off
@@ -67,8 +78,53 @@ use crate::plant::{Effects, ForcePush, PlantConfig, CHAMBERS};
 pub struct TimedCommand {
     /// When, s of simulated time.
     pub at_s: f64,
-    /// The line, without terminator (the simulator appends `\n`).
+    /// The line, without terminator (the simulator appends `\n`). A checksummed line is given
+    /// whole (`firmware::command::write_checksummed`).
     pub line: String,
+}
+
+impl TimedCommand {
+    /// A command at `at_s`.
+    pub fn new(at_s: f64, line: &str) -> Self {
+        Self {
+            at_s,
+            line: line.into(),
+        }
+    }
+}
+
+/// What goes wrong with a byte on the UART.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum SerialFaultKind {
+    /// The byte is lost and the UART reports an overrun.
+    Lose,
+    /// The byte arrives, with a framing error reported.
+    Flag,
+    /// The byte is lost and nothing is reported.
+    Drop,
+}
+
+/// One byte of one command line going wrong on the UART.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SerialFault {
+    /// Index into the scenario's `commands`.
+    pub command: usize,
+    /// Byte of the line as sent (its `\n` is byte `line.len()`).
+    pub byte: usize,
+    /// What happens to it.
+    pub kind: SerialFaultKind,
+}
+
+/// A time during which the host does not read telemetry: every line offered is refused.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TelemetryStall {
+    /// Start, s of simulated time.
+    pub start_s: f64,
+    /// Length, s.
+    pub duration_s: f64,
 }
 
 /// A hardware fault injected at a given time.
@@ -107,6 +163,10 @@ pub struct Scenario {
     pub commands: Vec<TimedCommand>,
     /// Injected faults.
     pub faults: Vec<FaultInjection>,
+    /// Times the host does not read telemetry.
+    pub telemetry_stalls: Vec<TelemetryStall>,
+    /// Bytes of command lines going wrong on the UART.
+    pub serial_faults: Vec<SerialFault>,
     /// Keep every step pulse and the truth at every ADC conversion in [`crate::SimRun`] (off by
     /// default: an hour holds millions of them).
     pub record_detail: bool,
@@ -126,6 +186,8 @@ impl Default for Scenario {
             force: Vec::new(),
             commands: Vec::new(),
             faults: Vec::new(),
+            telemetry_stalls: Vec::new(),
+            serial_faults: Vec::new(),
             record_detail: false,
         }
     }
@@ -210,19 +272,16 @@ impl Scenario {
         let mut commands = Vec::new();
         if d != Design::Sba1 {
             // The firmware's limits default to SBA1's envelope; widen them to the design's.
-            commands.push(TimedCommand {
-                at_s: START_S - 0.2,
-                line: format!(
+            commands.push(TimedCommand::new(
+                START_S - 0.2,
+                &format!(
                     "limit all {} {}",
                     d.max_pressure_kpa() * 1.5,
                     d.max_volume_mm3()
                 ),
-            });
+            ));
         }
-        commands.push(TimedCommand {
-            at_s: START_S,
-            line: protocol.command(),
-        });
+        commands.push(TimedCommand::new(START_S, &protocol.command()));
         Self {
             name: name.into(),
             description: format!(
@@ -328,10 +387,7 @@ impl Scenario {
                 azimuth_deg: 30.0,
                 tilt_deg: 60.0,
             }],
-            commands: vec![TimedCommand {
-                at_s: START_S,
-                line: "move all 500 50".into(),
-            }],
+            commands: vec![TimedCommand::new(START_S, "move all 500 50")],
             ..Self::default()
         }
     }
@@ -383,6 +439,30 @@ impl Scenario {
             }
             if c.line.contains(['\n', '\r']) {
                 return bad(format!("commands[{i}].line holds a line break"));
+            }
+        }
+        for (i, f) in self.serial_faults.iter().enumerate() {
+            let Some(c) = self.commands.get(f.command) else {
+                return bad(format!(
+                    "serial_faults[{i}].command = {}: no such command",
+                    f.command
+                ));
+            };
+            if f.byte > c.line.len() {
+                return bad(format!(
+                    "serial_faults[{i}].byte = {}: the line has {} bytes and its terminator",
+                    f.byte,
+                    c.line.len()
+                ));
+            }
+        }
+        for (i, st) in self.telemetry_stalls.iter().enumerate() {
+            if !(st.start_s.is_finite() && st.start_s >= 0.0 && st.duration_s.is_finite())
+                || st.duration_s < 0.0
+            {
+                return bad(format!(
+                    "telemetry_stalls[{i}]: start_s and duration_s must be ≥ 0"
+                ));
             }
         }
         for (i, f) in self.faults.iter().enumerate() {

@@ -30,10 +30,12 @@ use firmware::telemetry::{Event, EventKind, Frame};
 use futures::stream::{FuturesUnordered, StreamExt};
 use futures::task::ArcWake;
 
-use crate::board::{ReadTruth, Rig, SimAdc, SimSerial, SimSteppers, SimTelemetry, SimWatchdog};
+use crate::board::{ReadTruth, Rig, Rx, SimAdc, SimSerial, SimSteppers, SimTelemetry, SimWatchdog};
 use crate::plant::{ChamberTruth, Drive, Plant, CHAMBERS};
 use crate::scenario::Scenario;
+use crate::scenario::SerialFaultKind;
 use crate::SimError;
+use firmware::hal::SerialError;
 
 /// One simulation at a time: the MockDriver is process-global.
 static SIM_LOCK: Mutex<()> = Mutex::new(());
@@ -63,6 +65,9 @@ pub struct RunStats {
     pub ignored_steps: u64,
     /// Step pulses whose instant lay behind the plant (must be 0).
     pub late_steps: u64,
+    /// Longest delay between a step's planned instant and its issue in virtual time, µs (at
+    /// most one quantum when the board keeps up).
+    pub max_step_delay_us: u64,
     /// Longest gap between watchdog feeds, µs.
     pub max_watchdog_gap_us: u64,
 }
@@ -72,8 +77,11 @@ pub struct RunStats {
 pub struct SimRun {
     /// The scenario that was run.
     pub scenario: Scenario,
-    /// Every telemetry line with the time it was printed, µs.
+    /// Every telemetry line the board handed over, with its time, µs.
     pub telemetry: Vec<(u64, String)>,
+    /// Lines the board offered during a telemetry stall and the transport refused, with their
+    /// time, µs (the board counts them in its frames' `drops`).
+    pub refused_telemetry: Vec<(u64, String)>,
     /// Decoded frame lines, in order.
     pub frames: Vec<Frame>,
     /// The truth behind each frame (same index).
@@ -139,6 +147,12 @@ pub fn simulate_with(scenario: &Scenario, fw: Config) -> Result<SimRun, SimError
         fw.oversample as usize,
         scenario.record_detail,
     )));
+    let to_us = |s: f64| (s * 1e6).round() as u64;
+    rig.borrow_mut().stalls = scenario
+        .telemetry_stalls
+        .iter()
+        .map(|st| (to_us(st.start_s), to_us(st.start_s + st.duration_s)))
+        .collect();
     let shared = Shared::new(fw);
 
     let tasks: FuturesUnordered<Task<'_>> = FuturesUnordered::new();
@@ -166,13 +180,12 @@ pub fn simulate_with(scenario: &Scenario, fw: Config) -> Result<SimRun, SimError
 
     let flag = Arc::new(WakeFlag(AtomicBool::new(true)));
 
-    let mut commands: Vec<_> = scenario.commands.iter().collect();
-    commands.sort_by(|a, b| a.at_s.total_cmp(&b.at_s));
+    let mut commands: Vec<_> = scenario.commands.iter().enumerate().collect();
+    commands.sort_by(|a, b| a.1.at_s.total_cmp(&b.1.at_s));
     let mut commands = commands.into_iter().peekable();
     let mut faults: Vec<_> = scenario.faults.iter().collect();
     faults.sort_by(|a, b| a.at_s.total_cmp(&b.at_s));
     let mut faults = faults.into_iter().peekable();
-    let to_us = |s: f64| (s * 1e6).round() as u64;
     let end_us = to_us(scenario.duration_s);
     let quantum = Duration::from_micros(scenario.quantum_us);
     let mut stop_at: Option<u64> = None;
@@ -190,10 +203,26 @@ pub fn simulate_with(scenario: &Scenario, fw: Config) -> Result<SimRun, SimError
             }
         }
         let mut injected = false;
-        while let Some(c) = commands.next_if(|c| to_us(c.at_s) <= now) {
+        while let Some((i, c)) = commands.next_if(|c| to_us(c.1.at_s) <= now) {
             let mut line = c.line.clone().into_bytes();
             line.push(b'\n');
-            rig.borrow_mut().send(&line);
+            let mut items = Vec::with_capacity(line.len() + 1);
+            for (k, &b) in line.iter().enumerate() {
+                let fault = scenario
+                    .serial_faults
+                    .iter()
+                    .find(|f| f.command == i && f.byte == k);
+                match fault.map(|f| f.kind) {
+                    None => items.push(Rx::Byte(b)),
+                    Some(SerialFaultKind::Lose) => items.push(Rx::Error(SerialError::Overrun)),
+                    Some(SerialFaultKind::Flag) => {
+                        items.push(Rx::Error(SerialError::Framing));
+                        items.push(Rx::Byte(b));
+                    }
+                    Some(SerialFaultKind::Drop) => {}
+                }
+            }
+            rig.borrow_mut().send_with(items);
             injected = true;
         }
         while let Some(f) = faults.next_if(|f| to_us(f.at_s) <= now) {
@@ -220,9 +249,9 @@ pub fn simulate_with(scenario: &Scenario, fw: Config) -> Result<SimRun, SimError
         if scenario.plant.drive == Drive::Ideal {
             // The ideal drive follows the commanded profile: hand it the next quantum's flow.
             let q = scenario.quantum_us;
-            let flows: [(f32, f32); CHAMBERS] = shared.lock(|s| {
+            let flows: [(f32, f32); CHAMBERS] = shared.with_control(|c| {
                 core::array::from_fn(|i| {
-                    (s.motion().flow_at(i, now), s.motion().flow_at(i, now + q))
+                    (c.motion().flow_at(i, now), c.motion().flow_at(i, now + q))
                 })
             });
             let mut r = rig.borrow_mut();
@@ -257,6 +286,7 @@ pub fn simulate_with(scenario: &Scenario, fw: Config) -> Result<SimRun, SimError
     Ok(SimRun {
         scenario: scenario.clone(),
         telemetry: rig.telemetry,
+        refused_telemetry: rig.refused,
         frames,
         truth,
         events,
@@ -267,6 +297,7 @@ pub fn simulate_with(scenario: &Scenario, fw: Config) -> Result<SimRun, SimError
             steps: rig.step_count.iter().sum(),
             ignored_steps: rig.ignored_steps,
             late_steps: rig.late_steps,
+            max_step_delay_us: rig.max_step_delay_us,
             max_watchdog_gap_us: gap,
         },
         step_count: rig.step_count,

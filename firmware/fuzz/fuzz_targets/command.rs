@@ -1,21 +1,30 @@
-//! The command parser and line assembler never panic, and whatever parses executes without
-//! panicking on a fresh application state.
+//! The command parser, the checksum rules and the line assembler never panic, and whatever
+//! parses executes without panicking on a fresh application state.
 #![no_main]
 
 use firmware::app::{Config, Shared};
-use firmware::command::{parse, LineAssembler};
+use firmware::command::{parse, LineAssembler, LinkState, RawLine};
 use libfuzzer_sys::fuzz_target;
 
 fuzz_target!(|data: &[u8]| {
     let _ = parse(data);
+    let _ = LinkState::default().check(data);
     let mut asm = LineAssembler::new();
     let shared = Shared::new(Config::default());
     let mut reply = String::new();
     for (i, &b) in data.iter().enumerate() {
-        if let Some(Ok(cmd)) = asm.push(b) {
+        if b == 0xff {
+            asm.error();
+            continue;
+        }
+        if let Some(line) = asm.push(b) {
             reply.clear();
-            shared.command(&cmd, i as u64 * 1_000, &mut reply);
+            let mut est = shared.estimator().try_lock().unwrap();
+            shared.command_raw(&mut est, line, i as u64 * 1_000, &mut reply);
             assert!(reply.starts_with("ok") || reply.starts_with("err "));
+            if let RawLine::Corrupt = line {
+                assert_eq!(reply, "err line-corrupt");
+            }
         }
     }
 });

@@ -2,13 +2,24 @@
 //! Everything else is in the library (`firmware::app`), tested on the host.
 //!
 //! Stepper timing: task based. The stepper task awaits `Timer::at(planned instant)` for the
-//! earliest due axis on a 1 MHz time base (`tick-hz-1_000_000`), so every step lands on its
-//! planned µs. It runs on an interrupt executor at a higher priority than everything else, so
-//! frame estimation and telemetry formatting (thread mode) never delay a step; the time
-//! driver's alarm interrupt plus the executor poll costs a few µs per wake-up, i.e. ≈ 10 % of
-//! the 180 MHz M4 at 3 × 10 000 steps/s, leaving step jitter at the few-µs level against a
-//! 100 µs step interval. Timer-output (PWM) stepping would remove that jitter but cannot carry
-//! exact per-step instants of a trapezoid without DMA-fed period tables; not needed here.
+//! earliest due step on a 1 MHz time base (`tick-hz-1_000_000`), then `Shared::stepper_tick`
+//! records every step due at that instant on any axis in one short critical section and pulses
+//! them together (all STEP pins high, 2 µs, all low), so same-instant steps on three axes land
+//! within a few cycles of each other. The task runs on an interrupt executor at a higher
+//! priority than everything else, and no critical section anywhere lasts more than a few
+//! hundred instructions (estimation, RLS, replies and telemetry run with interrupts on), so a
+//! step is late only by the time-driver alarm plus the executor poll, a few µs. Per step: one
+//! `f32` square root in the ramps or one integer product while cruising (`firmware::motion`),
+//! no `f64`. Hardware-timer stepping (a timer's output compare per axis, the next compare value
+//! written from its interrupt) would cut the jitter to the timer's clock, but needs one timer
+//! channel per axis on pins the CNC-shield layout does not offer, and the same per-step instant
+//! computation in the interrupt; at 10 000 steps/s per axis the few-µs software jitter is below
+//! 5 % of a step interval, so it is not taken.
+//!
+//! Telemetry: its own RTT up-channel 1 ("telemetry"), in non-blocking mode, written whole lines
+//! at a time without a critical section (`rtt-target`); a line that does not fit is dropped and
+//! counted in the next frame's `drops` field. defmt logs keep channel 0 ("defmt", which
+//! `probe-rs run` switches to blocking mode); they are only the boot message and a panic.
 //!
 //! Faults: the panic and HardFault handlers below drive the drivers' EN high (disabled) with
 //! one store to GPIOA's BSRR, leave a crash record in `.uninit` RAM ([`firmware::reset`]) and
@@ -29,13 +40,12 @@ mod device {
 
     use cortex_m::peripheral::SCB;
     use cortex_m_rt::{exception, ExceptionFrame};
-    use defmt_rtt as _;
     use embassy_embedded_hal::adapter::BlockingAsync;
     use embassy_executor::{InterruptExecutor, Spawner};
     use embassy_stm32::interrupt;
     use embassy_stm32::interrupt::{InterruptExt, Priority};
     use embassy_stm32::time::Hertz;
-    use embassy_stm32::usart::{self, BufferedUart};
+    use embassy_stm32::usart::{self, RingBufferedUartRx, Uart, UartTx};
     use embassy_stm32::wdg::IndependentWatchdog;
     use embassy_stm32::{bind_interrupts, peripherals};
     use firmware::app::{self, Config, Shared};
@@ -47,13 +57,14 @@ mod device {
     use static_cell::StaticCell;
 
     bind_interrupts!(struct Irqs {
-        USART2 => usart::BufferedInterruptHandler<peripherals::USART2>;
+        USART2 => usart::InterruptHandler<peripherals::USART2>;
+        DMA1_STREAM5 => embassy_stm32::dma::InterruptHandler<peripherals::DMA1_CH5>;
+        DMA1_STREAM6 => embassy_stm32::dma::InterruptHandler<peripherals::DMA1_CH6>;
     });
 
     /// Application state shared by the tasks.
     static SHARED: StaticCell<Shared> = StaticCell::new();
-    /// UART ring buffers.
-    static TX_BUF: StaticCell<[u8; 256]> = StaticCell::new();
+    /// The command port's DMA receive ring.
     static RX_BUF: StaticCell<[u8; 256]> = StaticCell::new();
     /// High-priority executor for the stepper task (see the module docs).
     static EXECUTOR_HIGH: InterruptExecutor = InterruptExecutor::new();
@@ -222,25 +233,45 @@ mod device {
         unsafe { EXECUTOR_HIGH.on_interrupt() }
     }
 
-    /// Telemetry through defmt-RTT.
-    struct DefmtSink;
-    impl hal::TelemetrySink for DefmtSink {
-        fn line(&mut self, line: &str) {
-            defmt::println!("{=str}", line);
+    /// RTT up-channel sizes: defmt logs (boot message, panics) and telemetry (~7.5 KB/s: a
+    /// 4 KiB buffer holds half a second of it while the host is busy).
+    const DEFMT_RTT_BYTES: usize = 1024;
+    const TELEMETRY_RTT_BYTES: usize = 4096;
+
+    /// Telemetry on its own RTT up-channel, non-blocking: a whole line or nothing.
+    ///
+    /// `UpChannel::write` takes no critical section (the channel is owned by this sink alone),
+    /// copies the line and publishes it with one store of the write pointer, so the host only
+    /// ever reads whole lines. In `NoBlockSkip` mode a line that does not fit is not written at
+    /// all and `write` returns less than its length: the sampler counts it as dropped. The mode
+    /// is set again before every line, so a host that switched the channel to blocking cannot
+    /// make the board wait.
+    struct RttSink(rtt_target::UpChannel);
+    impl hal::TelemetrySink for RttSink {
+        fn try_send(&mut self, line: &str) -> bool {
+            self.0.set_mode(rtt_target::ChannelMode::NoBlockSkip);
+            self.0.write(line.as_bytes()) == line.len()
         }
     }
 
-    /// The command port.
-    struct Serial(BufferedUart<'static>);
+    /// The command port: DMA transmit, DMA ring-buffered receive that reports receive errors.
+    struct Serial {
+        tx: UartTx<'static, embassy_stm32::mode::Async>,
+        rx: RingBufferedUartRx<'static>,
+    }
     impl hal::SerialPort for Serial {
-        async fn read(&mut self, buf: &mut [u8]) -> usize {
-            // A framing/overrun error drops those bytes; the line parser reports what is left.
-            embedded_io_async::Read::read(&mut self.0, buf)
-                .await
-                .unwrap_or(0)
+        async fn read(&mut self, buf: &mut [u8]) -> Result<usize, hal::SerialError> {
+            // After an error the driver restarts reception (the ring's unread bytes are lost
+            // with it): the line being received is reported corrupt.
+            self.rx.read(buf).await.map_err(|e| match e {
+                usart::Error::Framing => hal::SerialError::Framing,
+                usart::Error::Noise => hal::SerialError::Noise,
+                usart::Error::Parity => hal::SerialError::Parity,
+                _ => hal::SerialError::Overrun,
+            })
         }
         async fn write_all(&mut self, data: &[u8]) {
-            let _ = embedded_io_async::Write::write_all(&mut self.0, data).await;
+            let _ = self.tx.write(data).await;
         }
     }
 
@@ -250,8 +281,8 @@ mod device {
     }
 
     #[embassy_executor::task]
-    async fn sampler(shared: &'static Shared, adc: DeviceAdc, wdg: DeviceWatchdog) {
-        app::sampler_task(shared, adc, DefmtSink, wdg).await
+    async fn sampler(shared: &'static Shared, adc: DeviceAdc, tlm: RttSink, wdg: DeviceWatchdog) {
+        app::sampler_task(shared, adc, tlm, wdg).await
     }
 
     #[embassy_executor::task]
@@ -289,6 +320,20 @@ mod device {
 
     #[embassy_executor::main]
     async fn main(spawner: Spawner) {
+        // RTT first, so `probe-rs run` finds the control block at once.
+        let rtt = rtt_target::rtt_init! {
+            up: {
+                0: { size: DEFMT_RTT_BYTES, name: "defmt" }
+                1: {
+                    size: TELEMETRY_RTT_BYTES,
+                    mode: rtt_target::ChannelMode::NoBlockSkip,
+                    name: "telemetry"
+                }
+            }
+        };
+        rtt_target::set_defmt_channel(rtt.up.0);
+        let telemetry = RttSink(rtt.up.1);
+
         // Read the reset cause before init, then clear the flags and the record for the next
         // boot.
         let csr = embassy_stm32::pac::RCC.csr().read().0;
@@ -312,15 +357,20 @@ mod device {
 
         let mut uart_cfg = usart::Config::default();
         uart_cfg.baudrate = 115_200;
-        let uart = defmt::unwrap!(BufferedUart::new(
+        let uart = defmt::unwrap!(Uart::new(
             rest.usart,
             rest.rx,
             rest.tx,
-            TX_BUF.init([0; 256]),
-            RX_BUF.init([0; 256]),
+            rest.tx_dma,
+            rest.rx_dma,
             Irqs,
             uart_cfg,
         ));
+        let (tx, rx) = uart.split();
+        let serial = Serial {
+            tx,
+            rx: rx.into_ring_buffered(RX_BUF.init([0; 256])),
+        };
 
         let mut iwdg = IndependentWatchdog::new(rest.iwdg, WATCHDOG_TIMEOUT_US);
         iwdg.unleash();
@@ -329,14 +379,21 @@ mod device {
             reset_cause,
             ..Config::default()
         }));
-        shared.lock(|s| s.restore_models(&models, embassy_time::Instant::now().as_micros()));
+        shared
+            .restore_models(&models, embassy_time::Instant::now().as_micros())
+            .await;
         defmt::info!("vfp-fw booted (reset: {=str})", reset_cause.name());
 
         interrupt::UART4.set_priority(Priority::P6);
         let high = EXECUTOR_HIGH.start(interrupt::UART4);
         high.spawn(defmt::unwrap!(stepper(shared, steppers)));
-        spawner.spawn(defmt::unwrap!(sampler(shared, adc, DeviceWatchdog(iwdg))));
-        spawner.spawn(defmt::unwrap!(command(shared, Serial(uart))));
+        spawner.spawn(defmt::unwrap!(sampler(
+            shared,
+            adc,
+            telemetry,
+            DeviceWatchdog(iwdg)
+        )));
+        spawner.spawn(defmt::unwrap!(command(shared, serial)));
         spawner.spawn(defmt::unwrap!(persist(shared, store)));
     }
 }
