@@ -6,7 +6,7 @@ use diag_common::*;
 use sysid::dataset::{DatasetConfig, LogData};
 use sysid::diag::stiffness;
 use sysid::diag::Shape;
-use vfp::cmd::stiffness::{Args as StiffnessArgs, ShapeOpts, DEFAULT_PHASE_DEADBAND};
+use vfp::cmd::stiffness::{Args as StiffnessArgs, ShapeOpts};
 use vfp::opts::{LogInput, OutputOpts};
 
 fn read_log(path: &std::path::Path) -> Result<LogData, sysid::dataset::LoadError> {
@@ -23,10 +23,13 @@ fn means_match_the_known_law_overall_and_per_phase() {
     let path = dir.join("sba1.csv");
     write(&path, &tr, &[(0, tr.v.clone(), p)], None, &[]);
     let log = read_log(&path).unwrap();
-    let res = stiffness::analyze_log(&log, Shape::PAPER, DEFAULT_PHASE_DEADBAND).unwrap();
+    let res = stiffness::analyze_log(&log, Shape::PAPER).unwrap();
     let s = &res[0].summary;
 
-    // Truth: the law's own partials at the same samples, split with the same 2 mm³/s band.
+    // Truth: the law's own partials at the same samples, split with the band the report states
+    // (the dataset's phase deadband).
+    let band = s.deadband_mm3_s;
+    assert_eq!(band, log.first().deadband);
     let truth: Vec<(f64, f64)> =
         tr.v.iter()
             .zip(&tr.vdot)
@@ -44,8 +47,8 @@ fn means_match_the_known_law_overall_and_per_phase() {
         (k, c, sel.len())
     };
     let (k_all, c_all, _) = mean(&|_| true);
-    let (k_in, c_in, n_in) = mean(&|q| q > 2.0);
-    let (k_de, c_de, n_de) = mean(&|q| q < -2.0);
+    let (k_in, c_in, n_in) = mean(&|q| q > band);
+    let (k_de, c_de, n_de) = mean(&|q| q < -band);
     let close = |a: f64, b: f64, what: &str| {
         assert!(
             (a - b).abs() <= 0.01 * b.abs(),
@@ -93,7 +96,7 @@ fn command_writes_figure_and_succeeds() {
     assert!(svg.contains("<svg") && svg.contains("chamber 1"));
     // Chamber 1's law is chamber 0's halved: so are its mean partials (linearity of ∂).
     let log = read_log(&path).unwrap();
-    let res = stiffness::analyze_log(&log, Shape::PAPER, DEFAULT_PHASE_DEADBAND).unwrap();
+    let res = stiffness::analyze_log(&log, Shape::PAPER).unwrap();
     let ratio = res[1].summary.k_mean / res[0].summary.k_mean;
     assert!((ratio - 0.5).abs() < 0.01, "k ratio {ratio}");
     let ratio = res[1].summary.c_mean / res[0].summary.c_mean;

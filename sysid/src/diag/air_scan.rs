@@ -85,7 +85,6 @@ pub fn scan(
     xs: Option<&[f64]>,
     x_key: &str,
     shape: Shape,
-    deadband: f64,
 ) -> Result<(AirScanReport, Vec<ScanPoints>), DiagError> {
     if let Some(x) = xs {
         if x.len() != logs.len() || x.iter().any(|v| !v.is_finite()) {
@@ -100,7 +99,7 @@ pub fn scan(
     let mut points = Vec::new();
     for (i, data) in logs.iter().enumerate() {
         let ds = data.first();
-        let res = analyze(&data.name(), ds.chamber, ds, shape, deadband)?;
+        let res = analyze(&data.name(), ds.chamber, ds, shape)?;
         let (x, from_meta) = match (xs, data.meta(x_key)) {
             (Some(x), _) => (x[i], true),
             (None, Some(s)) => (

@@ -7,9 +7,17 @@
 //! kᵢ = ∂P̂/∂v |₍vᵢ, v̇ᵢ₎ (kPa/mm³, stiffness) and cᵢ = ∂P̂/∂v̇ |₍vᵢ, v̇ᵢ₎ (kPa·s/mm³, damping),
 //!
 //! and k̄ = (1/N) Σ kᵢ, c̄ = (1/N) Σ cᵢ over all N samples. The inflation means take only
-//! samples with v̇ > +δ, the deflation means only v̇ < −δ, where the dead band δ (default
-//! 2 mm³/s: two 0.04 mm³ steps per 25 Hz frame) keeps samples at rest, whose flow sign is noise,
-//! out of both phases; they still count in the overall means, as in the paper.
+//! samples with v̇ > +δ, the deflation means only v̇ < −δ, where the dead band δ keeps samples at
+//! rest, whose flow sign is noise, out of both phases; they still count in the overall means, as
+//! in the paper.
+//!
+//! δ is the dataset's phase deadband ([`Dataset::deadband`]), the one that also segments the
+//! log into inflation and deflation cycles: `--deadband` when given, else 5 % of the 95th
+//! percentile of |v̇| per chamber ([`crate::dataset`]). One threshold for one concept, and it
+//! scales with the log: the simulated rig's 20–100 mm³/s strokes give δ ≈ 5 mm³/s, the
+//! ventilator logs' ±10⁵ mm³/s breaths δ in the thousands, where a fixed 2 mm³/s (the former
+//! default here, two 0.04 mm³ steps per 25 Hz frame) would have counted every noisy sample at
+//! rest as inflating or deflating.
 
 use super::{DiagError, Shape};
 use crate::dataset::{Dataset, LogData};
@@ -76,6 +84,8 @@ pub struct Summary {
     pub samples: usize,
     /// Samples within the dead band (in the overall means only).
     pub rest_samples: usize,
+    /// The dead band δ on |v̇| of the phase split (mm³/s).
+    pub deadband_mm3_s: f64,
     /// In-sample RMSE of the fitted polynomial (kPa).
     pub fit_rmse_kpa: f64,
 }
@@ -90,6 +100,7 @@ pub fn summarize(chamber: u8, pw: &Pointwise, q: &[f64], deadband: f64, fit_rmse
         k_mean: all.k_mean.unwrap_or(f64::NAN),
         c_mean: all.c_mean.unwrap_or(f64::NAN),
         rest_samples: all.samples - inflation.samples - deflation.samples,
+        deadband_mm3_s: deadband,
         inflation,
         deflation,
         samples: all.samples,
@@ -114,7 +125,6 @@ pub fn analyze(
     chamber: u8,
     s: &Dataset,
     shape: Shape,
-    deadband: f64,
 ) -> Result<ChamberStiffness, DiagError> {
     let fit = poly::fit(
         Xy {
@@ -128,7 +138,7 @@ pub fn analyze(
     )
     .map_err(|e| DiagError::fit(format!("{context}, chamber {chamber}"), e.to_string()))?;
     let pw = pointwise(&fit, &s.v, &s.vdot);
-    let summary = summarize(chamber, &pw, &s.vdot, deadband, fit.train.rmse);
+    let summary = summarize(chamber, &pw, &s.vdot, s.deadband, fit.train.rmse);
     Ok(ChamberStiffness {
         fit,
         pointwise: pw,
@@ -137,15 +147,11 @@ pub fn analyze(
 }
 
 /// Analyses every chamber of `data` (the chambers it was read with), in chamber order.
-pub fn analyze_log(
-    data: &LogData,
-    shape: Shape,
-    deadband: f64,
-) -> Result<Vec<ChamberStiffness>, DiagError> {
+pub fn analyze_log(data: &LogData, shape: Shape) -> Result<Vec<ChamberStiffness>, DiagError> {
     let ctx = data.name();
     data.datasets
         .iter()
-        .map(|ds| analyze(&ctx, ds.chamber, ds, shape, deadband))
+        .map(|ds| analyze(&ctx, ds.chamber, ds, shape))
         .collect()
 }
 
@@ -157,8 +163,6 @@ pub struct StiffnessReport {
     pub log: String,
     /// Polynomial shape.
     pub shape: Shape,
-    /// Dead band on |v̇| for the phase split (mm³/s).
-    pub deadband_mm3_s: f64,
     /// Whether v̇ was derived from volume and time.
     pub flow_derived: bool,
     /// Units of the numbers.
@@ -190,13 +194,11 @@ pub const UNITS: Units = Units {
 pub fn stiffness(
     data: &LogData,
     shape: Shape,
-    deadband: f64,
 ) -> Result<(StiffnessReport, Vec<ChamberStiffness>), DiagError> {
-    let res = analyze_log(data, shape, deadband)?;
+    let res = analyze_log(data, shape)?;
     let report = StiffnessReport {
         log: data.name(),
         shape,
-        deadband_mm3_s: deadband,
         flow_derived: data.flow_derived(),
         units: UNITS,
         first: res[0].summary.clone(),

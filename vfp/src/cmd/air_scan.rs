@@ -2,7 +2,7 @@
 //! in the syringe (paper §IV-A, Fig. 7c–d), with the trend; the method is
 //! [`sysid::diag::air_scan`].
 
-use super::stiffness::{ShapeOpts, DEFAULT_PHASE_DEADBAND};
+use super::stiffness::ShapeOpts;
 use crate::opts::{ChamberOpt, DataOpts, OutputOpts};
 use crate::plots::diag::{self as plot, Curve, Mark};
 use crate::Error;
@@ -41,14 +41,7 @@ pub fn scan_logs(args: &Args) -> Result<(AirScanReport, Vec<ScanPoints>), Error>
         .iter()
         .map(|p| args.data.load(p, args.chamber.chamber))
         .collect::<Result<Vec<_>, _>>()?;
-    let deadband = args.data.deadband.unwrap_or(DEFAULT_PHASE_DEADBAND);
-    Ok(scan(
-        &logs,
-        args.x.as_deref(),
-        &args.x_key,
-        shape,
-        deadband,
-    )?)
+    Ok(scan(&logs, args.x.as_deref(), &args.x_key, shape)?)
 }
 
 /// Runs `vfp air-scan`.

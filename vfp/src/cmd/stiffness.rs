@@ -8,9 +8,6 @@ use std::path::PathBuf;
 use sysid::diag::stiffness::{stiffness, ChamberStiffness, StiffnessReport};
 use sysid::diag::Shape;
 
-/// Phase deadband of the stiffness means when `--deadband` is not given, mm³/s.
-pub const DEFAULT_PHASE_DEADBAND: f64 = 2.0;
-
 /// Polynomial shape of the §IV analyses (`--n`, `--m`).
 #[derive(Debug, Clone, Copy, clap::Args)]
 pub struct ShapeOpts {
@@ -57,8 +54,7 @@ pub struct Args {
 pub fn run(args: &Args) -> Result<(), Error> {
     let shape = args.shape.shape()?;
     let data = args.input.load()?;
-    let deadband = args.input.data.deadband.unwrap_or(DEFAULT_PHASE_DEADBAND);
-    let (report, res) = stiffness(&data, shape, deadband)?;
+    let (report, res) = stiffness(&data, shape)?;
     args.out.emit(&report, human, |dir| {
         plot_distributions(dir, &data.label(), &res)
     })
@@ -105,7 +101,7 @@ pub fn human(r: &StiffnessReport) -> String {
         }
         s += &format!(
             "  ({} samples with |vdot| <= {} mm3/s count as rest: in 'all' only)\n",
-            c.rest_samples, r.deadband_mm3_s
+            c.rest_samples, c.deadband_mm3_s
         );
     }
     s
