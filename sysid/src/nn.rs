@@ -34,12 +34,14 @@
 //!
 //! * d = 1 is linear in x and is solved exactly by least squares (no training).
 //! * d from the trained d − 1 net, in [`SweepConfig::candidates`] ways, each trained and the best
-//!   kept: candidate 0 puts a new ReLU unit below the chain, `h₁ = relu(w·x + c)` with He-scaled
-//!   w ~ N(0, 2/n) and its kink through a random row (c = −w·x_r, so it is active on part of the
-//!   data), coupled to the old first layer by a = 0; candidate 1 inserts an identity pass
-//!   `u = relu(1·hⱼ + 0·x + 0) = hⱼ` after a random hidden unit j (exact because hⱼ ≥ 0); when the
-//!   d − 1 net has no hidden unit (d = 2), and for further candidates, more new bottom units with
-//!   other random kinks.
+//!   kept. Candidates 0 and 1 put a new ReLU unit below the chain, `h₁ = relu(w·x + c)`, coupled
+//!   to the old first layer by a = 0; the unit is the best of 32 random proposals (He-scaled
+//!   w ~ N(0, 2/n), kink through a random row: c = −w·x_r, so it is active on part of the data)
+//!   by |Σᵢ gᵢ h₁(xᵢ)| / ‖h₁‖, where gᵢ is the loss gradient at the old first layer's
+//!   pre-activation on row i: the rate at which moving a off 0 lowers the loss, so the unit
+//!   starts where it helps, not at a saddle. The two candidates draw different proposals.
+//!   Candidates 2, 3, .. insert an identity pass `u = relu(1·hⱼ + 0·x + 0) = hⱼ` after a random
+//!   hidden unit j (exact because hⱼ ≥ 0).
 //! * An AR net (p ≥ 1) of depth d starts as the trained p = 0 net of depth d with all lag weights
 //!   zero, so it starts exactly where p = 0 ended; when the sweep also has the order-p net of
 //!   depth d − 1, a net grown from that is a second candidate.
@@ -48,6 +50,11 @@
 //! construction and not by a check, the training error (the [`NnFit::sse`] the sweep minimises)
 //! never rises with d, and an AR net is never worse on its rows than the p = 0 net it started
 //! from: a run that finds nothing better returns its start unchanged.
+//!
+//! Known limitation: a training run may still find nothing better than its grown start (the
+//! tests see at most one such depth in eight on a 12,000-sample log, three in fifteen on the
+//! paper-sized one); that depth then repeats the error of the one below it and reports its new
+//! unit as dead (cut off by a = 0), never a higher error.
 //!
 //! # Training
 //! Mean squared error on the standardised target over every row given, mini-batch Adam
@@ -67,6 +74,8 @@
 //! * gradient clipping: a step whose gradient norm exceeds 4× the running (EMA, 0.98) norm is
 //!   scaled down to that bound, so single rows far out (spikes in a differentiated flow) cannot
 //!   kick the parameters out of range;
+//! * epochs of one pass over the rows, or of 200 steps over repeated passes if that is more (a
+//!   short log would otherwise judge progress on a handful of steps);
 //! * a plateau schedule: after every epoch the training MSE over all rows is computed; if the
 //!   best one has not improved by the relative [`SweepConfig::tolerance`] for
 //!   [`SweepConfig::patience`] epochs, the best parameters are restored, Adam's moments reset and
@@ -146,8 +155,8 @@ impl Default for SweepConfig {
             threads: std::thread::available_parallelism().map_or(1, |n| n.get()),
             batch_size: 256,
             learning_rate: 0.01,
-            patience: 2,
-            tolerance: 1e-3,
+            patience: 3,
+            tolerance: 1e-4,
             lr_halvings: 3,
             candidates: 2,
         }
@@ -489,13 +498,7 @@ fn mean_std(xs: &[f64]) -> (f64, f64) {
         return (m, 1.0);
     }
     // Variance of the deviations scaled by their maximum: no overflow or underflow.
-    let s = dev_max
-        * (xs
-            .iter()
-            .map(|x| ((x - m) / dev_max).powi(2))
-            .sum::<f64>()
-            / n)
-            .sqrt();
+    let s = dev_max * (xs.iter().map(|x| ((x - m) / dev_max).powi(2)).sum::<f64>() / n).sqrt();
     (m, if s > 0.0 && s.is_finite() { s } else { 1.0 })
 }
 
@@ -643,18 +646,64 @@ impl Net {
         dead
     }
 
-    /// This net with a new ReLU unit below the chain: He-scaled weights, its kink through row
-    /// `r` of `x`, coupled to the old first layer by a = 0 (which that layer already has), so the
-    /// function is unchanged.
-    fn grow_bottom(&self, x: &[f64], rng: &mut StdRng) -> Net {
+    /// This net with a new ReLU unit below the chain, coupled to the old first layer by a = 0
+    /// (which that layer already has), so the function is unchanged. The unit is the best of
+    /// [`PROPOSALS`] random He-scaled units with kinks through random rows: the one whose output
+    /// h correlates most with the loss gradient g at the old first layer's pre-activation,
+    /// |Σ gᵢhᵢ| / ‖h‖ (the rate at which a = 0 → ±ε lowers the loss), so that the new unit starts
+    /// where it helps rather than at a saddle.
+    fn grow_bottom(&self, x: &[f64], y: &[f64], rng: &mut StdRng) -> Net {
         let (n, st) = (self.n_in, self.stride());
+        let g = self.bottom_gradients(x, y);
+        let mut best = (f64::NEG_INFINITY, vec![0.0; st]);
         let mut block = vec![0.0; st];
-        he_unit(&mut block, n, x, rng);
+        for _ in 0..PROPOSALS {
+            he_unit(&mut block, n, x, rng);
+            let (mut dot, mut sq) = (0.0, 0.0);
+            for (xr, gi) in x.chunks_exact(n).zip(&g) {
+                let zr = block[st - 1]
+                    + block[1..st - 1]
+                        .iter()
+                        .zip(xr)
+                        .map(|(w, x)| w * x)
+                        .sum::<f64>();
+                if zr > 0.0 {
+                    dot += gi * zr;
+                    sq += zr * zr;
+                }
+            }
+            let score = if sq > 0.0 { dot.abs() / sq.sqrt() } else { 0.0 };
+            if score > best.0 {
+                best = (score, block.clone());
+            }
+        }
         let mut net = self.clone();
         net.depth += 1;
-        net.theta.splice(0..0, block);
+        net.theta.splice(0..0, best.1);
         debug_assert_eq!(net.theta[st], 0.0);
         net
+    }
+
+    /// Per row, the derivative of the squared error with respect to the first layer's
+    /// pre-activation z₁ (back-propagated as in `loss_grad`).
+    fn bottom_gradients(&self, x: &[f64], y: &[f64]) -> Vec<f64> {
+        let (d, n, st) = (self.depth, self.n_in, self.stride());
+        let (mut z, mut h) = (vec![0.0; d], vec![0.0; d]);
+        x.chunks_exact(n)
+            .zip(y)
+            .map(|(xr, yr)| {
+                let e = self.forward(xr, &mut z, &mut h) - yr;
+                let mut gl = 2.0 * e * self.theta[d * st];
+                for l in (1..d).rev() {
+                    gl = if z[l - 1] > 0.0 {
+                        gl * self.theta[l * st]
+                    } else {
+                        0.0
+                    };
+                }
+                gl
+            })
+            .collect()
     }
 
     /// This net with an identity pass u = relu(1·hⱼ) = hⱼ inserted after hidden unit j (0-based,
@@ -708,6 +757,12 @@ fn he_unit(block: &mut [f64], n: usize, x: &[f64], rng: &mut StdRng) {
             .sum::<f64>()
     };
 }
+
+/// Fewest Adam steps per epoch (see `train`).
+const MIN_EPOCH_STEPS: usize = 200;
+
+/// Random units a new bottom unit is chosen from (see `Net::grow_bottom`).
+const PROPOSALS: usize = 32;
 
 /// Parameter count ν = d(n + 2) + 1 for n inputs.
 fn n_params(depth: usize, n_in: usize) -> usize {
@@ -803,11 +858,11 @@ fn grow_p0(
     let base = &prev.net;
     let runs = parallel(cfg.candidates.max(1), threads, |c| {
         let mut rng = StdRng::seed_from_u64(model_seed(cfg.seed, d, 0, c));
-        let start = if c == 1 && base.depth >= 2 {
+        let start = if c >= 2 && base.depth >= 2 {
             let j = rng.random_range(0..base.depth - 1);
             base.grow_identity(j)
         } else {
-            base.grow_bottom(&data.x, &mut rng)
+            base.grow_bottom(&data.x, &data.y, &mut rng)
         };
         train(data, start, cfg, &mut rng)
     });
@@ -830,7 +885,7 @@ fn grow_ar(
     runs.push(train(data, base.net.with_inputs(data), cfg, &mut rng));
     if let Some(b) = below {
         let mut rng = StdRng::seed_from_u64(model_seed(cfg.seed, d, q, 1));
-        let start = b.net.grow_bottom(&data.x, &mut rng);
+        let start = b.net.grow_bottom(&data.x, &data.y, &mut rng);
         runs.push(train(data, start, cfg, &mut rng));
     }
     best_of(data, runs)
@@ -941,11 +996,19 @@ fn train(
     let (mut epochs, mut converged) = (0, false);
     let mut norm_ema = 0.0_f64;
     let patience = cfg.patience.max(1);
+    // An epoch is a pass over the rows, or MIN_EPOCH_STEPS steps over repeated passes if that
+    // is more (short logs would otherwise judge progress on a handful of steps).
+    let passes = MIN_EPOCH_STEPS.div_ceil(rows.div_ceil(batch)).max(1);
+    let mut seq = Vec::with_capacity(passes * rows);
     while epochs < cfg.epochs {
         epochs += 1;
-        order.shuffle(rng);
         let mut blew_up = false;
-        for chunk in order.chunks(batch) {
+        seq.clear();
+        for _ in 0..passes {
+            order.shuffle(rng);
+            seq.extend_from_slice(&order);
+        }
+        for chunk in seq.chunks(batch) {
             grad.iter_mut().for_each(|g| *g = 0.0);
             let loss = net.loss_grad(&data.x, &data.y, chunk, &mut grad);
             let norm = grad.iter().map(|g| g * g).sum::<f64>().sqrt();
@@ -1142,14 +1205,17 @@ mod tests {
         net.evaluate(&data.x, &data.y, &mut alive);
         assert!(alive.iter().all(|&a| a), "the test net has live units");
         for grown in [
-            net.grow_bottom(&data.x, &mut rng),
+            net.grow_bottom(&data.x, &data.y, &mut rng),
             net.grow_identity(0),
             net.grow_identity(2),
         ] {
             assert_eq!(grown.depth, 5);
             assert_eq!(grown.theta.len(), 5 * 4 + 2);
             let after = grown.predict(&data.x);
-            assert!(before.iter().zip(&after).all(|(a, b)| a.to_bits() == b.to_bits()));
+            assert!(before
+                .iter()
+                .zip(&after)
+                .all(|(a, b)| a.to_bits() == b.to_bits()));
         }
         // The p = 0 net carried over to p = 3 predicts the same for rows t ≥ 3.
         let ar = net.with_inputs(&data3);
