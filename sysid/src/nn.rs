@@ -1031,11 +1031,12 @@ fn train(
             let t = adam.t;
             let step = lr * (t as f64 / warmup).min(1.0);
             let (c1, c2) = (1.0 - b1.powi(t as i32), 1.0 - b2.powi(t as i32));
-            for i in 0..np {
-                let g = grad[i] * k;
-                adam.m[i] = b1 * adam.m[i] + (1.0 - b1) * g;
-                adam.v[i] = b2 * adam.v[i] + (1.0 - b2) * g * g;
-                net.theta[i] -= step * (adam.m[i] / c1) / ((adam.v[i] / c2).sqrt() + eps);
+            let moments = adam.m.iter_mut().zip(adam.v.iter_mut());
+            for ((th, gi), (m, v)) in net.theta.iter_mut().zip(&grad).zip(moments) {
+                let g = gi * k;
+                *m = b1 * *m + (1.0 - b1) * g;
+                *v = b2 * *v + (1.0 - b2) * g * g;
+                *th -= step * (*m / c1) / ((*v / c2).sqrt() + eps);
             }
             // a₁ has no predecessor: keep it at 0 (its gradient is 0, but keep it exact).
             net.theta[0] = 0.0;
@@ -1056,13 +1057,11 @@ fn train(
         }
         // Restart dead hidden units (the function on the rows does not change).
         let mut revived = false;
-        for l in 0..d - 1 {
-            if !alive[l] {
-                let block = &mut net.theta[l * st..(l + 1) * st];
-                he_unit(block, n, &[], rng);
-                net.theta[(l + 1) * st] = 0.0;
-                revived = true;
-            }
+        for (l, _) in alive.iter().enumerate().filter(|(_, a)| !**a) {
+            let block = &mut net.theta[l * st..(l + 1) * st];
+            he_unit(block, n, &[], rng);
+            net.theta[(l + 1) * st] = 0.0;
+            revived = true;
         }
         if revived {
             // Kinks through random rows, now that the units below are in place.
