@@ -96,6 +96,16 @@ fn bench_nn(c: &mut Criterion) {
     g.bench_function("sweep_d1_15_83k_2threads", |b| {
         b.iter(|| nn::sweep(&inputs, &p, &cfg))
     });
+    // What `vfp identify --family nn` trains (Table III): d = 1..15 at p = 0, then p = 1..5 at
+    // d = 8, as two sweeps.
+    let ar = nn::SweepConfig {
+        depths: vec![8],
+        ar_orders: (1..=5).collect(),
+        ..cfg.clone()
+    };
+    g.bench_function("paper_d1_15_and_ar1_5_d8_83k_2threads", |b| {
+        b.iter(|| (nn::sweep(&inputs, &p, &cfg), nn::sweep(&inputs, &p, &ar)))
+    });
     g.finish();
 }
 
