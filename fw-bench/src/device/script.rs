@@ -1,0 +1,379 @@
+//! The scripted run: the three tasks' work interleaved on a virtual clock, as the board's
+//! executors would run it, with the single operations measured as they happen.
+//!
+//! Without an executor the tasks' loop bodies are called directly (see [`super::fw::Board`]):
+//! - the stepper task steps at each planned step instant (it has the higher priority: at equal
+//!   instants the step goes first), then polls for the next step; it also wakes every 50 ms with
+//!   nothing to do, and after every command (the firmware's wake signal);
+//! - the sampler task converts every 5 ms (8 conversions per 40 ms frame), encodes the frame
+//!   line on every 8th, and sends the queued event lines after every conversion;
+//! - the command task executes a command line between two of those events.
+//!
+//! The run, in order (≈ 1.9 s of rig time):
+//! 1. boot and the pressure zero at rest (25 frames, nothing measured);
+//! 2. commands at rest, each measured: `status`, `limit`, `origin`, the model read-back, and
+//!    the same model loaded back (`begin`, 2 × `coef`, `commit`);
+//! 3. `move all 106 50 500` (6 mm³ from 100): steps measured in the acceleration phase (steps
+//!    20–24 of each axis) and at cruise (steps 70–74; the trapezoid accelerates over the first
+//!    62), every conversion (`oversample`) and every frame (`frame`, bare polynomial) and its
+//!    telemetry line measured;
+//! 4. `rls <ch> on` on the three chambers, then `move all 116 20 500` (10 mm³ at 20 mm³/s):
+//!    every frame measured as `frame_rls`; those on which the drift check runs (every
+//!    `DRIFT_WINDOW` RLS updates) are retagged `frame_rls_drift`;
+//! 5. `run` with 8 flows, 30 ms of its first leg, `stop`, `clear`, `rls 0 off`, `status`,
+//!    `zero`, and one more frame.
+//!
+//! The sensors read a synthetic pressure that follows the syringe volume (0.064 kPa/mm³ above
+//! the zero, a few counts of dither), well inside every safety limit: any fault stops the run.
+
+use core::fmt::{self, Write as _};
+
+use heapless::String;
+
+use super::fw::{Board, FrameOut, Wait, CHANNELS};
+use super::marks::*;
+use super::measure;
+
+/// RLS updates between two drift checks (the firmware's default is 250 frames, 10 s): short,
+/// so drift-check frames come within the run; a check costs the same whatever the window.
+const DRIFT_WINDOW: u32 = 4;
+/// Drift threshold 0: every check after the first (which takes the baseline) takes the
+/// warning path (event queued), the more expensive one.
+const DRIFT_FRAC: f32 = 0.0;
+/// Conversions per frame (the firmware's default `oversample`).
+const OVERSAMPLE: u32 = 8;
+/// The stepper task's heartbeat with nothing to do, µs.
+const STEPPER_IDLE_US: u64 = 50_000;
+/// Raw counts at 0 kPa (1.0 V at the sensor through the 0.625 divider, 12 bits at 3.3 V).
+const ZERO_COUNTS: f32 = 776.0;
+/// Synthetic pressure: counts per mm³ of syringe volume.
+const COUNTS_PER_MM3: f32 = 2.0;
+/// Steps (per axis, from the start of a move) measured as acceleration-phase steps.
+const ACCEL_STEPS: core::ops::Range<u32> = 20..25;
+/// Steps measured as cruise steps.
+const CRUISE_STEPS: core::ops::Range<u32> = 70..75;
+
+/// How the conversions of the current phase are measured.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Measure {
+    /// Not measured.
+    Off,
+    /// `oversample`, `frame`, `telemetry_line`.
+    Bare,
+    /// `oversample`, `frame_rls` (or `frame_rls_drift`), `telemetry_line`.
+    Rls,
+}
+
+/// What the run did (printed by the program at the end).
+#[derive(Default)]
+pub struct Summary {
+    steps: u32,
+    conversions: u32,
+    frames: u32,
+    commands: u32,
+    drift_frames: u32,
+    event_lines: u32,
+    rig_us: u64,
+}
+
+impl fmt::Display for Summary {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(
+            f,
+            "scripted run: {} ms of rig time, {} steps, {} conversions, {} frames ({} with the drift check), {} event lines, {} commands",
+            self.rig_us / 1000,
+            self.steps,
+            self.conversions,
+            self.frames,
+            self.drift_frames,
+            self.event_lines,
+            self.commands
+        )
+    }
+}
+
+struct Rig {
+    b: Board,
+    now: u64,
+    period: u64,
+    next_conv: u64,
+    wait: Wait,
+    last_poll: u64,
+    /// Steps taken per axis since the current move started.
+    k: [u32; CHANNELS],
+    measure_steps: bool,
+    measure_conv: Measure,
+    /// Chambers with RLS on, and their RLS updates so far.
+    rls_on: [bool; CHANNELS],
+    rls_updates: [u32; CHANNELS],
+    dither: u32,
+    s: Summary,
+}
+
+/// A line being built (commands and replies are far below this).
+type Line = String<256>;
+
+impl Rig {
+    fn new() -> Self {
+        let b = Board::new(DRIFT_WINDOW, DRIFT_FRAC);
+        let period = b.oversample_period_us();
+        let wait = b.stepper_poll(0);
+        Self {
+            b,
+            now: 0,
+            period,
+            next_conv: period,
+            wait,
+            last_poll: 0,
+            k: [0; CHANNELS],
+            measure_steps: false,
+            measure_conv: Measure::Off,
+            rls_on: [false; CHANNELS],
+            rls_updates: [0; CHANNELS],
+            dither: 0x1234_5678,
+            s: Summary::default(),
+        }
+    }
+
+    /// Run the stepper and sampler tasks up to `until_us`.
+    fn advance(&mut self, until_us: u64) {
+        loop {
+            let t_step = match self.wait {
+                Wait::Step { at_us, .. } => at_us,
+                Wait::Until(t) => t.min(self.last_poll + STEPPER_IDLE_US),
+                Wait::Idle => self.last_poll + STEPPER_IDLE_US,
+            };
+            if t_step.min(self.next_conv) > until_us {
+                break;
+            }
+            if t_step <= self.next_conv {
+                self.now = self.now.max(t_step);
+                match self.wait {
+                    Wait::Step { axis, at_us } => self.step(axis, at_us),
+                    _ => {
+                        self.wait = self.b.stepper_poll(self.now);
+                        self.last_poll = self.now;
+                    }
+                }
+            } else {
+                self.now = self.next_conv;
+                self.convert();
+                self.next_conv += self.period;
+            }
+        }
+        self.now = self.now.max(until_us);
+    }
+
+    /// One pass of the stepper task's loop at a step instant: `try_step`, then the poll that
+    /// plans the next step.
+    fn step(&mut self, axis: usize, at_us: u64) {
+        let k = self.k[axis];
+        let b = &self.b;
+        let op = || (b.try_step(axis, at_us), b.stepper_poll(at_us));
+        let (stepped, wait) = if !self.measure_steps {
+            op()
+        } else if ACCEL_STEPS.contains(&k) {
+            measure(fwb_begin_step_accel, op)
+        } else if CRUISE_STEPS.contains(&k) {
+            measure(fwb_begin_step_cruise, op)
+        } else {
+            op()
+        };
+        if stepped {
+            self.k[axis] += 1;
+            self.s.steps += 1;
+        }
+        self.wait = wait;
+        self.last_poll = at_us;
+    }
+
+    fn next_dither(&mut self) -> u16 {
+        // A 32-bit LCG (Numerical Recipes); the top bits give 0..=3 counts.
+        self.dither = self
+            .dither
+            .wrapping_mul(1_664_525)
+            .wrapping_add(1_013_904_223);
+        (self.dither >> 30) as u16
+    }
+
+    /// One pass of the sampler task's loop.
+    fn convert(&mut self) {
+        let v = self.b.volumes();
+        let mut raw = [0u16; CHANNELS];
+        for ch in 0..CHANNELS {
+            raw[ch] = (ZERO_COUNTS + COUNTS_PER_MM3 * v[ch]) as u16 + self.next_dither();
+        }
+        let completes = (self.s.conversions + 1).is_multiple_of(OVERSAMPLE);
+        self.s.conversions += 1;
+        let now = self.now;
+        let b = &self.b;
+        let op = || b.conversion(raw, now);
+        let region = match (self.measure_conv, completes) {
+            (Measure::Off, _) => None,
+            (_, false) => Some(fwb_begin_oversample as extern "C" fn()),
+            (Measure::Bare, true) => Some(fwb_begin_frame as extern "C" fn()),
+            (Measure::Rls, true) => Some(fwb_begin_frame_rls as extern "C" fn()),
+        };
+        let frame = match region {
+            Some(r) => measure(r, op),
+            None => op(),
+        };
+        // Chambers whose RLS ran its drift check on this frame, and how many of those checks
+        // were not the chamber's first (which only takes the baseline).
+        let (mut checks, mut later) = (0u32, 0u32);
+        let mut vdot = [0.0; CHANNELS];
+        if let Some(f) = &frame {
+            vdot = f.vdot();
+            for (ch, updated) in self.b.rls_updated(f).into_iter().enumerate() {
+                if updated && self.rls_on[ch] {
+                    self.rls_updates[ch] += 1;
+                    if self.rls_updates[ch].is_multiple_of(DRIFT_WINDOW) {
+                        checks += 1;
+                        later += u32::from(self.rls_updates[ch] > DRIFT_WINDOW);
+                    }
+                }
+            }
+            if checks > 0 && self.measure_conv == Measure::Rls {
+                fwb_retag_frame_rls_drift();
+                self.s.drift_frames += 1;
+            }
+        }
+        assert_eq!(frame.is_some(), completes, "frame boundary");
+        if let Some(f) = frame {
+            self.s.frames += 1;
+            self.send(&f);
+        }
+        let ev = self.b.send_events();
+        self.s.event_lines += ev.lines;
+        assert!(ev.faults == 0 && !self.b.faulted(), "fault during the run");
+        // Every drift check after a chamber's first warns (threshold 0), one event each; no
+        // other frame warns. This checks the retagging above.
+        assert_eq!(
+            ev.drift, later,
+            "drift events (RLS updates per chamber {:?}, v̇ {:?})",
+            self.rls_updates, vdot
+        );
+    }
+
+    fn send(&mut self, f: &FrameOut) {
+        if self.measure_conv == Measure::Off {
+            self.b.send_frame(f);
+        } else {
+            let b = &mut self.b;
+            measure(fwb_begin_telemetry_line, || b.send_frame(f));
+        }
+    }
+
+    /// One command line through the command task, measured as `region`; the reply must be `ok…`.
+    fn command(&mut self, region: extern "C" fn(), line: &str) -> Line {
+        let mut bytes: Line = String::new();
+        let _ = bytes.push_str(line);
+        let _ = bytes.push('\n');
+        let now = self.now;
+        let b = &mut self.b;
+        let reply = measure(region, || b.command_bytes(bytes.as_bytes(), now));
+        let mut out = Line::new();
+        let _ = out.push_str(reply.unwrap_or("(no reply)"));
+        assert!(
+            out.starts_with("ok"),
+            "`{}` replied `{}`",
+            line,
+            out.trim_end()
+        );
+        self.s.commands += 1;
+        // The command woke the stepper task: it re-plans now.
+        self.wait = self.b.stepper_poll(self.now);
+        self.last_poll = self.now;
+        out
+    }
+
+    /// Run until every axis is idle (and at most `limit_us` more), then one more frame.
+    fn finish_move(&mut self, limit_us: u64) {
+        let end = self.now + limit_us;
+        while self.now < end && matches!(self.wait, Wait::Step { .. }) {
+            let t = self.now + self.period;
+            self.advance(t);
+        }
+        assert!(!matches!(self.wait, Wait::Step { .. }), "move did not end");
+        let t = self.now + OVERSAMPLE as u64 * self.period;
+        self.advance(t);
+    }
+}
+
+/// The model read-back (`model 0 read`, `read coef 0`, `read coef 8`) loaded back into
+/// chamber 0 (`begin`, `coef 0 …`, `coef 8 …`, `commit`).
+fn model_round_trip(r: &mut Rig) {
+    let header = r.command(fwb_begin_cmd_model_read, "model 0 read");
+    let c0 = r.command(fwb_begin_cmd_model_read_coef, "model 0 read coef 0");
+    let c8 = r.command(fwb_begin_cmd_model_read_coef, "model 0 read coef 8");
+    let fields = |reply: &Line| -> Line {
+        let mut s = Line::new();
+        let _ = s.push_str(reply.trim_end().trim_start_matches("ok").trim());
+        s
+    };
+    let mut line = Line::new();
+    let _ = write!(line, "model 0 begin {}", fields(&header));
+    r.command(fwb_begin_cmd_model_begin, &line);
+    line.clear();
+    let _ = write!(line, "model 0 coef 0 {}", fields(&c0));
+    r.command(fwb_begin_cmd_model_coef, &line);
+    line.clear();
+    let _ = write!(line, "model 0 coef 8 {}", fields(&c8));
+    r.command(fwb_begin_cmd_model_coef, &line);
+    r.command(fwb_begin_cmd_model_commit, "model 0 commit");
+}
+
+/// The whole scripted run.
+pub fn run() -> Summary {
+    let mut r = Rig::new();
+
+    // 1. Boot and the pressure zero (25 frames at rest).
+    r.advance(1_000_000 + r.period / 2);
+
+    // 2. Commands at rest.
+    r.command(fwb_begin_cmd_status, "status");
+    r.command(fwb_begin_cmd_limit, "limit all 80 550");
+    r.command(fwb_begin_cmd_origin, "origin all 100");
+    model_round_trip(&mut r);
+    let t = r.now + 2 * r.period;
+    r.advance(t);
+
+    // 3. A move at 50 mm³/s: steps, conversions, frames, telemetry (bare polynomial).
+    r.k = [0; CHANNELS];
+    r.measure_steps = true;
+    r.measure_conv = Measure::Bare;
+    r.command(fwb_begin_cmd_move, "move all 106 50 500");
+    r.finish_move(1_000_000);
+    r.measure_steps = false;
+
+    // 4. RLS on every chamber, a slower move: frames with RLS, drift checks.
+    r.measure_conv = Measure::Off;
+    r.command(fwb_begin_cmd_rls, "rls 0 on");
+    r.command(fwb_begin_cmd_rls, "rls 1 on");
+    r.command(fwb_begin_cmd_rls, "rls 2 on 0.995");
+    r.rls_on = [true; CHANNELS];
+    r.measure_conv = Measure::Rls;
+    r.command(fwb_begin_cmd_move, "move all 116 20 500");
+    r.finish_move(2_000_000);
+    assert!(r.s.drift_frames >= 2, "too few drift-check frames");
+    r.measure_conv = Measure::Off;
+
+    // 5. The protocol started and stopped, and the remaining commands.
+    r.command(
+        fwb_begin_cmd_run,
+        "run all 100 116 2 100 20 30 40 50 60 70 80 90",
+    );
+    let t = r.now + 30_000;
+    r.advance(t);
+    r.command(fwb_begin_cmd_status, "status");
+    r.command(fwb_begin_cmd_stop, "stop");
+    r.command(fwb_begin_cmd_clear, "clear");
+    r.command(fwb_begin_cmd_rls, "rls 0 off");
+    r.rls_on[0] = false;
+    r.command(fwb_begin_cmd_zero, "zero");
+    let t = r.now + OVERSAMPLE as u64 * r.period;
+    r.advance(t);
+
+    r.s.rig_us = r.now;
+    r.s
+}
