@@ -1,89 +1,144 @@
 //! The ONLY module of the bench that calls into the firmware library.
 //!
 //! Everything the bench does to the firmware goes through [`Board`], whose methods mirror, one to
-//! one, what the board's tasks (`firmware::app::{stepper_task, sampler_task, command_task}`) do
-//! between their awaits. When the firmware's API changes, this file is the one to adapt.
+//! one, what the board's tasks (`firmware::app::{stepper_task, sampler_task, command_task}`, as
+//! spawned by `firmware/src/bin/vfp-fw.rs`) do between their awaits. When the firmware's API
+//! changes, this file is the one to adapt.
 //!
-//! Firmware functions called (today's API):
-//! - `app::Config::default()` (fields `drift_window`, `drift_frac`, `rls_min_flow` read/set),
-//!   `app::Shared::new`, `app::Shared::lock`, `app::Shared::command`;
-//! - under `Shared::lock`: `app::State::stepper_poll`, `State::try_step`, `State::on_oversample`,
-//!   `State::stepper_alive`, `State::flags` (+ `telemetry::Flags::is_fault`),
-//!   `State::pop_event`, `State::motion` (+ `motion::Motion::volume`), `State::config`
-//!   (+ `app::Config::oversample_period_us`);
-//! - `command::LineAssembler::{new, push}` (which calls `command::parse`);
-//! - `telemetry::Frame::encode`, `telemetry::Event::encode`, the `hal::TelemetrySink` trait
-//!   (implemented here exactly as the binary's `DefmtSink`: one `defmt::println!` to RTT).
+//! Firmware functions called by the measured operations (the tasks' per-tick entry points):
+//! - stepper task: `app::Shared::stepper_tick` (one wake-up: `Control::stepper_wake` under one
+//!   short critical section per batch of same-instant steps, then the pulses through the
+//!   `hal::Steppers` trait, implemented here with no hardware behind it);
+//! - sampler task: `app::Shared::conversion` (one conversion: `Control::on_conversion` under one
+//!   short critical section, the frame sums outside), the estimator's async mutex
+//!   (`app::Shared::estimator`, taken the way the task's `lock().await` takes it: its `lock()`
+//!   future polled once, `embassy_futures::poll_once`, there being no executor here; it is always
+//!   free, so the first poll is ready), `app::Shared::finish_frame`, `app::Sampler::send_frame`
+//!   and `app::Shared::send_events` into the board's telemetry sink (below);
+//! - command task: `command::LineAssembler::push` per byte, then, with the estimator taken as
+//!   above, `app::Shared::command_raw` (checksum rules, parse, execute, reply) and the `\r\n`.
 //!
-//! Types and constants used: `app::{Config, Shared, StepperWait, REPLY_LEN}`, `hal::AXES`,
-//! `telemetry::{Frame (fields chambers[].vdot/p/p_hat), Event (field kind), EventKind, LineBuf}`.
-//! The rest of the crate sees only [`Board`], [`Wait`], [`FrameOut`], [`Events`], [`CHANNELS`].
+//! Set-up and bookkeeping, never measured: `app::Config::default()` (fields `drift_window`,
+//! `drift_frac`, `rls_min_flow`), `app::Shared::new`, `app::Sampler::{new, period_us, drops}`,
+//! `app::Shared::with_control` with `app::Control::{motion, latched}`,
+//! `motion::Motion::{volume, next_batch, all_idle}`, `telemetry::parse_line` (the bench reads
+//! the telemetry channel back the way the host does). `app::Shared::lock` is not used: it keeps
+//! interrupts off for its whole closure and no task calls it.
+//!
+//! The telemetry sink is the binary's `RttSink`, copied: RTT up-channel 1 ("telemetry", 4 KiB,
+//! `rtt-target`), mode set to `NoBlockSkip` before every line, the whole line or nothing. The
+//! bench plays the host too: between operations it drains that channel (read pointer set to the
+//! write pointer, as a probe does), so every measured line is a successful write, and it decodes
+//! the lines to count the events the run produced.
+//!
+//! Types used: `app::{Config, Sampler, Shared, REPLY_LEN}`, `hal::{Direction, Steppers,
+//! TelemetrySink, AXES}`, `motion::StepBatch`, `telemetry::{Event (field kind), EventKind, Flags,
+//! Frame (fields chambers[].vdot/p/p_hat), Line}`, `embassy_time::Instant`.
+//! The rest of the crate sees only [`Board`], [`FrameOut`], [`Telemetry`], [`CHANNELS`].
 //!
 //! The ADC, the step pulses, the DIR pins, the watchdog and the UART are the binary's (Embassy)
-//! side and are not part of the measurement.
+//! side and are not part of the measurement: here they only reach `black_box`.
 
-use core::fmt::Write as _;
 use core::hint::black_box;
+use core::task::Poll;
 
-use firmware::app::{Config, Shared, StepperWait, REPLY_LEN};
+use embassy_time::Instant;
+use firmware::app::{Config, Sampler, Shared, REPLY_LEN};
 use firmware::command::LineAssembler;
-use firmware::hal::{TelemetrySink, AXES};
-use firmware::telemetry::{EventKind, Frame, LineBuf};
+use firmware::hal::{Direction, Steppers, TelemetrySink, AXES};
+use firmware::telemetry::{self, EventKind, Flags, Frame, Line};
+use rtt_target::{ChannelMode, UpChannel};
 
 /// Number of channels (syringe + sensor + chamber).
 pub const CHANNELS: usize = AXES;
 
-/// What the stepper task waits for next (the firmware's `StepperWait`, copied).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Wait {
-    /// Step `axis` at `at_us`.
-    Step { axis: usize, at_us: u64 },
-    /// Nothing to step before this instant.
-    Until(u64),
-    /// Nothing planned.
-    Idle,
-}
+/// RTT up-channel sizes of the board binary (`vfp-fw.rs`): defmt logs, telemetry.
+pub const DEFMT_RTT_BYTES: usize = 1024;
+pub const TELEMETRY_RTT_BYTES: usize = 4096;
 
-/// The telemetry sink of the board binary (`DefmtSink` in `vfp-fw.rs`): one defmt-RTT line.
-struct DefmtSink;
+/// The binary's telemetry sink (`RttSink` in `vfp-fw.rs`), the same two calls per line.
+pub struct RttSink(pub UpChannel);
 
-impl TelemetrySink for DefmtSink {
-    fn line(&mut self, line: &str) {
-        defmt::println!("{=str}", line);
+impl TelemetrySink for RttSink {
+    fn try_send(&mut self, line: &str) -> bool {
+        self.0.set_mode(ChannelMode::NoBlockSkip);
+        self.0.write(line.as_bytes()) == line.len()
     }
 }
 
-/// A completed frame, as the sampler task gets it from the state.
+/// Step and DIR outputs with nothing behind them; they remember which axes were pulsed.
+#[derive(Default)]
+struct BenchSteppers {
+    /// Axes pulsed since the last [`Board::stepper_tick`] (bit `a` = axis `a`).
+    pulsed: u8,
+}
+
+impl Steppers for BenchSteppers {
+    fn set_direction(&mut self, axis: usize, dir: Direction) {
+        black_box((axis, dir));
+    }
+    fn step(&mut self, axis: usize, at: Instant) {
+        black_box(at);
+        self.pulsed |= 1 << axis;
+    }
+    fn step_axes(&mut self, axes: u8, at: Instant) {
+        black_box(at);
+        self.pulsed |= axes;
+    }
+    fn set_enabled(&mut self, enabled: bool) {
+        black_box(enabled);
+    }
+}
+
+/// A completed frame, as the sampler task has it before sending it.
 pub struct FrameOut(Frame);
 
-/// Event lines sent after a conversion, by kind.
+/// What the host read from the telemetry channel since it last looked.
 #[derive(Clone, Copy, Debug, Default)]
-pub struct Events {
-    /// Lines sent.
-    pub lines: u32,
+pub struct Telemetry {
+    /// Frame lines.
+    pub frames: u32,
+    /// Event lines.
+    pub events: u32,
     /// Drift warnings among them.
     pub drift: u32,
     /// Faults among them.
     pub faults: u32,
 }
 
-/// The firmware's shared state plus the buffers its tasks own.
+/// The firmware's shared state plus what its tasks own.
 pub struct Board {
     shared: Shared,
     rls_min_flow: f32,
+    /// The stepper task's outputs.
+    steppers: BenchSteppers,
+    /// The sampler task's own state and sink.
+    sampler: Sampler,
+    sink: RttSink,
     /// The command task's line assembler and reply buffer.
     asm: LineAssembler,
     reply: heapless::String<{ REPLY_LEN + 8 }>,
-    /// The sampler task's line buffer and sink.
-    line: LineBuf,
-    sink: DefmtSink,
+    /// The host's side of the telemetry channel: a partial line carried over.
+    host_line: heapless::String<256>,
+}
+
+/// Take the estimator the way the tasks' `shared.est.lock().await` does: poll the lock future
+/// (once: no executor here, and no other holder, so it is ready at once).
+macro_rules! estimator {
+    ($shared:expr) => {
+        match embassy_futures::poll_once($shared.estimator().lock()) {
+            Poll::Ready(est) => est,
+            Poll::Pending => panic!("the estimator is held"),
+        }
+    };
 }
 
 impl Board {
     /// Boot state with the default configuration, except the RLS drift check's window and
     /// threshold (see the bench's docs: a short window so a drift-check frame comes within a
     /// few frames; threshold 0 so every check after the first takes the "drift" path).
-    pub fn new(drift_window: u32, drift_frac: f32) -> Self {
+    /// `telemetry` is RTT up-channel 1, initialised as the binary does.
+    pub fn new(drift_window: u32, drift_frac: f32, telemetry: UpChannel) -> Self {
         let cfg = Config {
             drift_window,
             drift_frac,
@@ -92,94 +147,95 @@ impl Board {
         Self {
             shared: Shared::new(cfg),
             rls_min_flow: cfg.rls_min_flow,
+            steppers: BenchSteppers::default(),
+            sampler: Sampler::new(&cfg),
+            sink: RttSink(telemetry),
             asm: LineAssembler::new(),
             reply: heapless::String::new(),
-            line: LineBuf::new(),
-            sink: DefmtSink,
+            host_line: heapless::String::new(),
         }
     }
 
     /// The sampler task's conversion period, µs.
     pub fn oversample_period_us(&self) -> u64 {
-        self.shared.lock(|s| s.config().oversample_period_us())
+        self.sampler.period_us()
     }
 
-    /// Stepper task, top of its loop: `stepper_poll` under the lock (DIR writes are the
-    /// binary's GPIO; here they only reach `black_box`).
+    /// The stepper task, one wake-up at `now_us` (the body of its loop): `stepper_tick`, which
+    /// issues the steps due and returns the instant to sleep until. The axes pulsed are kept for
+    /// [`Self::take_pulsed`].
     #[inline(always)]
-    pub fn stepper_poll(&self, now_us: u64) -> Wait {
-        let w = self.shared.lock(|s| {
-            s.stepper_poll(now_us, |a, d| {
-                black_box((a, d));
-            })
-        });
-        match w {
-            StepperWait::Step { axis, at_us } => Wait::Step { axis, at_us },
-            StepperWait::Until(t) => Wait::Until(t),
-            StepperWait::Idle => Wait::Idle,
+    pub fn stepper_tick(&mut self, now_us: u64) -> u64 {
+        self.shared.stepper_tick(now_us, &mut self.steppers)
+    }
+
+    /// The axes pulsed since the last call (bit `a` = axis `a`).
+    pub fn take_pulsed(&mut self) -> u8 {
+        core::mem::take(&mut self.steppers.pulsed)
+    }
+
+    /// The steps a wake-up at `now_us` would issue: the planned batch's axes if it is due
+    /// (bookkeeping, not measured).
+    pub fn due_axes(&self, now_us: u64) -> u8 {
+        self.shared.with_control(|c| match c.motion().next_batch() {
+            Some(b) if b.at_us <= now_us => b.axes,
+            _ => 0,
+        })
+    }
+
+    /// Whether every axis is at rest.
+    pub fn all_idle(&self) -> bool {
+        self.shared.with_control(|c| c.motion().all_idle())
+    }
+
+    /// The sampler task, one conversion, up to the frame: `conversion` (its one short lock),
+    /// the stepper wake on a fault, the watchdog feed (the binary's: `black_box`), and when the
+    /// conversion completes a frame, the estimator taken and `finish_frame`.
+    #[inline(always)]
+    pub fn conversion(&mut self, raw: [u16; CHANNELS], now_us: u64) -> Option<FrameOut> {
+        let c = self.shared.conversion(&mut self.sampler, raw, now_us);
+        if c.faulted {
+            self.shared.wake_stepper();
         }
-    }
-
-    /// Stepper task at a step's instant: `try_step` under the lock (the pulse is the binary's).
-    #[inline(always)]
-    pub fn try_step(&self, axis: usize, at_us: u64) -> bool {
-        self.shared.lock(|s| s.try_step(axis, at_us))
-    }
-
-    /// Sampler task, one conversion: the work it does under its one lock per conversion.
-    #[inline(always)]
-    pub fn conversion(&self, raw: [u16; CHANNELS], now_us: u64) -> Option<FrameOut> {
-        let (frame, alive, faulted) = self.shared.lock(|s| {
-            let f = s.on_oversample(raw, now_us);
-            (f, s.stepper_alive(now_us), s.flags().is_fault())
-        });
-        black_box((alive, faulted));
-        frame.map(FrameOut)
-    }
-
-    /// Sampler task, a completed frame: encode the line and hand it to the sink.
-    #[inline(always)]
-    pub fn send_frame(&mut self, frame: &FrameOut) {
-        self.line.clear();
-        if frame.0.encode(&mut self.line).is_ok() {
-            self.sink.line(&self.line);
+        if c.alive {
+            black_box(());
         }
+        let acc = c.frame?;
+        let mut est = estimator!(self.shared);
+        Some(FrameOut(self.shared.finish_frame(&mut est, &acc)))
     }
 
-    /// Sampler task, after every conversion: pop and send the queued event lines.
-    pub fn send_events(&mut self) -> Events {
-        let mut n = Events::default();
-        while let Some(ev) = self.shared.lock(|s| s.pop_event()) {
-            self.line.clear();
-            if ev.encode(&mut self.line).is_ok() {
-                self.sink.line(&self.line);
-            }
-            n.lines += 1;
-            match ev.kind {
-                EventKind::Drift { .. } => n.drift += 1,
-                EventKind::Fault { .. } => n.faults += 1,
-                _ => {}
-            }
-        }
-        n
+    /// The sampler task, a completed frame: formatted and handed to the sink.
+    #[inline(always)]
+    pub fn send_frame(&mut self, frame: &mut FrameOut) {
+        self.sampler.send_frame(&mut frame.0, &mut self.sink);
     }
 
-    /// Command task: the bytes of one line (with its `\n`) through the line assembler, the
-    /// command executed and its reply formatted (`…\r\n`). The reply, or `None` if the bytes
-    /// did not complete a line.
+    /// The sampler task, after every conversion: the queued event lines to the sink.
+    pub fn send_events(&mut self) {
+        self.shared.send_events(&mut self.sampler, &mut self.sink);
+    }
+
+    /// Telemetry lines dropped so far (the sink refused them): must stay 0, the bench reads.
+    pub fn drops(&self) -> u32 {
+        self.sampler.drops()
+    }
+
+    /// The command task: the bytes of one line (with its `\n`) through the line assembler, the
+    /// estimator taken, the line checked, parsed and executed and its reply formatted, then
+    /// `\r\n`. The reply, or `None` if the bytes did not complete a line.
     #[inline(always)]
     pub fn command_bytes(&mut self, bytes: &[u8], now_us: u64) -> Option<&str> {
         let mut done = false;
         for &b in bytes {
-            let Some(parsed) = self.asm.push(b) else {
+            let Some(line) = self.asm.push(b) else {
                 continue;
             };
             self.reply.clear();
-            match parsed {
-                Ok(cmd) => self.shared.command(&cmd, now_us, &mut self.reply),
-                Err(e) => {
-                    let _ = write!(self.reply, "err {e}");
-                }
+            {
+                let mut est = estimator!(self.shared);
+                self.shared
+                    .command_raw(&mut est, line, now_us, &mut self.reply);
             }
             let _ = self.reply.push_str("\r\n");
             done = true;
@@ -190,12 +246,12 @@ impl Board {
     /// Syringe volumes, mm³ (drives the synthetic sensors; not measured).
     pub fn volumes(&self) -> [f32; CHANNELS] {
         self.shared
-            .lock(|s| core::array::from_fn(|a| s.motion().volume(a)))
+            .with_control(|c| core::array::from_fn(|a| c.motion().volume(a)))
     }
 
     /// Whether a fault is latched (the script must not trip one).
     pub fn faulted(&self) -> bool {
-        self.shared.lock(|s| s.flags().is_fault())
+        self.shared.with_control(|c| Flags(c.latched()).is_fault())
     }
 
     /// Which chambers' RLS this frame updated (when RLS is on): the firmware updates a chamber
@@ -206,11 +262,72 @@ impl Board {
             .chambers
             .map(|c| c.vdot.abs() > self.rls_min_flow && c.p.is_finite() && c.p_hat.is_finite())
     }
+
+    /// The host's side: read everything written to the telemetry channel since the last call
+    /// (as a probe does: copy out, then move the read pointer) and decode the lines.
+    pub fn read_telemetry(&mut self) -> Telemetry {
+        let mut t = Telemetry::default();
+        let mut buf = [0u8; TELEMETRY_RTT_BYTES];
+        let n = host_read_telemetry(&mut buf);
+        for &b in &buf[..n] {
+            if b != b'\n' {
+                assert!(
+                    self.host_line.push(b as char).is_ok(),
+                    "telemetry line too long"
+                );
+                continue;
+            }
+            match telemetry::parse_line(&self.host_line) {
+                Some(Ok(Line::Frame(_))) => t.frames += 1,
+                Some(Ok(Line::Event(ev))) => {
+                    t.events += 1;
+                    match ev.kind {
+                        EventKind::Drift { .. } => t.drift += 1,
+                        EventKind::Fault { .. } => t.faults += 1,
+                        _ => {}
+                    }
+                }
+                _ => panic!("undecodable telemetry line `{}`", self.host_line),
+            }
+            self.host_line.clear();
+        }
+        t
+    }
 }
 
 impl FrameOut {
     /// The frame's mean flow of each chamber, mm³/s.
     pub fn vdot(&self) -> [f32; CHANNELS] {
         self.0.chambers.map(|c| c.vdot)
+    }
+}
+
+/// Read RTT up-channel 1 the way the host does, through the control block `_SEGGER_RTT`
+/// (SEGGER's layout, 32-bit words: 16-byte id, max up, max down, then per up channel: name,
+/// buffer, size, write, read, flags). Returns the bytes copied into `out`.
+fn host_read_telemetry(out: &mut [u8]) -> usize {
+    unsafe extern "C" {
+        #[link_name = "_SEGGER_RTT"]
+        static mut CONTROL_BLOCK: [u32; 6];
+    }
+    const CHANNEL: usize = 1;
+    // SAFETY: the control block is initialised by `rtt_init!` in `main` before the run; the
+    // words read and the read pointer written are the host's side of the protocol (nothing on
+    // the target writes them), accessed volatile as a probe would.
+    unsafe {
+        let cb = (&raw mut CONTROL_BLOCK).cast::<u32>();
+        let ch = cb.add(6 + 6 * CHANNEL);
+        let buffer = ch.add(1).read_volatile() as usize as *const u8;
+        let size = ch.add(2).read_volatile() as usize;
+        let write = ch.add(3).read_volatile() as usize;
+        let mut read = ch.add(4).read_volatile() as usize;
+        let mut n = 0;
+        while read != write && n < out.len() {
+            out[n] = buffer.add(read).read_volatile();
+            n += 1;
+            read = (read + 1) % size;
+        }
+        ch.add(4).write_volatile(read as u32);
+        n
     }
 }

@@ -23,8 +23,6 @@ use core::panic::PanicInfo;
 
 use cortex_m_rt::{entry, exception, ExceptionFrame};
 use cortex_m_semihosting::{debug, hprintln};
-// The board's defmt logger (telemetry sink), linked exactly as in `vfp-fw`.
-use defmt_rtt as _;
 
 /// Defines the marker functions: each is a naked `bx lr` with an unmangled symbol.
 macro_rules! markers {
@@ -53,6 +51,7 @@ pub(crate) mod marks {
         // stepper task
         fwb_begin_step_accel,
         fwb_begin_step_cruise,
+        fwb_begin_step_batch3,
         // sampler task
         fwb_begin_oversample,
         fwb_begin_frame,
@@ -152,9 +151,22 @@ fn calibrate() {
 
 #[entry]
 fn main() -> ! {
+    // RTT as the board binary sets it up (`vfp-fw.rs`): channel 0 for defmt (rtt-target is the
+    // defmt global logger), channel 1 for the telemetry lines, non-blocking.
+    let rtt = rtt_target::rtt_init! {
+        up: {
+            0: { size: fw::DEFMT_RTT_BYTES, name: "defmt" }
+            1: {
+                size: fw::TELEMETRY_RTT_BYTES,
+                mode: rtt_target::ChannelMode::NoBlockSkip,
+                name: "telemetry"
+            }
+        }
+    };
+    rtt_target::set_defmt_channel(rtt.up.0);
     calibrate();
     marks::fwb_script_begin();
-    let summary = script::run();
+    let summary = script::run(rtt.up.1);
     marks::fwb_script_end();
     hprintln!("fw-bench: {}", summary);
     debug::exit(debug::EXIT_SUCCESS);

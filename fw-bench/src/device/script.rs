@@ -2,24 +2,28 @@
 //! executors would run it, with the single operations measured as they happen.
 //!
 //! Without an executor the tasks' loop bodies are called directly (see [`super::fw::Board`]):
-//! - the stepper task steps at each planned step instant (it has the higher priority: at equal
-//!   instants the step goes first), then polls for the next step; it also wakes every 50 ms with
-//!   nothing to do, and after every command (the firmware's wake signal);
-//! - the sampler task converts every 5 ms (8 conversions per 40 ms frame), encodes the frame
-//!   line on every 8th, and sends the queued event lines after every conversion;
-//! - the command task executes a command line between two of those events.
+//! - the stepper task wakes at the deadline its last wake-up returned (a planned step instant,
+//!   or 50 ms later with nothing to do) and after every command (the firmware's wake signal);
+//!   it has the higher priority: at equal instants the stepper goes first;
+//! - the sampler task converts every 5 ms (8 conversions per 40 ms frame), estimates and sends
+//!   the frame line on every 8th, and sends the queued event lines after every conversion;
+//! - the command task executes a command line between two of those events;
+//! - the host reads the telemetry channel after every conversion (not measured).
 //!
 //! The run, in order (≈ 1.9 s of rig time):
 //! 1. boot and the pressure zero at rest (25 frames, nothing measured);
 //! 2. commands at rest, each measured: `status`, `limit`, `origin`, the model read-back, and
 //!    the same model loaded back (`begin`, 2 × `coef`, `commit`);
-//! 3. `move all 106 50 500` (6 mm³ from 100): steps measured in the acceleration phase (steps
-//!    20–24 of each axis) and at cruise (steps 70–74; the trapezoid accelerates over the first
-//!    62), every conversion (`oversample`) and every frame (`frame`, bare polynomial) and its
-//!    telemetry line measured;
-//! 4. `rls <ch> on` on the three chambers, then `move all 116 20 500` (10 mm³ at 20 mm³/s):
-//!    every frame measured as `frame_rls`; those on which the drift check runs (every
-//!    `DRIFT_WINDOW` RLS updates) are retagged `frame_rls_drift`;
+//! 3. `move 0 106 50 500`, `move 1 …`, `move 2 …` (6 mm³ from 100), started 270 µs apart so
+//!    the axes' steps fall at different instants (step period 800 µs at cruise): every
+//!    wake-up that issues one step is measured in the acceleration phase (steps 20–24 of each
+//!    axis, `step_accel`) and at cruise (steps 70–74, `step_cruise`; the trapezoid accelerates
+//!    over the first 62); every conversion (`oversample`) and every frame (`frame`, bare
+//!    polynomial) and its telemetry line measured;
+//! 4. `rls <ch> on` on the three chambers, then `move all 116 20 500` (10 mm³ at 20 mm³/s): the
+//!    three axes step at the same instants, one wake-up per batch of three (steps 20–24 and
+//!    70–74: `step_batch3`); every frame measured as `frame_rls`; those on which the drift check
+//!    runs (every `DRIFT_WINDOW` RLS updates) are retagged `frame_rls_drift`;
 //! 5. `run` with 8 flows, 30 ms of its first leg, `stop`, `clear`, `rls 0 off`, `status`,
 //!    `zero`, and one more frame.
 //!
@@ -30,7 +34,9 @@ use core::fmt::{self, Write as _};
 
 use heapless::String;
 
-use super::fw::{Board, FrameOut, Wait, CHANNELS};
+use rtt_target::UpChannel;
+
+use super::fw::{Board, FrameOut, CHANNELS};
 use super::marks::*;
 use super::measure;
 
@@ -42,8 +48,9 @@ const DRIFT_WINDOW: u32 = 4;
 const DRIFT_FRAC: f32 = 0.0;
 /// Conversions per frame (the firmware's default `oversample`).
 const OVERSAMPLE: u32 = 8;
-/// The stepper task's heartbeat with nothing to do, µs.
-const STEPPER_IDLE_US: u64 = 50_000;
+/// Delay between the three single-axis moves' commands, µs (not a divisor of the 800 µs step
+/// period: the axes never step at one instant at cruise).
+const STAGGER_US: u64 = 270;
 /// Raw counts at 0 kPa (1.0 V at the sensor through the 0.625 divider, 12 bits at 3.3 V).
 const ZERO_COUNTS: f32 = 776.0;
 /// Synthetic pressure: counts per mm³ of syringe volume.
@@ -68,6 +75,7 @@ enum Measure {
 #[derive(Default)]
 pub struct Summary {
     steps: u32,
+    wakeups: u32,
     conversions: u32,
     frames: u32,
     commands: u32,
@@ -80,9 +88,10 @@ impl fmt::Display for Summary {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         write!(
             f,
-            "scripted run: {} ms of rig time, {} steps, {} conversions, {} frames ({} with the drift check), {} event lines, {} commands",
+            "scripted run: {} ms of rig time, {} steps in {} stepper wake-ups, {} conversions, {} frames ({} with the drift check), {} event lines, {} commands",
             self.rig_us / 1000,
             self.steps,
+            self.wakeups,
             self.conversions,
             self.frames,
             self.drift_frames,
@@ -97,8 +106,8 @@ struct Rig {
     now: u64,
     period: u64,
     next_conv: u64,
-    wait: Wait,
-    last_poll: u64,
+    /// The stepper task's next wake-up.
+    next_tick: u64,
     /// Steps taken per axis since the current move started.
     k: [u32; CHANNELS],
     measure_steps: bool,
@@ -114,17 +123,15 @@ struct Rig {
 type Line = String<256>;
 
 impl Rig {
-    fn new() -> Self {
-        let b = Board::new(DRIFT_WINDOW, DRIFT_FRAC);
+    fn new(telemetry: UpChannel) -> Self {
+        let b = Board::new(DRIFT_WINDOW, DRIFT_FRAC, telemetry);
         let period = b.oversample_period_us();
-        let wait = b.stepper_poll(0);
         Self {
             b,
             now: 0,
             period,
             next_conv: period,
-            wait,
-            last_poll: 0,
+            next_tick: 0,
             k: [0; CHANNELS],
             measure_steps: false,
             measure_conv: Measure::Off,
@@ -138,23 +145,12 @@ impl Rig {
     /// Run the stepper and sampler tasks up to `until_us`.
     fn advance(&mut self, until_us: u64) {
         loop {
-            let t_step = match self.wait {
-                Wait::Step { at_us, .. } => at_us,
-                Wait::Until(t) => t.min(self.last_poll + STEPPER_IDLE_US),
-                Wait::Idle => self.last_poll + STEPPER_IDLE_US,
-            };
-            if t_step.min(self.next_conv) > until_us {
+            if self.next_tick.min(self.next_conv) > until_us {
                 break;
             }
-            if t_step <= self.next_conv {
-                self.now = self.now.max(t_step);
-                match self.wait {
-                    Wait::Step { axis, at_us } => self.step(axis, at_us),
-                    _ => {
-                        self.wait = self.b.stepper_poll(self.now);
-                        self.last_poll = self.now;
-                    }
-                }
+            if self.next_tick <= self.next_conv {
+                self.now = self.now.max(self.next_tick);
+                self.tick();
             } else {
                 self.now = self.next_conv;
                 self.convert();
@@ -164,27 +160,47 @@ impl Rig {
         self.now = self.now.max(until_us);
     }
 
-    /// One pass of the stepper task's loop at a step instant: `try_step`, then the poll that
-    /// plans the next step.
-    fn step(&mut self, axis: usize, at_us: u64) {
-        let k = self.k[axis];
-        let b = &self.b;
-        let op = || (b.try_step(axis, at_us), b.stepper_poll(at_us));
-        let (stepped, wait) = if !self.measure_steps {
-            op()
-        } else if ACCEL_STEPS.contains(&k) {
-            measure(fwb_begin_step_accel, op)
-        } else if CRUISE_STEPS.contains(&k) {
-            measure(fwb_begin_step_cruise, op)
-        } else {
-            op()
+    /// One wake-up of the stepper task at `now`. Measured when steps are measured and it issues
+    /// one step with index in `ACCEL_STEPS` or `CRUISE_STEPS` (`step_accel`, `step_cruise`), or
+    /// a batch of three same-instant steps with such an index (`step_batch3`).
+    fn tick(&mut self) {
+        let due = self.b.due_axes(self.now);
+        let k = (0..CHANNELS)
+            .filter(|&a| due & (1 << a) != 0)
+            .map(|a| self.k[a])
+            .min()
+            .unwrap_or(0);
+        let region: Option<extern "C" fn()> = match (self.measure_steps, due.count_ones()) {
+            (false, _) => None,
+            (true, 1) if ACCEL_STEPS.contains(&k) => Some(fwb_begin_step_accel),
+            (true, 1) if CRUISE_STEPS.contains(&k) => Some(fwb_begin_step_cruise),
+            (true, 3) if ACCEL_STEPS.contains(&k) || CRUISE_STEPS.contains(&k) => {
+                Some(fwb_begin_step_batch3)
+            }
+            _ => None,
         };
-        if stepped {
-            self.k[axis] += 1;
-            self.s.steps += 1;
+        let now = self.now;
+        let b = &mut self.b;
+        let deadline = match region {
+            Some(r) => measure(r, || b.stepper_tick(now)),
+            None => b.stepper_tick(now),
+        };
+        let pulsed = self.b.take_pulsed();
+        if region.is_some() {
+            assert_eq!(pulsed, due, "a measured wake-up issued other steps");
         }
-        self.wait = wait;
-        self.last_poll = at_us;
+        for a in 0..CHANNELS {
+            if pulsed & (1 << a) != 0 {
+                self.k[a] += 1;
+                self.s.steps += 1;
+            }
+        }
+        self.s.wakeups += 1;
+        assert!(
+            deadline > now,
+            "the stepper task returned a deadline in the past"
+        );
+        self.next_tick = deadline;
     }
 
     fn next_dither(&mut self) -> u16 {
@@ -206,8 +222,8 @@ impl Rig {
         let completes = (self.s.conversions + 1).is_multiple_of(OVERSAMPLE);
         self.s.conversions += 1;
         let now = self.now;
-        let b = &self.b;
-        let op = || b.conversion(raw, now);
+        let b = &mut self.b;
+        let mut op = || b.conversion(raw, now);
         let region = match (self.measure_conv, completes) {
             (Measure::Off, _) => None,
             (_, false) => Some(fwb_begin_oversample as extern "C" fn()),
@@ -239,23 +255,28 @@ impl Rig {
             }
         }
         assert_eq!(frame.is_some(), completes, "frame boundary");
-        if let Some(f) = frame {
+        let sent = frame.is_some();
+        if let Some(mut f) = frame {
             self.s.frames += 1;
-            self.send(&f);
+            self.send(&mut f);
         }
-        let ev = self.b.send_events();
-        self.s.event_lines += ev.lines;
-        assert!(ev.faults == 0 && !self.b.faulted(), "fault during the run");
+        self.b.send_events();
+        // The host reads the channel: the frame line and the event lines arrived whole.
+        let tlm = self.b.read_telemetry();
+        assert_eq!(tlm.frames, u32::from(sent), "frame lines read back");
+        assert_eq!(self.b.drops(), 0, "telemetry lines dropped");
+        self.s.event_lines += tlm.events;
+        assert!(tlm.faults == 0 && !self.b.faulted(), "fault during the run");
         // Every drift check after a chamber's first warns (threshold 0), one event each; no
         // other frame warns. This checks the retagging above.
         assert_eq!(
-            ev.drift, later,
+            tlm.drift, later,
             "drift events (RLS updates per chamber {:?}, v̇ {:?})",
             self.rls_updates, vdot
         );
     }
 
-    fn send(&mut self, f: &FrameOut) {
+    fn send(&mut self, f: &mut FrameOut) {
         if self.measure_conv == Measure::Off {
             self.b.send_frame(f);
         } else {
@@ -282,19 +303,18 @@ impl Rig {
         );
         self.s.commands += 1;
         // The command woke the stepper task: it re-plans now.
-        self.wait = self.b.stepper_poll(self.now);
-        self.last_poll = self.now;
+        self.tick();
         out
     }
 
     /// Run until every axis is idle (and at most `limit_us` more), then one more frame.
     fn finish_move(&mut self, limit_us: u64) {
         let end = self.now + limit_us;
-        while self.now < end && matches!(self.wait, Wait::Step { .. }) {
+        while self.now < end && !self.b.all_idle() {
             let t = self.now + self.period;
             self.advance(t);
         }
-        assert!(!matches!(self.wait, Wait::Step { .. }), "move did not end");
+        assert!(self.b.all_idle(), "move did not end");
         let t = self.now + OVERSAMPLE as u64 * self.period;
         self.advance(t);
     }
@@ -324,8 +344,8 @@ fn model_round_trip(r: &mut Rig) {
 }
 
 /// The whole scripted run.
-pub fn run() -> Summary {
-    let mut r = Rig::new();
+pub fn run(telemetry: UpChannel) -> Summary {
+    let mut r = Rig::new(telemetry);
 
     // 1. Boot and the pressure zero (25 frames at rest).
     r.advance(1_000_000 + r.period / 2);
@@ -338,13 +358,26 @@ pub fn run() -> Summary {
     let t = r.now + 2 * r.period;
     r.advance(t);
 
-    // 3. A move at 50 mm³/s: steps, conversions, frames, telemetry (bare polynomial).
+    // 3. Moves at 50 mm³/s, staggered: single steps, conversions, frames, telemetry (bare
+    //    polynomial).
     r.k = [0; CHANNELS];
     r.measure_steps = true;
     r.measure_conv = Measure::Bare;
-    r.command(fwb_begin_cmd_move, "move all 106 50 500");
+    for (i, line) in [
+        "move 0 106 50 500",
+        "move 1 106 50 500",
+        "move 2 106 50 500",
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        if i > 0 {
+            let t = r.now + STAGGER_US;
+            r.advance(t);
+        }
+        r.command(fwb_begin_cmd_move, line);
+    }
     r.finish_move(1_000_000);
-    r.measure_steps = false;
 
     // 4. RLS on every chamber, a slower move: frames with RLS, drift checks.
     r.measure_conv = Measure::Off;
@@ -353,8 +386,10 @@ pub fn run() -> Summary {
     r.command(fwb_begin_cmd_rls, "rls 2 on 0.995");
     r.rls_on = [true; CHANNELS];
     r.measure_conv = Measure::Rls;
+    r.k = [0; CHANNELS];
     r.command(fwb_begin_cmd_move, "move all 116 20 500");
     r.finish_move(2_000_000);
+    r.measure_steps = false;
     assert!(r.s.drift_frames >= 2, "too few drift-check frames");
     r.measure_conv = Measure::Off;
 

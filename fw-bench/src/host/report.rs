@@ -32,6 +32,12 @@ fn sources(key: &str) -> &'static [&'static str] {
     }
 }
 
+/// Regions shown under the keys without a key of their own (no budget, not in the JSON).
+const EXTRA_ROWS: [(&str, &str); 1] = [(
+    "step_batch3",
+    "a stepper wake-up issuing three same-instant steps",
+)];
+
 /// Calibration regions and their exact expected counts (region, interrupts-off window).
 const CALIBRATION: [(&str, u64, u64); 5] = [
     ("calib_empty", 0, 0),
@@ -260,6 +266,18 @@ pub fn table(r: &Report, budgets: &BTreeMap<String, u64>) -> String {
         };
         let _ = writeln!(t, "| `{key}` | {} | {budget} | {what} |", group(v));
     }
+    // Reported, not gated (no JSON key): extra rows.
+    for (name, what) in EXTRA_ROWS {
+        if let Some(s) = r.regions.get(name) {
+            let _ = writeln!(
+                t,
+                "| `{name}` | {} | — | {what}: n {}, median {} |",
+                group(s.max),
+                s.n,
+                group(s.median)
+            );
+        }
+    }
     let _ = writeln!(t);
     let _ = writeln!(t, "| region | n | min | median | max |");
     let _ = writeln!(t, "| --- | ---: | ---: | ---: | ---: |");
@@ -298,6 +316,7 @@ mod tests {
             "telemetry_line",
             "cmd_status",
             "cmd_model_commit",
+            "step_batch3",
         ] {
             l.name_index(n);
         }
@@ -333,6 +352,7 @@ mod tests {
                 r("cmd_status", 11, 3),
                 r("cmd_model_commit", 12, 3),
                 r("cmd_status", 13, 3),
+                r("step_batch3", 40, 5),
             ],
             total: 1000,
             script_insns: 900,
@@ -368,6 +388,9 @@ mod tests {
         assert!(r.irq_off_at.starts_with("frame_rls_drift"));
         assert_eq!(r.regions["step_accel"].median, 30);
         assert_eq!(r.regions["step_accel"].n, 2);
+        // The three-step batch is shown, not gated, and not a JSON key.
+        let t = table(&r, &BTreeMap::new());
+        assert!(t.contains("| `step_batch3` | 40 | — |"), "{t}");
         // The JSON has exactly the keys, in order, numbers only.
         let json = serde_json::to_string(&r.figures).unwrap();
         let v: serde_json::Value = serde_json::from_str(&json).unwrap();
