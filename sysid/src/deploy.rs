@@ -281,7 +281,14 @@ impl<P: Read + Write> Link<'_, P> {
             what: format!("sending `{line}`"),
             source: e,
         };
-        self.port.write_all(line.as_bytes()).map_err(io)?;
+        // Every line carries the firmware's checksum prefix (`*LLCC `, length and CRC-8), so a
+        // byte lost, doubled or damaged on the wire is refused, never executed.
+        let mut framed = String::with_capacity(line.len() + 8);
+        command::write_checksummed(line, &mut framed).map_err(|_| DeployError::Io {
+            what: format!("adding the checksum to `{line}`"),
+            source: std::io::Error::new(std::io::ErrorKind::InvalidInput, "line too long"),
+        })?;
+        self.port.write_all(framed.as_bytes()).map_err(io)?;
         self.port.write_all(b"\n").map_err(io)?;
         self.port.flush().map_err(io)?;
         self.reply(line)
@@ -323,6 +330,44 @@ impl<P: Read + Write> Link<'_, P> {
                 }
             }
         }
+    }
+}
+
+/// The CRC-32 the board must report for the model of `up` (`firmware::store::model_crc`),
+/// when the values form a valid model.
+fn expected_crc(up: &Upload) -> Option<u32> {
+    use model_core::poly::{PolyModel, Scaling, Shape};
+    let [n, m, p] = up.shape;
+    let shape = Shape::new(n, m, p).ok()?;
+    let [vo, vs, fo, fs] = up.scaling;
+    let scaling = Scaling::new(vo, vs, fo, fs).ok()?;
+    let pairs: Vec<[f32; 2]> = up.ar.chunks_exact(2).map(|c| [c[0], c[1]]).collect();
+    let model = PolyModel::from_scaled(shape, &up.coef, &pairs, scaling).ok()?;
+    Some(firmware::store::model_crc(&model))
+}
+
+/// After the values: `model <ch> read crc` must give the CRC-32 of exactly the uploaded model
+/// (what the board will keep in flash). A board without the command is not checked.
+fn verify_crc<P: Read + Write>(link: &mut Link<'_, P>, up: &Upload) -> Result<(), DeployError> {
+    let ch = up.ch;
+    let r = link.send(&format!("model {ch} read crc"))?;
+    let Some(word) = r
+        .strip_prefix("ok ")
+        .and_then(|t| t.split_whitespace().next())
+    else {
+        return Ok(());
+    };
+    let got = word
+        .strip_prefix("0x")
+        .and_then(|h| u32::from_str_radix(h, 16).ok());
+    match (expected_crc(up), got) {
+        (Some(want), Some(got)) if want == got => Ok(()),
+        (want, _) => Err(DeployError::Mismatch {
+            ch,
+            what: "the model's CRC-32".into(),
+            sent: want.map_or("a valid model".into(), |w| format!("{w:#010x}")),
+            got: r,
+        }),
     }
 }
 
@@ -426,6 +471,7 @@ fn read_back<P: Read + Write>(
             values += exp.len();
         }
     }
+    verify_crc(link, up)?;
     Ok(Readback::Verified { values })
 }
 
