@@ -412,7 +412,7 @@ impl SimRun {
         })
     }
 
-    /// Write the run as an actuation log (shared/data-format.md): metadata comments, the
+    /// Write the run as an actuation log (`docs/log-format.md`): metadata comments, the
     /// header, then [`SimRun::rows`]. Device columns print as the firmware's `f32`s do.
     pub fn write_log(&self, mut out: impl Write) -> std::io::Result<()> {
         let s = &self.scenario;
