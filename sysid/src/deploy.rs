@@ -626,7 +626,7 @@ mod tests {
         }
     }
 
-    /// Firmware from before `model <ch> read`: refuses the verb the way its parser did.
+    /// Firmware that refuses `model <ch> read` the way its parser did before the verb existed.
     #[derive(Default)]
     struct OldFirmware {
         fw: FirmwarePort,
@@ -641,7 +641,11 @@ mod tests {
                     continue;
                 }
                 let line = std::mem::take(&mut self.line);
-                let words: Vec<&[u8]> = line.split(|&c| c == b' ').collect();
+                // The command after the checksum prefix (`*LLCC `) that deploy always sends.
+                let words: Vec<&[u8]> = line
+                    .split(|&c| c == b' ')
+                    .skip_while(|w| w.first() == Some(&b'*'))
+                    .collect();
                 if words[0] == b"model" && words.get(2).map(|w| w.trim_ascii()) == Some(b"read") {
                     self.fw.out.extend(b"err invalid-argument 2\r\n");
                 } else {
