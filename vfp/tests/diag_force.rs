@@ -1,6 +1,8 @@
 //! Force from pressure residuals (§IV-C) on data with a known force: pushes at 1 Hz on an
 //! actuator held at 500 mm³, shared unevenly between three chambers with different laws.
 
+// The same known-truth generator as sysid's diagnostics tests, from one file.
+#[path = "../../sysid/tests/diag_common/mod.rs"]
 mod diag_common;
 use diag_common::*;
 use sysid::dataset::{DatasetConfig, LogData};

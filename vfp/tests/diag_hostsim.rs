@@ -1,6 +1,8 @@
 //! The diagnostics on logs of the simulated rig (host-sim: the firmware's own tasks driving a
 //! plant with known air pockets, designs and forces).
 
+// The same known-truth generator as sysid's diagnostics tests, from one file.
+#[path = "../../sysid/tests/diag_common/mod.rs"]
 mod diag_common;
 use diag_common::tmpdir;
 use host_sim::{simulate, Design, Effects, PlantConfig, Protocol, Scenario};

@@ -1,6 +1,8 @@
 //! Stiffness and damping (§IV-A) against a known polynomial law: the fitted model's pointwise
 //! partials must reproduce the law's hand-differentiated ones.
 
+// The same known-truth generator as sysid's diagnostics tests, from one file.
+#[path = "../../sysid/tests/diag_common/mod.rs"]
 mod diag_common;
 use diag_common::*;
 use sysid::dataset::{DatasetConfig, LogData};
