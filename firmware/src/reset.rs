@@ -44,7 +44,9 @@ pub const KIND_HARDFAULT: u32 = 2;
 /// Bytes of the panic's file path kept (its end, where the file name is).
 pub const FILE_TAIL: usize = 28;
 
-const CRC32: Crc<u32> = Crc::<u32>::new(&CRC_32_ISO_HDLC);
+/// CRC-32/ISO-HDLC (zlib's), with its one lookup table in flash: the crash record and the
+/// model store ([`crate::store::model_crc`]) both use it.
+pub(crate) const CRC32: Crc<u32> = Crc::<u32>::new(&CRC_32_ISO_HDLC);
 
 /// CRC-32 of the record's first 11 words, as little-endian bytes.
 fn record_crc(words: &[u32]) -> u32 {
@@ -368,7 +370,7 @@ impl ResetCause {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use proptest::prelude::*;
 
@@ -417,7 +419,7 @@ mod tests {
     }
 
     /// CRC-32/ISO-HDLC bit by bit (reflected polynomial 0xEDB88320), independent of the crate.
-    fn crc32_bitwise(data: &[u8]) -> u32 {
+    pub(crate) fn crc32_bitwise(data: &[u8]) -> u32 {
         let mut c = 0xFFFF_FFFFu32;
         for &b in data {
             c ^= b as u32;

@@ -34,13 +34,13 @@
 
 use core::ops::Range;
 
-use crc::{Crc, CRC_32_ISO_HDLC};
 use embedded_storage_async::nor_flash::NorFlash;
 use model_core::poly::{PolyModel, Scaling, Shape, MAX_AR, MAX_TERMS};
 use sequential_storage::cache::{Cache, Uncached};
 use sequential_storage::map::{MapConfig, MapStorage, SerializationError, Value};
 
 use crate::hal::AXES;
+use crate::reset::CRC32;
 use crate::telemetry::Flags;
 
 /// Version byte of the serialised model.
@@ -51,8 +51,6 @@ const HEADER: usize = 4 + 16;
 pub const MODEL_BYTES: usize = HEADER + 4 * (MAX_TERMS + 2 * MAX_AR);
 /// A command less than this long ago (µs) defers a pending write.
 pub const QUIET_US: u64 = 300_000;
-
-const CRC32: Crc<u32> = Crc::<u32>::new(&CRC_32_ISO_HDLC);
 
 /// Serialise `model` into `out` (see the module docs); returns the length.
 pub fn encode_model(model: &PolyModel, out: &mut [u8; MODEL_BYTES]) -> usize {

@@ -4,6 +4,7 @@
 use super::*;
 use crate::app::{CommandError, Config, Sampler, Shared};
 use crate::command;
+use crate::reset::tests::crc32_bitwise;
 use embassy_futures::block_on;
 use proptest::prelude::*;
 use sequential_storage::mock_flash::{MockFlashBase, WriteCountCheck};
@@ -41,22 +42,6 @@ fn ar_model() -> PolyModel {
     let scaling = Scaling::new(250.0, 250.0, -5.0, 80.0).unwrap();
     let coef = [1.0, -2.5, 0.125, 3.0e-3, -7.0, 42.0];
     PolyModel::from_scaled(shape, &coef, &[[0.5, -0.25], [0.0625, 1.0e-6]], scaling).unwrap()
-}
-
-/// CRC-32/ISO-HDLC bit by bit, independent of the `crc` crate.
-fn crc32_bitwise(data: &[u8]) -> u32 {
-    let mut c = 0xFFFF_FFFFu32;
-    for &b in data {
-        c ^= b as u32;
-        for _ in 0..8 {
-            c = if c & 1 != 0 {
-                (c >> 1) ^ 0xEDB8_8320
-            } else {
-                c >> 1
-            };
-        }
-    }
-    !c
 }
 
 #[test]
