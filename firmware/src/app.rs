@@ -452,6 +452,33 @@ impl Control {
         mut set_dir: impl FnMut(usize, Direction),
     ) -> (Option<StepBatch>, StepperWait) {
         self.stepper_seen_us = now_us;
+        let dwell = if self.protocol.is_some() {
+            self.poll_protocol(now_us)
+        } else {
+            None
+        };
+        while let Some((a, d)) = self.motion.take_direction_change(now_us) {
+            set_dir(a, d);
+        }
+        let batch = match self.motion.next_batch() {
+            Some(b) if b.at_us <= now_us => self.take_batch(b),
+            _ => None,
+        };
+        let wait = match (self.motion.next_due_us(), dwell) {
+            (Some(at_us), _) => StepperWait::Step { at_us },
+            (None, Some(t)) => StepperWait::Until(t),
+            // A leg just finished: poll the protocol again now.
+            (None, None) if self.protocol.is_some() => StepperWait::Until(now_us),
+            (None, None) => StepperWait::Idle,
+        };
+        (batch, wait)
+    }
+
+    /// The characterisation protocol's progress at a stepper wake-up (its next legs started
+    /// when due); the instant its dwell ends, if it dwells. Kept out of line: the wake-ups of
+    /// plain moves do not pay for it.
+    #[inline(never)]
+    fn poll_protocol(&mut self, now_us: u64) -> Option<u64> {
         let mut dwell = None;
         // A leg can be empty (already at its target): then the protocol moves on at once,
         // a bounded number of legs per wake-up.
@@ -482,21 +509,7 @@ impl Control {
                 }
             }
         }
-        while let Some((a, d)) = self.motion.take_direction_change(now_us) {
-            set_dir(a, d);
-        }
-        let batch = match self.motion.next_batch() {
-            Some(b) if b.at_us <= now_us => self.take_batch(b),
-            _ => None,
-        };
-        let wait = match (self.motion.next_step(), dwell) {
-            (Some((_, at_us)), _) => StepperWait::Step { at_us },
-            (None, Some(t)) => StepperWait::Until(t),
-            // A leg just finished: poll the protocol again now.
-            (None, None) if self.protocol.is_some() => StepperWait::Until(now_us),
-            (None, None) => StepperWait::Idle,
-        };
-        (batch, wait)
+        dwell
     }
 
     /// Check and record a batch of steps due now: nothing steps while a fault is latched, and a
@@ -506,18 +519,13 @@ impl Control {
             self.motion.stop_all();
             return None;
         }
-        for a in b.iter() {
-            if let Some(next) = self.motion.position_after_next_step(a) {
-                if !(0..=self.cap_steps[a]).contains(&next) {
-                    self.raise(Flags::channel(Flags::VOLUME_LIMIT, a), b.at_us);
-                    return None;
-                }
+        match self.motion.record_batch(b.axes, &self.cap_steps) {
+            Ok(()) => Some(b),
+            Err(a) => {
+                self.raise(Flags::channel(Flags::VOLUME_LIMIT, a), b.at_us);
+                None
             }
         }
-        for a in b.iter() {
-            self.motion.record_step(a);
-        }
-        Some(b)
     }
 
     // ---------------------------------------------------------------- sampler side
