@@ -624,12 +624,6 @@ impl Motion {
         Ok(())
     }
 
-    /// The position `axis` would reach with its next step, if it has one.
-    pub fn position_after_next_step(&self, axis: usize) -> Option<i32> {
-        let a = &self.axes[axis];
-        a.mv.as_ref().map(|m| a.pos + m.sign)
-    }
-
     /// Abandon every move immediately (positions stay where the last step left them).
     pub fn stop_all(&mut self) {
         for a in &mut self.axes {
