@@ -45,7 +45,8 @@
 //! state ([`ChainState`]) belongs to the estimator, which resets it ([`ChainState::reset`]) at
 //! boot, at `origin` (the volume count restarts: every stored volume would be off) and when a
 //! model is installed. The first frame after a reset starts every effect at rest on that frame
-//! (lags output their input, h = 0, z = v, I = 0, the delay line holds the frame). A frame whose
+//! (lags output their input, h = 0, z = v, I = 0, the delay line holds the frame) and computes the
+//! effects' per-frame constants (lag weights, the delay's split) for that frame's Δt. A frame whose
 //! evaluation fails (out of the model's range, a non-finite measured pressure where leak or air
 //! needs it) leaves the state as it was, as if the frame had not happened.
 //!
@@ -82,6 +83,10 @@ pub const MAX_EFFECTS: usize = 4;
 /// Frames the transport delay keeps (the current one included): a delay of at most
 /// `MAX_DELAY_FRAMES − 2` frame periods (1.52 s at 25 Hz).
 pub const MAX_DELAY_FRAMES: usize = 40;
+/// Longest transport delay a chain accepts, s (the residual loop searches up to 1.5 s); at frame
+/// rates above 25.3 Hz the delay line is shorter than that and such a chain's frames fail with
+/// `BadParameter`.
+pub const MAX_DELAY_S: f32 = 1.5;
 /// Most parameters of one effect.
 pub const MAX_EFFECT_PARAMS: usize = 3;
 /// Atmospheric pressure, kPa (the air pocket's isothermal reference).
@@ -301,10 +306,8 @@ impl Derived {
 /// A chamber's effect chain (configuration, see the module docs).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Chain {
-    dt: f32,
     len: u8,
     effects: [Effect; MAX_EFFECTS],
-    derived: [Derived; MAX_EFFECTS],
 }
 
 /// Inputs of one frame.
@@ -316,6 +319,8 @@ pub struct ChainInput {
     pub vdot: f32,
     /// Measured (zeroed) pressure, kPa; only leak and air compliance read it.
     pub p: f32,
+    /// Frame period Δt, s (> 0; the same for every frame between two resets).
+    pub dt: f32,
 }
 
 /// What the chain predicts for one frame.
@@ -339,6 +344,8 @@ pub struct ChainEval {
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ChainState {
     primed: bool,
+    /// Per-frame constants of each effect for the frame period, computed on the first frame.
+    derived: [Derived; MAX_EFFECTS],
     slot: [[f32; 6]; MAX_EFFECTS],
     ring: [(f32, f32); MAX_DELAY_FRAMES],
     head: u8,
@@ -356,6 +363,7 @@ impl ChainState {
     pub const fn new() -> Self {
         ChainState {
             primed: false,
+            derived: [Derived { w: [0.0; 8], n: 0 }; MAX_EFFECTS],
             slot: [[0.0; 6]; MAX_EFFECTS],
             ring: [(0.0, 0.0); MAX_DELAY_FRAMES],
             head: 0,
@@ -392,26 +400,15 @@ fn foh(a: f32, c0: f32, c1: f32, y0: f32, x0: f32, x: f32) -> f32 {
 }
 
 impl Chain {
-    /// An empty chain for frames `dt` seconds apart: `BadParameter` unless `dt` is finite, > 0.
-    pub fn new(dt: f32) -> Result<Self, ModelError> {
-        if !(dt.is_finite() && dt > 0.0) {
-            return Err(ModelError::BadParameter);
-        }
-        let none = Effect {
-            kind: EffectKind::Hysteresis,
-            params: [1.0, 0.0, 0.0],
-        };
-        Ok(Chain {
-            dt,
+    /// An empty chain.
+    pub const fn new() -> Self {
+        Chain {
             len: 0,
-            effects: [none; MAX_EFFECTS],
-            derived: [Derived::default(); MAX_EFFECTS],
-        })
-    }
-
-    /// Frame period, s.
-    pub fn dt(&self) -> f32 {
-        self.dt
+            effects: [Effect {
+                kind: EffectKind::Hysteresis,
+                params: [1.0, 0.0, 0.0],
+            }; MAX_EFFECTS],
+        }
     }
 
     /// The effects, in evaluation order.
@@ -431,7 +428,7 @@ impl Chain {
 
     /// Adds an effect in its place in the evaluation order: `BadLength` when the chain is full,
     /// `BadParameter` when it already has one of that kind or a transport delay is longer than
-    /// `MAX_DELAY_FRAMES − 2` frames.
+    /// [`MAX_DELAY_S`].
     pub fn push(&mut self, e: Effect) -> Result<(), ModelError> {
         let len = self.len as usize;
         if self.effects().iter().any(|x| x.kind == e.kind) {
@@ -440,9 +437,7 @@ impl Chain {
         if len == MAX_EFFECTS {
             return Err(ModelError::BadLength);
         }
-        if e.kind == EffectKind::TransportDelay
-            && e.params[0] as f64 > (MAX_DELAY_FRAMES - 2) as f64 * self.dt as f64
-        {
+        if e.kind == EffectKind::TransportDelay && e.params[0] > MAX_DELAY_S {
             return Err(ModelError::BadParameter);
         }
         let at = self
@@ -452,10 +447,8 @@ impl Chain {
             .unwrap_or(len);
         for i in (at..len).rev() {
             self.effects[i + 1] = self.effects[i];
-            self.derived[i + 1] = self.derived[i];
         }
         self.effects[at] = e;
-        self.derived[at] = Derived::of(&e, self.dt);
         self.len += 1;
         Ok(())
     }
@@ -469,7 +462,10 @@ impl Chain {
     /// polynomial's AR history of previous *transformed* inputs ([`ChainEval::v_in`]).
     ///
     /// Errors: the polynomial's (`NonFinite`, `OutOfRange`, `ShortHistory`) at the transformed
-    /// inputs; `NonFinite` when leak or air compliance meets a non-finite measured pressure.
+    /// inputs; `NonFinite` when leak or air compliance meets a non-finite measured pressure;
+    /// `BadParameter` for a frame period that is not finite and > 0 or too short for the delay.
+    ///
+    /// The state belongs to this chain: reset it whenever the chain changes.
     pub fn eval(
         &self,
         model: &PolyModel,
@@ -477,6 +473,9 @@ impl Chain {
         state: &mut ChainState,
         inp: ChainInput,
     ) -> Result<ChainEval, ModelError> {
+        if !state.primed {
+            state.derived = self.derive(inp.dt)?;
+        }
         let mut slot = state.slot;
         let primed = state.primed;
         let (v_in, f_in, gain) = self.inputs(state, &mut slot, inp)?;
@@ -493,10 +492,10 @@ impl Chain {
             let spring =
                 self.effects[i].params[0] * P_ATM_KPA / ((P_ATM_KPA + pt) * (P_ATM_KPA + pt));
             k_air = spring;
-            p = self.air_lag(&mut slot[i], primed, e.c.max(0.0) * spring, p);
+            p = self.air_lag(&mut slot[i], primed, inp.dt, e.c.max(0.0) * spring, p);
         }
         if let Some(i) = self.position(EffectKind::SensorLag) {
-            let (w, s) = (&self.derived[i].w, &mut slot[i]);
+            let (w, s) = (&state.derived[i].w, &mut slot[i]);
             let y = if primed {
                 foh(w[0], w[5], w[6], s[0], s[1], p)
             } else {
@@ -548,7 +547,7 @@ impl Chain {
                     k += dk;
                 }
                 EffectKind::Inertance => {
-                    let dt = self.dt;
+                    let dt = inp.dt;
                     let acc = if primed {
                         (-6.0 * (inp.v - s[0]) + 2.0 * dt * s[1] + 4.0 * dt * inp.vdot) / (dt * dt)
                     } else {
@@ -569,6 +568,23 @@ impl Chain {
         (p, k, c)
     }
 
+    /// Every effect's per-frame constants for frames `dt` apart.
+    fn derive(&self, dt: f32) -> Result<[Derived; MAX_EFFECTS], ModelError> {
+        if !(dt.is_finite() && dt > 0.0) {
+            return Err(ModelError::BadParameter);
+        }
+        let mut d = [Derived::default(); MAX_EFFECTS];
+        for (i, e) in self.effects().iter().enumerate() {
+            if e.kind == EffectKind::TransportDelay
+                && e.params[0] as f64 > (MAX_DELAY_FRAMES - 2) as f64 * dt as f64
+            {
+                return Err(ModelError::BadParameter);
+            }
+            d[i] = Derived::of(e, dt);
+        }
+        Ok(d)
+    }
+
     fn position(&self, kind: EffectKind) -> Option<usize> {
         self.effects().iter().position(|e| e.kind == kind)
     }
@@ -586,7 +602,7 @@ impl Chain {
             let s = &mut slot[i];
             let p0 = eff.params[0];
             match eff.kind {
-                EffectKind::DeliveryLag => (v, f) = self.delivery(i, s, primed, v, f),
+                EffectKind::DeliveryLag => (v, f) = delivery(&state.derived[i].w, s, primed, v, f),
                 EffectKind::TransportDelay => {
                     // The delay line stores what enters the delay (after a delivery lag).
                     (s[0], s[1]) = (v, f);
@@ -609,7 +625,7 @@ impl Chain {
                 EffectKind::Leak => {
                     let p = finite(inp.p)?;
                     let integral = if primed {
-                        kahan_add(s, 0.5 * (p + s[1]) * self.dt)
+                        kahan_add(s, 0.5 * (p + s[1]) * inp.dt)
                     } else {
                         (s[0], s[2]) = (0.0, 0.0);
                         0.0
@@ -628,34 +644,11 @@ impl Chain {
         Ok((v, f, gain))
     }
 
-    /// Delivery lag: two stages, each lagging v (slopes: the flows) and v̇ (straight line).
-    /// Slots: 0, 1 stage-one output v, v̇; 2, 3 stage-two output; 4, 5 the raw input last frame.
-    fn delivery(&self, i: usize, s: &mut [f32; 6], primed: bool, v: f32, f: f32) -> (f32, f32) {
-        if !primed {
-            *s = [v, f, v, f, v, f];
-            return (v, f);
-        }
-        let [a, w0, w1, m0, m1, c0, c1, _] = self.derived[i].w;
-        let (mut xv, mut xf) = (v, f);
-        let (mut pv, mut pf) = (s[4], s[5]);
-        (s[4], s[5]) = (v, f);
-        for st in 0..2 {
-            let (yv, yf) = (s[2 * st], s[2 * st + 1]);
-            let nv = a * yv + w0 * pv + w1 * xv + m0 * pf + m1 * xf;
-            let nf = foh(a, c0, c1, yf, pf, xf);
-            // The next stage's previous input is this stage's previous output.
-            (pv, pf) = (yv, yf);
-            (s[2 * st], s[2 * st + 1]) = (nv, nf);
-            (xv, xf) = (nv, nf);
-        }
-        (xv, xf)
-    }
-
     /// Transport delay on the stored frames (the current one not yet pushed): the interval from
     /// frame k − n − 1 to k − n, or the first frame since the reset when that interval starts
     /// before it.
     fn delayed(&self, i: usize, state: &ChainState, v: f32, f: f32) -> (f32, f32) {
-        let d = &self.derived[i];
+        let d = &state.derived[i];
         let n = d.n as usize;
         let held = state.held as usize;
         if n + 1 > held {
@@ -680,13 +673,13 @@ impl Chain {
 
     /// Air compliance's output lag, time constant τ(p) averaged over the frame's ends.
     /// Slots: 0 output, 1 input, 2 τ of the last frame.
-    fn air_lag(&self, s: &mut [f32; 6], primed: bool, tau: f32, x: f32) -> f32 {
+    fn air_lag(&self, s: &mut [f32; 6], primed: bool, dt: f32, tau: f32, x: f32) -> f32 {
         let y = if primed {
             let t = 0.5 * (tau + s[2]);
-            if t <= 1e-9 * self.dt {
+            if t <= 1e-9 * dt {
                 x
             } else {
-                let r = self.dt / t;
+                let r = dt / t;
                 let one_minus_a = -libm::expm1f(-r);
                 let g = if r < 1e-3 {
                     1.0 - 0.5 * r
@@ -708,6 +701,29 @@ impl Chain {
         (s[0], s[1], s[2]) = (y, x, tau);
         y
     }
+}
+
+/// Delivery lag: two stages, each lagging v (slopes: the flows) and v̇ (straight line).
+/// Slots: 0, 1 stage-one output v, v̇; 2, 3 stage-two output; 4, 5 the raw input last frame.
+fn delivery(w: &[f32; 8], s: &mut [f32; 6], primed: bool, v: f32, f: f32) -> (f32, f32) {
+    if !primed {
+        *s = [v, f, v, f, v, f];
+        return (v, f);
+    }
+    let [a, w0, w1, m0, m1, c0, c1, _] = *w;
+    let (mut xv, mut xf) = (v, f);
+    let (mut pv, mut pf) = (s[4], s[5]);
+    (s[4], s[5]) = (v, f);
+    for st in 0..2 {
+        let (yv, yf) = (s[2 * st], s[2 * st + 1]);
+        let nv = a * yv + w0 * pv + w1 * xv + m0 * pf + m1 * xf;
+        let nf = foh(a, c0, c1, yf, pf, xf);
+        // The next stage's previous input is this stage's previous output.
+        (pv, pf) = (yv, yf);
+        (s[2 * st], s[2 * st + 1]) = (nv, nf);
+        (xv, xf) = (nv, nf);
+    }
+    (xv, xf)
 }
 
 /// Adds `x` to the running sum in slot 0 with Kahan's compensation in slot 2 (the leak's

@@ -22,7 +22,7 @@ use proptest::prelude::*;
 const DT: f32 = 0.04;
 
 fn chain(effects: &[(EffectKind, &[f32])]) -> Chain {
-    let mut c = Chain::new(DT).unwrap();
+    let mut c = Chain::new();
     for (k, p) in effects {
         c.push(Effect::new(*k, p).unwrap()).unwrap();
     }
@@ -57,6 +57,7 @@ fn frames(len: usize, a1: f64, w1: f64, a2: f64, w2: f64) -> Vec<ChainInput> {
                 v: v as f32,
                 vdot: f as f32,
                 p: p as f32,
+                dt: DT,
             }
         })
         .collect()
@@ -275,7 +276,7 @@ fn sba1_range() -> f64 {
 
 /// Largest |f32 − f64| over the frames not at a backlash edge, relative to the model's range.
 fn worst(effects: &[(EffectKind, Vec<f64>)], frames: &[ChainInput]) -> f64 {
-    let mut c = Chain::new(DT).unwrap();
+    let mut c = Chain::new();
     for (k, p) in effects {
         let p32: Vec<f32> = p.iter().map(|&x| x as f32).collect();
         c.push(Effect::new(*k, &p32).unwrap()).unwrap();
@@ -341,7 +342,7 @@ fn a_four_effect_chain_matches_the_f64_reference() {
 #[test]
 fn zero_size_effects_are_the_bare_polynomial_bit_for_bit() {
     let fr = frames(300, 200.0, 0.31, 40.0, 1.3);
-    let bare = run(&Chain::new(DT).unwrap(), &sba1(), &fr);
+    let bare = run(&Chain::new(), &sba1(), &fr);
     for (i, p) in bare.iter().enumerate() {
         let e = sba1().eval(fr[i].v, fr[i].vdot).unwrap();
         assert_eq!(p.to_bits(), e.p.to_bits());
@@ -375,6 +376,7 @@ fn hysteron_hand_values() {
         v,
         vdot: 0.0,
         p: 0.0,
+        dt: DT,
     };
     let p = run(&c, &model, &[at(500.0), at(506.0), at(504.0), at(504.0)]);
     let up = 1.0 - (-3.0f64).exp();
@@ -401,7 +403,12 @@ fn backlash_hand_values() {
     let fr: Vec<ChainInput> = nut
         .iter()
         .zip(q)
-        .map(|(&v, f)| ChainInput { v, vdot: f, p: 0.0 })
+        .map(|(&v, f)| ChainInput {
+            v,
+            vdot: f,
+            p: 0.0,
+            dt: DT,
+        })
         .collect();
     assert_eq!(
         run(&c, &model, &fr),
@@ -422,7 +429,8 @@ fn lags_settle_on_the_polynomial_and_trail_a_ramp_by_tau() {
         ChainInput {
             v: 300.0,
             vdot: 0.0,
-            p: 3.0
+            p: 3.0,
+            dt: DT
         };
         50
     ];
@@ -443,6 +451,7 @@ fn lags_settle_on_the_polynomial_and_trail_a_ramp_by_tau() {
             v: 100.0 + 20.0 * k as f32 * DT,
             vdot: 20.0,
             p: 0.0,
+            dt: DT,
         })
         .collect();
     for (e, lag) in [
@@ -466,7 +475,8 @@ fn leak_and_air_hand_values() {
         ChainInput {
             v: 400.0,
             vdot: 0.0,
-            p: 10.0
+            p: 10.0,
+            dt: DT
         };
         26
     ];
@@ -496,6 +506,7 @@ fn inertance_is_l_times_the_cubic_end_acceleration() {
                 v: 1.0 + 5.0 * t * t,
                 vdot: 10.0 * t,
                 p: 0.0,
+                dt: DT,
             }
         })
         .collect();
@@ -535,13 +546,14 @@ fn reset_starts_over_and_a_failed_frame_changes_nothing() {
         v: f32::NAN,
         vdot: 0.0,
         p: 0.0,
+        dt: DT,
     };
     assert_eq!(
         c.eval(&model, &hist, &mut st, far),
         Err(ModelError::NonFinite)
     );
     assert_eq!(st, before);
-    let bare = Chain::new(DT).unwrap();
+    let bare = Chain::new();
     let far = ChainInput { v: 1e5, ..fr[0] };
     assert_eq!(
         bare.eval(&model, &hist, &mut st, far),
@@ -563,11 +575,16 @@ fn reset_starts_over_and_a_failed_frame_changes_nothing() {
 fn chain_stiffness_and_damping() {
     let model = sba1();
     let hist = ArHistory::new();
-    let at = |v: f32, f: f32| ChainInput { v, vdot: f, p: 4.0 };
+    let at = |v: f32, f: f32| ChainInput {
+        v,
+        vdot: f,
+        p: 4.0,
+        dt: DT,
+    };
     // Without effects, and through lags at rest: the polynomial's own k and c.
     let e0 = model.eval(300.0, 20.0).unwrap();
     for c in [
-        Chain::new(DT).unwrap(),
+        Chain::new(),
         chain(&[
             (EffectKind::SensorLag, &[0.2]),
             (EffectKind::DeliveryLag, &[0.1]),
@@ -628,7 +645,7 @@ fn bad_effects_are_refused() {
         Err(ModelError::BadParameter)
     );
     assert!(Effect::new(Inertance, &[-1e-4]).is_ok());
-    let mut c = Chain::new(DT).unwrap();
+    let mut c = Chain::new();
     c.push(Effect::new(Leak, &[0.1]).unwrap()).unwrap();
     assert_eq!(
         c.push(Effect::new(Leak, &[0.2]).unwrap()),
@@ -649,7 +666,26 @@ fn bad_effects_are_refused() {
     // Kept in evaluation order whatever the order of pushing.
     let kinds: Vec<EffectKind> = c.effects().iter().map(|e| e.kind()).collect();
     assert_eq!(kinds, vec![Backlash, Leak, Inertance, SensorLag]);
-    assert_eq!(Chain::new(0.0), Err(ModelError::BadParameter));
+    // A frame period that is not > 0, or too short a delay line for the delay: every frame fails.
+    let mut st = ChainState::new();
+    let at = |dt: f32| ChainInput {
+        v: 300.0,
+        vdot: 0.0,
+        p: 0.0,
+        dt,
+    };
+    let bare = Chain::new();
+    assert_eq!(
+        bare.eval(&sba1(), &ArHistory::new(), &mut st, at(0.0)),
+        Err(ModelError::BadParameter)
+    );
+    let d = chain(&[(TransportDelay, &[1.5])]);
+    assert!(d.eval(&sba1(), &ArHistory::new(), &mut st, at(DT)).is_ok());
+    st.reset();
+    assert_eq!(
+        d.eval(&sba1(), &ArHistory::new(), &mut st, at(0.02)),
+        Err(ModelError::BadParameter)
+    );
     for k in EffectKind::ALL {
         assert_eq!(EffectKind::from_name(k.name()), Some(k));
         assert_eq!(EffectKind::from_rank(k.rank()), Some(k));
@@ -701,14 +737,14 @@ proptest! {
         effects in proptest::collection::vec(effect_strategy(), 0..=MAX_EFFECTS),
         inputs in proptest::collection::vec((-1e4..1e4f32, -1e3..1e3f32, -200.0..200.0f32), 1..50),
     ) {
-        let mut c = Chain::new(DT).unwrap();
+        let mut c = Chain::new();
         for (k, p) in &effects {
             let p32: Vec<f32> = p.iter().map(|&x| x as f32).collect();
             let _ = c.push(Effect::new(*k, &p32).unwrap());
         }
         let mut st = ChainState::new();
         for (v, f, p) in inputs {
-            if let Ok(e) = c.eval(&sba1(), &ArHistory::new(), &mut st, ChainInput { v, vdot: f, p }) {
+            if let Ok(e) = c.eval(&sba1(), &ArHistory::new(), &mut st, ChainInput { v, vdot: f, p, dt: DT }) {
                 prop_assert!(e.p.is_finite() && e.k.is_finite() && e.c.is_finite());
             }
         }
