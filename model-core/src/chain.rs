@@ -352,6 +352,12 @@ pub struct ChainState {
     held: u8,
 }
 
+impl Default for Chain {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
 impl Default for ChainState {
     fn default() -> Self {
         Self::new()
