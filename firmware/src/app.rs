@@ -241,14 +241,30 @@ struct Chamber {
 }
 
 impl Chamber {
-    fn new(model: Model) -> Self {
-        Chamber {
+    fn new(model: Model, dt: f32) -> Self {
+        let mut c = Chamber {
             model: model.poly,
             chain: model.chain,
             state: ChainState::new(),
             hist: ArHistory::new(),
             online: None,
-        }
+        };
+        c.reset_chain(dt);
+        c
+    }
+
+    /// Boot, `origin`, model load: the chain starts over, its per-frame constants computed here
+    /// (outside the frame; a bad `dt` leaves them to the first frame, which then reports it).
+    fn reset_chain(&mut self, dt: f32) {
+        self.state.reset();
+        let _ = self.state.prepare(&self.chain, dt);
+    }
+}
+
+impl Config {
+    /// The frame period, s (the chain's Δt).
+    pub fn frame_dt(&self) -> f32 {
+        1.0 / self.frame_hz.max(1) as f32
     }
 }
 
@@ -759,7 +775,7 @@ pub struct Estimator {
 impl Estimator {
     /// Boot state: SBA1 model on every chamber, pressure zero pending.
     pub fn new(cfg: Config) -> Self {
-        let chamber = Chamber::new(Model::default_model());
+        let chamber = Chamber::new(Model::default_model(), cfg.frame_dt());
         Self {
             zero_kpa: [0.0; AXES],
             zeroing: Some((cfg.zero_frames, [0.0; AXES])),
@@ -797,7 +813,7 @@ impl Estimator {
     /// Whether the pressure zero is being taken.
     /// Boot: install a model found in flash (or the default), without a `model` event.
     pub fn install_boot(&mut self, ch: usize, model: Model) {
-        self.chambers[ch] = Chamber::new(model);
+        self.chambers[ch] = Chamber::new(model, self.cfg.frame_dt());
     }
 
     /// Whether the pressure zero is being taken.
@@ -906,7 +922,7 @@ impl Estimator {
             v: c.v,
             vdot: c.vdot,
             p: c.p,
-            dt: 1.0 / cfg.frame_hz.max(1) as f32,
+            dt: cfg.frame_dt(),
         };
         let eval = chamber
             .chain
@@ -1088,7 +1104,7 @@ impl Estimator {
     }
 
     fn install(&mut self, ch: usize, model: Model, now_us: u64, events: &mut EventBuf) {
-        self.chambers[ch] = Chamber::new(model);
+        self.chambers[ch] = Chamber::new(model, self.cfg.frame_dt());
         self.warnings &=
             !(Flags::channel(Flags::RLS_ACTIVE, ch) | Flags::channel(Flags::DRIFT, ch));
         push_event(events, now_us, EventKind::ModelLoaded { ch: ch as u8 });
@@ -1609,7 +1625,7 @@ impl Shared {
                 self.with_control(|c| c.set_origin(*axes, steps))?;
                 for a in axes.iter() {
                     est.chambers[a].hist.clear();
-                    est.chambers[a].state.reset();
+                    est.chambers[a].reset_chain(cfg.frame_dt());
                 }
             }
             Command::Model {

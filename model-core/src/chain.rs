@@ -46,7 +46,8 @@
 //! boot, at `origin` (the volume count restarts: every stored volume would be off) and when a
 //! model is installed. The first frame after a reset starts every effect at rest on that frame
 //! (lags output their input, h = 0, z = v, I = 0, the delay line holds the frame) and computes the
-//! effects' per-frame constants (lag weights, the delay's split) for that frame's Δt. A frame whose
+//! effects' per-frame constants (lag weights, the delay's split) for that frame's Δt, unless
+//! [`ChainState::prepare`] computed them already (a state must then only see that chain and Δt). A frame whose
 //! evaluation fails (out of the model's range, a non-finite measured pressure where leak or air
 //! needs it) leaves the state as it was, as if the frame had not happened.
 //!
@@ -344,6 +345,8 @@ pub struct ChainEval {
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ChainState {
     primed: bool,
+    /// `derived` holds the constants for this state's chain (set by [`ChainState::prepare`]).
+    prepared: bool,
     /// Per-frame constants of each effect for the frame period, computed on the first frame.
     derived: [Derived; MAX_EFFECTS],
     slot: [[f32; 6]; MAX_EFFECTS],
@@ -369,6 +372,7 @@ impl ChainState {
     pub const fn new() -> Self {
         ChainState {
             primed: false,
+            prepared: false,
             derived: [Derived { w: [0.0; 8], n: 0 }; MAX_EFFECTS],
             slot: [[0.0; 6]; MAX_EFFECTS],
             ring: [(0.0, 0.0); MAX_DELAY_FRAMES],
@@ -380,6 +384,15 @@ impl ChainState {
     /// Forget everything (boot, `origin`, model load).
     pub fn reset(&mut self) {
         *self = ChainState::new();
+    }
+
+    /// Computes `chain`'s per-frame constants for frames `dt` apart now, so that the first frame
+    /// after a reset costs no more than the others (the board calls it where it resets, outside
+    /// the frame). Errors as [`Chain::eval`] for a bad `dt`; the state stays unprepared then.
+    pub fn prepare(&mut self, chain: &Chain, dt: f32) -> Result<(), ModelError> {
+        self.derived = chain.derive(dt)?;
+        self.prepared = true;
+        Ok(())
     }
 
     /// Whether a frame has been evaluated since the last reset.
@@ -479,7 +492,7 @@ impl Chain {
         state: &mut ChainState,
         inp: ChainInput,
     ) -> Result<ChainEval, ModelError> {
-        if !state.primed {
+        if !state.primed && !state.prepared {
             state.derived = self.derive(inp.dt)?;
         }
         let mut slot = state.slot;

@@ -535,6 +535,14 @@ fn reset_starts_over_and_a_failed_frame_changes_nothing() {
         .collect();
     st.reset();
     assert_eq!(st, ChainState::new());
+    // Prepared ahead: the same frames, bit for bit.
+    st.prepare(&c, DT).unwrap();
+    let prepared: Vec<f32> = fr
+        .iter()
+        .map(|&f| c.eval(&model, &hist, &mut st, f).unwrap().p)
+        .collect();
+    assert_eq!(first, prepared);
+    st.reset();
     let again: Vec<f32> = fr
         .iter()
         .map(|&f| c.eval(&model, &hist, &mut st, f).unwrap().p)
