@@ -215,8 +215,9 @@ impl Effect {
 /// Per-frame constants of an effect, derived once from its parameters and the frame period.
 #[derive(Clone, Copy, Debug, PartialEq, Default)]
 struct Derived {
-    /// Lags: `a`, then the cubic weights `w₀, w₁, Δt·m₀, Δt·m₁` (delivery lag) or the straight
-    /// line's `(1 − a) − (1 − g)`, `1 − g` in slots 1 and 2 (sensor lag). Delay: Hermite weights.
+    /// Lags: `a` in slot 0, the cubic weights `w₀, w₁, Δt·m₀, Δt·m₁` in slots 1–4 (delivery lag
+    /// only) and the straight line's `(1 − a) − (1 − g)`, `1 − g` in slots 5 and 6. Delay: the
+    /// Hermite weights.
     w: [f32; 8],
     /// Transport delay: whole frames back to the interval's later end.
     n: u8,
@@ -242,6 +243,9 @@ fn lag_weights(dt: f64, tau: f64) -> [f64; 5] {
             let mut sum = 0.0;
             for j in 0..40 {
                 sum += term;
+                if libm::fabs(term) <= 1e-17 * libm::fabs(sum) {
+                    break;
+                }
                 term *= -r / (q as f64 + j as f64 + 2.0);
             }
             *iq = sum;
@@ -291,7 +295,20 @@ impl Derived {
         let (dtf, p0) = (dt as f64, e.params[0] as f64);
         let mut w = [0.0f32; 8];
         match e.kind {
-            EffectKind::SensorLag | EffectKind::DeliveryLag => {
+            EffectKind::SensorLag => {
+                // Only the straight line: a = e^{−r}, g = (1 − a)/r in closed form.
+                if p0 > 1e-9 * dtf {
+                    let r = dtf / p0;
+                    let one_minus_a = -libm::expm1(-r);
+                    let g = one_minus_a / r;
+                    let a = 1.0 - one_minus_a;
+                    w[0] = a as f32;
+                    (w[5], w[6]) = ((g - a) as f32, (1.0 - g) as f32);
+                } else {
+                    w[6] = 1.0;
+                }
+            }
+            EffectKind::DeliveryLag => {
                 let [a, w0, w1, m0, m1] = lag_weights(dtf, p0);
                 // Straight line: both slopes the secant (x_k − x_{k−1})/Δt.
                 let (c0, c1) = (w0 - (m0 + m1), w1 + (m0 + m1));
@@ -492,6 +509,22 @@ impl Chain {
         state: &mut ChainState,
         inp: ChainInput,
     ) -> Result<ChainEval, ModelError> {
+        if self.len == 0 {
+            // No effects: the bare polynomial (nothing to remember).
+            let e = if model.shape().p == 0 {
+                model.eval(inp.v, inp.vdot)?
+            } else {
+                model.eval_ar(inp.v, inp.vdot, hist)?
+            };
+            return Ok(ChainEval {
+                p: e.p,
+                k: e.k,
+                c: e.c,
+                p_poly: e.p,
+                v_in: inp.v,
+                vdot_in: inp.vdot,
+            });
+        }
         if !state.primed && !state.prepared {
             state.derived = self.derive(inp.dt)?;
         }

@@ -682,9 +682,9 @@ fn bad_effects_are_refused() {
         p: 0.0,
         dt,
     };
-    let bare = Chain::new();
+    let lag = chain(&[(SensorLag, &[0.1])]);
     assert_eq!(
-        bare.eval(&sba1(), &ArHistory::new(), &mut st, at(0.0)),
+        lag.eval(&sba1(), &ArHistory::new(), &mut st, at(0.0)),
         Err(ModelError::BadParameter)
     );
     let d = chain(&[(TransportDelay, &[1.5])]);
