@@ -22,8 +22,8 @@
 //!    polynomial) and its telemetry line measured;
 //! 3b. the read-back model loaded into every chamber with a three-effect chain (hysteresis,
 //!    sensor lag, delivery lag; `model <ch> effect …` measured as `cmd_model_effect`), then
-//!    `move all 112 50 500` and back to 106: every frame measured as `frame_chain`; then
-//!    `model <ch> default` on each (the bare polynomial again);
+//!    `move all 112 50 500` and back to 106: every frame measured as `frame_chain`; then the
+//!    same model without effects loaded into each (the bare polynomial again);
 //! 4. `rls <ch> on` on the three chambers, then `move all 116 20 500` (10 mm³ at 20 mm³/s): the
 //!    three axes step at the same instants, one wake-up per batch of three (steps 20–24 and
 //!    70–74: `step_batch3`); every frame measured as `frame_rls`; those on which the drift check
@@ -335,8 +335,9 @@ const CHAIN: [&str; 3] = [
 ];
 
 /// The model read back from chamber 0 (`model 0 read`, `read coef 0`, `read coef 8`) loaded
-/// into chamber `ch` with [`CHAIN`] (`begin`, `coef 0 …`, `coef 8 …`, 3 × `effect`, `commit`).
-fn chain_upload(r: &mut Rig, ch: usize) {
+/// into chamber `ch` with `effects` (`begin`, `coef 0 …`, `coef 8 …`, an `effect` line each,
+/// `commit`).
+fn chain_upload(r: &mut Rig, ch: usize, effects: &[&str]) {
     let header = r.command(fwb_begin_cmd_model_read, "model 0 read");
     let c0 = r.command(fwb_begin_cmd_model_read_coef, "model 0 read coef 0");
     let c8 = r.command(fwb_begin_cmd_model_read_coef, "model 0 read coef 8");
@@ -353,7 +354,7 @@ fn chain_upload(r: &mut Rig, ch: usize) {
         let _ = write!(line, "model {ch} coef {start} {}", fields(c));
         r.command(fwb_begin_cmd_model_coef, &line);
     }
-    for e in CHAIN {
+    for e in effects {
         line.clear();
         let _ = write!(line, "model {ch} effect {e}");
         r.command(fwb_begin_cmd_model_effect, &line);
@@ -423,11 +424,11 @@ pub fn run(telemetry: UpChannel) -> Summary {
     r.finish_move(1_000_000);
 
     // 3b. The same model with a three-effect chain on every chamber, a move out and back:
-    //     frames with the chain (`frame_chain`); then the bare default back on every chamber.
+    //     frames with the chain (`frame_chain`); then the bare model back on every chamber.
     r.measure_steps = false;
     r.measure_conv = Measure::Off;
     for ch in 0..CHANNELS {
-        chain_upload(&mut r, ch);
+        chain_upload(&mut r, ch, &CHAIN);
     }
     r.measure_conv = Measure::Chain;
     r.command(fwb_begin_cmd_move, "move all 112 50 500");
@@ -435,9 +436,9 @@ pub fn run(telemetry: UpChannel) -> Summary {
     r.command(fwb_begin_cmd_move, "move all 106 50 500");
     r.finish_move(1_000_000);
     r.measure_conv = Measure::Off;
-    r.command(fwb_begin_cmd_model_commit, "model 0 default");
-    r.command(fwb_begin_cmd_model_commit, "model 1 default");
-    r.command(fwb_begin_cmd_model_commit, "model 2 default");
+    for ch in 0..CHANNELS {
+        chain_upload(&mut r, ch, &[]);
+    }
     r.measure_steps = true;
 
     // 4. RLS on every chamber, a slower move: frames with RLS, drift checks.
