@@ -20,15 +20,15 @@
 //!    axis, `step_accel`) and at cruise (steps 70–74, `step_cruise`; the trapezoid accelerates
 //!    over the first 62); every conversion (`oversample`) and every frame (`frame`, bare
 //!    polynomial) and its telemetry line measured;
-//! 3b. the read-back model loaded into every chamber with a three-effect chain (hysteresis,
+//! 4. the read-back model loaded into every chamber with a three-effect chain (hysteresis,
 //!    sensor lag, delivery lag; `model <ch> effect …` measured as `cmd_model_effect`), then
 //!    `move all 112 50 500` and back to 106: every frame measured as `frame_chain`; then the
 //!    same model without effects loaded into each (the bare polynomial again);
-//! 4. `rls <ch> on` on the three chambers, then `move all 116 20 500` (10 mm³ at 20 mm³/s): the
+//! 5. `rls <ch> on` on the three chambers, then `move all 116 20 500` (10 mm³ at 20 mm³/s): the
 //!    three axes step at the same instants, one wake-up per batch of three (steps 20–24 and
 //!    70–74: `step_batch3`); every frame measured as `frame_rls`; those on which the drift check
 //!    runs (every `DRIFT_WINDOW` RLS updates) are retagged `frame_rls_drift`;
-//! 5. `run` with 8 flows, 30 ms of its first leg, `stop`, `clear`, `rls 0 off`, `status`,
+//! 6. `run` with 8 flows, 30 ms of its first leg, `stop`, `clear`, `rls 0 off`, `status`,
 //!    `zero`, and one more frame.
 //!
 //! The sensors read a synthetic pressure that follows the syringe volume (0.064 kPa/mm³ above
