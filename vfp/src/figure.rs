@@ -196,24 +196,6 @@ pub fn tick(x: f64) -> String {
     }
 }
 
-#[cfg(test)]
-mod tests {
-    #[test]
-    fn ticks_are_short_and_never_negative_zero() {
-        use super::tick;
-        assert_eq!(tick(-0.0), "0");
-        assert_eq!(tick(-1e-17), "0");
-        assert_eq!(tick(0.05), "0.05");
-        assert_eq!(tick(0.0500), "0.05");
-        assert_eq!(tick(1.25), "1.25");
-        assert_eq!(tick(-12.5), "-12.5");
-        assert_eq!(tick(2000.0), "2000");
-        assert_eq!(tick(12345.0), "1.2e4");
-        assert_eq!(tick(0.00012), "1.2e-4");
-        assert_eq!(tick(0.123456), "0.1235");
-    }
-}
-
 /// Axis range covering the finite values with 5 % padding; (0, 1) when there are none.
 pub fn padded_range(values: impl Iterator<Item = f64>) -> (f64, f64) {
     let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
@@ -230,4 +212,22 @@ pub fn padded_range(values: impl Iterator<Item = f64>) -> (f64, f64) {
         0.5 * lo.abs().max(1e-9)
     };
     (lo - pad, hi + pad)
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn ticks_are_short_and_never_negative_zero() {
+        use super::tick;
+        assert_eq!(tick(-0.0), "0");
+        assert_eq!(tick(-1e-17), "0");
+        assert_eq!(tick(0.05), "0.05");
+        assert_eq!(tick(0.0500), "0.05");
+        assert_eq!(tick(1.25), "1.25");
+        assert_eq!(tick(-12.5), "-12.5");
+        assert_eq!(tick(2000.0), "2000");
+        assert_eq!(tick(12345.0), "1.2e4");
+        assert_eq!(tick(0.00012), "1.2e-4");
+        assert_eq!(tick(0.123456), "0.1235");
+    }
 }

@@ -219,6 +219,8 @@ fn scatter(
     c.configure_mesh()
         .x_desc(axes.0)
         .y_desc(axes.1)
+        .x_label_formatter(&|x| crate::figure::tick(*x))
+        .y_label_formatter(&|y| crate::figure::tick(*y))
         .draw()
         .map_err(|e| err(path, e))?;
     for (pts, color) in sets {
@@ -226,7 +228,7 @@ fn scatter(
         c.draw_series(
             pts.iter()
                 .step_by(step)
-                .map(|&p| Circle::new(p, 1, color.filled())),
+                .map(|&p| Circle::new(p, 2, color.filled())),
         )
         .map_err(|e| err(path, e))?;
     }
@@ -257,6 +259,8 @@ fn histogram(
     c.configure_mesh()
         .x_desc("error (kPa)")
         .y_desc("count")
+        .x_label_formatter(&|x| crate::figure::tick(*x))
+        .y_label_formatter(&|y| crate::figure::tick(*y))
         .draw()
         .map_err(|e| err(path, e))?;
     c.draw_series(counts.iter().enumerate().map(|(i, &k)| {
