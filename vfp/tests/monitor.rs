@@ -195,10 +195,43 @@ fn garbage_input_is_counted_and_nothing_is_recorded() {
 #[ignore]
 fn readme_screen() {
     let run = simulate(&scenario()).unwrap();
-    let dir = scratch("readme");
-    let (session, screen) = monitor(capture(&run), &dir.join("LOG.csv"), 120, 36);
-    session.finish().unwrap();
     let path = std::env::var("VFP_MONITOR_SCREEN").expect("VFP_MONITOR_SCREEN=FILE");
+    // Recorded under the name the README's example uses (in the crate's directory, then removed).
+    let out = PathBuf::from("run.csv");
+    let (session, screen) = monitor(capture(&run), &out, 120, 36);
+    session.finish().unwrap();
     std::fs::write(path, screen).unwrap();
+    let _ = std::fs::remove_file(capture_path(&out));
+    let _ = std::fs::remove_file(out);
+}
+
+/// How fast the reader takes lines, recording included (a measurement, not a check):
+/// `cargo test --release -p vfp --test monitor throughput -- --ignored --nocapture`.
+#[test]
+#[ignore]
+fn throughput() {
+    let run = simulate(&scenario()).unwrap();
+    let one = capture(&run);
+    // An hour of frames at 25 Hz: the 8 s capture 450 times (seq restarts read as reboots).
+    let text = one.repeat(450);
+    let dir = scratch("throughput");
+    let t0 = std::time::Instant::now();
+    let mut session = Session::start(
+        Box::new(Cursor::new(text.into_bytes())),
+        "hour",
+        Some(&dir.join("LOG.csv")),
+        10.0,
+    )
+    .unwrap();
+    session.wait_for_end_of_input();
+    let read = t0.elapsed();
+    let frames = session.with_state(|s| s.counts.frames);
+    let rec = session.finish().unwrap().unwrap();
+    println!(
+        "{frames} frames read and spooled in {read:?} ({:.0} frames/s; the board sends 25), log of {} frames written after {:?}",
+        frames as f64 / read.as_secs_f64(),
+        rec.frames,
+        t0.elapsed()
+    );
     let _ = std::fs::remove_dir_all(dir);
 }

@@ -9,7 +9,7 @@ use ratatui::layout::{Constraint, Layout, Rect};
 use ratatui::style::{Color, Modifier, Style, Stylize};
 use ratatui::symbols::Marker;
 use ratatui::text::{Line, Span};
-use ratatui::widgets::{Axis, Block, Chart, Dataset, GraphType, Paragraph, Wrap};
+use ratatui::widgets::{Axis, Block, Chart, Dataset, GraphType, LegendPosition, Paragraph, Wrap};
 
 use super::state::MonitorState;
 
@@ -171,6 +171,8 @@ fn pressure_chart<'a>(
         dataset("P", measured, MEASURED),
         dataset("P̂", predicted, PREDICTED),
     ])
+    // Pressure rises to the right as the syringes fill: the legend goes top left.
+    .legend_position(Some(LegendPosition::TopLeft))
     .x_axis(
         Axis::default()
             .bounds([t_end - window_s, t_end])
