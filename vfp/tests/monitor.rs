@@ -190,7 +190,7 @@ fn garbage_input_is_counted_and_nothing_is_recorded() {
 }
 
 /// The README's picture of the monitor: `VFP_MONITOR_SCREEN=FILE cargo test -p vfp --test
-/// monitor -- --ignored` writes the screen as text.
+/// monitor readme_screen -- --ignored` writes the screen as text.
 #[test]
 #[ignore]
 fn readme_screen() {
