@@ -19,7 +19,7 @@ use std::thread::JoinHandle;
 use std::time::Duration;
 
 use ratatui::crossterm::event::{self, Event, KeyCode, KeyEventKind, KeyModifiers};
-use ratatui::{backend::Backend, Terminal};
+use ratatui::{backend::Backend, DefaultTerminal, Terminal};
 use sysid::record::{convert_file, Recording};
 
 use crate::Error;
@@ -207,8 +207,22 @@ pub fn run(args: &Args) -> Result<(), Error> {
             args.input.display().to_string(),
         )
     };
-    let session = Session::start(input, &source, args.out.as_deref(), args.window)?;
-    let shown = screen(&session, Duration::from_secs_f64(1.0 / args.fps));
+    // The terminal first: without one nothing is started and no file is made.
+    let mut terminal = ratatui::try_init()
+        .map_err(|e| Error::Msg(format!("vfp monitor needs a terminal to draw on: {e}")))?;
+    let session = match Session::start(input, &source, args.out.as_deref(), args.window) {
+        Ok(s) => s,
+        Err(e) => {
+            ratatui::restore();
+            return Err(e);
+        }
+    };
+    let shown = screen(
+        &session,
+        &mut terminal,
+        Duration::from_secs_f64(1.0 / args.fps),
+    );
+    ratatui::restore();
     let recorded = session.finish();
     shown?;
     if let Some(rec) = recorded? {
@@ -224,24 +238,18 @@ pub fn run(args: &Args) -> Result<(), Error> {
 }
 
 /// The terminal loop: draw, wait up to one tick for a key, until q, Esc or Ctrl-C.
-fn screen(session: &Session, tick: Duration) -> Result<(), Error> {
-    let mut terminal = ratatui::try_init()
-        .map_err(|e| Error::Msg(format!("vfp monitor needs a terminal to draw on: {e}")))?;
-    let result = (|| -> Result<(), Error> {
-        loop {
-            session.draw(&mut terminal)?;
-            if event::poll(tick)? {
-                if let Event::Key(k) = event::read()? {
-                    let ctrl_c =
-                        k.code == KeyCode::Char('c') && k.modifiers.contains(KeyModifiers::CONTROL);
-                    let quit = matches!(k.code, KeyCode::Char('q') | KeyCode::Esc) || ctrl_c;
-                    if quit && k.kind == KeyEventKind::Press {
-                        return Ok(());
-                    }
+fn screen(session: &Session, terminal: &mut DefaultTerminal, tick: Duration) -> Result<(), Error> {
+    loop {
+        session.draw(terminal)?;
+        if event::poll(tick)? {
+            if let Event::Key(k) = event::read()? {
+                let ctrl_c =
+                    k.code == KeyCode::Char('c') && k.modifiers.contains(KeyModifiers::CONTROL);
+                let quit = matches!(k.code, KeyCode::Char('q') | KeyCode::Esc) || ctrl_c;
+                if quit && k.kind == KeyEventKind::Press {
+                    return Ok(());
                 }
             }
         }
-    })();
-    ratatui::restore();
-    result
+    }
 }
