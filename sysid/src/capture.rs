@@ -99,6 +99,20 @@ fn clip(s: &str) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn strips_colour_and_location() {
+        let t = strip_ansi("\x1b[2m0.280012\x1b[0m \x1b[32mINFO\x1b[0m $F 1 2");
+        assert_eq!(t, "0.280012 INFO $F 1 2");
+        assert_eq!(
+            telemetry_part("0.1 $E 5 cleared (src/bin/vfp-fw.rs:56)"),
+            Some("$E 5 cleared")
+        );
+        assert_eq!(
+            telemetry_part("└─ vfp_fw::task @ src/bin/vfp-fw.rs:56"),
+            None
+        );
+    }
     use crate::record::convert;
 
     fn frame_line(seq: u32) -> String {

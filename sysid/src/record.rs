@@ -39,7 +39,9 @@ use std::fmt::Write as _;
 use std::io::{BufRead, Write};
 use std::path::Path;
 
-use firmware::telemetry::{self, EventKind, Frame, Line};
+use firmware::telemetry::{EventKind, Frame};
+
+use crate::capture::{classify, CaptureLine};
 
 use crate::log::{Log, RowLayout, Sample};
 
@@ -238,47 +240,6 @@ pub enum RecordError {
     },
 }
 
-/// Removes ANSI escape sequences (`ESC [ … final`), which `probe-rs` adds on a terminal.
-fn strip_ansi(s: &str) -> std::borrow::Cow<'_, str> {
-    if !s.contains('\x1b') {
-        return s.into();
-    }
-    let mut out = String::with_capacity(s.len());
-    let mut it = s.chars().peekable();
-    while let Some(c) = it.next() {
-        if c != '\x1b' {
-            out.push(c);
-            continue;
-        }
-        if it.peek() == Some(&'[') {
-            it.next();
-            // Parameters and intermediates up to the final byte in '@'..='~'.
-            for d in it.by_ref() {
-                if ('@'..='~').contains(&d) {
-                    break;
-                }
-            }
-        }
-    }
-    out.into()
-}
-
-/// The telemetry part of a printed line: from the `$` marker, with a location suffix that some
-/// printer formats put on the same line (`… (src/x.rs:12)`, `… @ src/x.rs:12`) removed.
-fn telemetry_part(text: &str) -> Option<&str> {
-    let start = [telemetry::FRAME_TAG, telemetry::EVENT_TAG]
-        .iter()
-        .filter_map(|t| text.find(t))
-        .min()?;
-    let rest = text[start..].trim_end();
-    for sep in [" └─", " @ ", " ("] {
-        if let Some(i) = rest.find(sep) {
-            return Some(rest[..i].trim_end());
-        }
-    }
-    Some(rest)
-}
-
 /// The shortest decimal of an `f32`, as the device printed it, read as `f64`.
 fn decimal(x: f32) -> f64 {
     // Display prints the shortest round-trip digits; parsing them as f64 keeps those digits.
@@ -340,28 +301,15 @@ impl Converter {
         }
     }
 
-    /// Converts one capture line (with or without its line terminator).
+    /// Converts one capture line (with or without its line terminator), classified by
+    /// [`capture::classify`](crate::capture::classify), the one reading of a captured line.
     fn line(&mut self, bytes: &[u8]) {
         self.rec.lines += 1;
         let no = self.rec.lines;
-        let Ok(text) = std::str::from_utf8(bytes) else {
-            // Only a line that claims to be telemetry matters; judge it on its readable part.
-            if String::from_utf8_lossy(bytes).contains('$') {
-                self.corrupted(no, "not valid UTF-8".into());
-            } else {
-                self.rec.other_lines += 1;
-            }
-            return;
-        };
-        let text = strip_ansi(text.trim_end_matches(['\n', '\r']));
-        let Some(part) = telemetry_part(&text) else {
-            self.rec.other_lines += 1;
-            return;
-        };
-        match telemetry::parse_line(part) {
-            None => self.rec.other_lines += 1,
-            Some(Err(e)) => self.corrupted(no, format!("{e}: {}", clip(part))),
-            Some(Ok(Line::Event(ev))) => {
+        match classify(bytes) {
+            CaptureLine::Other(_) => self.rec.other_lines += 1,
+            CaptureLine::Corrupted(why) => self.corrupted(no, why),
+            CaptureLine::Event(ev, part) => {
                 self.rec.events += 1;
                 if matches!(ev.kind, EventKind::Boot { .. }) {
                     self.boot_seen = true;
@@ -371,7 +319,7 @@ impl Converter {
                     (ev.t_us + self.offset_us) as f64 * 1e-6
                 )));
             }
-            Some(Ok(Line::Frame(f))) => self.frame(&f, no),
+            CaptureLine::Frame(f) => self.frame(&f, no),
         }
     }
 
@@ -599,14 +547,6 @@ pub fn convert(mut reader: impl BufRead, source: &str) -> Result<Recording, Reco
     Ok(c.rec)
 }
 
-fn clip(s: &str) -> String {
-    const MAX: usize = 60;
-    match s.char_indices().nth(MAX) {
-        Some((i, _)) => format!("{}…", &s[..i]),
-        None => s.to_string(),
-    }
-}
-
 /// The conversion as a stream: each capture line given to [`line`](Recorder::line) is converted
 /// and its rows written at once, events, gaps and bad lines as `#` comments where they happened;
 /// [`finish`](Recorder::finish) appends the totals. The file is a valid log after every
@@ -701,20 +641,6 @@ pub fn convert_file(path: &Path) -> Result<Recording, RecordError> {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn strips_colour_and_location() {
-        let t = strip_ansi("\x1b[2m0.280012\x1b[0m \x1b[32mINFO\x1b[0m $F 1 2");
-        assert_eq!(t, "0.280012 INFO $F 1 2");
-        assert_eq!(
-            telemetry_part("0.1 $E 5 cleared (src/bin/vfp-fw.rs:56)"),
-            Some("$E 5 cleared")
-        );
-        assert_eq!(
-            telemetry_part("└─ vfp_fw::task @ src/bin/vfp-fw.rs:56"),
-            None
-        );
-    }
 
     fn frame_line(seq: u32, t_us: u64) -> String {
         let f = Frame {
