@@ -192,11 +192,9 @@ pub fn family_parser() -> impl TypedValueParser<Value = sysid::identify::Family>
     enum_parser(&sysid::identify::Family::ALL, |f| f.name().to_string())
 }
 
-/// `--effect` values: [`sysid::residual::EffectKind`] by its name with `-` for `_`.
+/// `--effect` values: the effects of [`sysid::residual::REGISTRY`] by name with `-` for `_`.
 pub fn effect_parser() -> impl TypedValueParser<Value = sysid::residual::EffectKind> {
-    enum_parser(&sysid::residual::EffectKind::ALL, |e| {
-        e.name().replace('_', "-")
-    })
+    enum_parser(sysid::residual::REGISTRY, |e| e.name().replace('_', "-"))
 }
 
 /// `--method` values: [`sysid::diag::chow::Method`] by its name.
