@@ -2,18 +2,14 @@
 //! SVGs of a long log stay under 1 MB (scatter plots are decimated), and both formats write the
 //! same set of figures.
 
+mod common;
+use common::root;
+
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-fn root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
-}
-
 fn scratch(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("vfp-fig-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).expect("temp dir is writable");
-    d
+    common::scratch("fig", name)
 }
 
 /// Runs `vfp identify LOG --family poly --plots DIR --plot-format FORMAT`; the files written.
