@@ -3,10 +3,8 @@
 //! same set of figures.
 
 mod common;
-use common::root;
 
 use std::path::{Path, PathBuf};
-use std::process::Command;
 
 fn scratch(name: &str) -> PathBuf {
     common::scratch("fig", name)
@@ -14,17 +12,11 @@ fn scratch(name: &str) -> PathBuf {
 
 /// Runs `vfp identify LOG --family poly --plots DIR --plot-format FORMAT`; the files written.
 fn identify_plots(log: &str, dir: &Path, format: &str) -> Vec<PathBuf> {
-    let out = Command::new(env!("CARGO_BIN_EXE_vfp"))
-        .current_dir(root())
-        .args(["identify", log, "--family", "poly", "--plots"])
-        .arg(dir)
-        .args(["--plot-format", format])
-        .output()
-        .expect("vfp runs");
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
+    common::ok(
+        common::vfp()
+            .args(["identify", log, "--family", "poly", "--plots"])
+            .arg(dir)
+            .args(["--plot-format", format]),
     );
     let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
         .expect("plots dir")

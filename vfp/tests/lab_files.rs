@@ -28,18 +28,12 @@ fn scratch(name: &str) -> PathBuf {
 }
 
 fn identify(log: &Path, extra: &[&str]) -> Value {
-    let out = Command::new(env!("CARGO_BIN_EXE_vfp"))
-        .current_dir(root())
-        .arg("identify")
-        .arg(log)
-        .args(["--json", "--family", "poly", "--family", "poly-ar"])
-        .args(extra)
-        .output()
-        .expect("vfp runs");
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
+    let out = common::ok(
+        common::vfp()
+            .arg("identify")
+            .arg(log)
+            .args(["--json", "--family", "poly", "--family", "poly-ar"])
+            .args(extra),
     );
     serde_json::from_slice(&out.stdout).expect("JSON")
 }

@@ -15,3 +15,21 @@ pub fn scratch(test: &str, name: &str) -> PathBuf {
     std::fs::create_dir_all(&d).expect("temp dir is writable");
     d
 }
+
+/// The `vfp` binary, to run in the workspace root.
+pub fn vfp() -> std::process::Command {
+    let mut c = std::process::Command::new(env!("CARGO_BIN_EXE_vfp"));
+    c.current_dir(root());
+    c
+}
+
+/// Runs `cmd` and returns its output; a failing run fails the test with the tool's own error.
+pub fn ok(cmd: &mut std::process::Command) -> std::process::Output {
+    let out = cmd.output().expect("vfp runs");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    out
+}
