@@ -31,7 +31,7 @@
 use core::cell::{Cell, RefCell};
 use core::fmt::Write;
 
-use embassy_futures::select::select;
+use embassy_futures::select::{select, Either};
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::mutex::Mutex as AsyncMutex;
@@ -53,6 +53,7 @@ use crate::protocol::{ProtocolPoll, ProtocolRun};
 use crate::reset::ResetCause;
 use crate::store::{Loaded, Model, Persist};
 use crate::telemetry::{ChamberFrame, Event, EventKind, Flags, Frame, LineBuf};
+use crate::wire::{SerialOut, SerialTelemetry};
 
 /// Number of parameters the online RLS identifies: the paper's n = 3, m = 2 model.
 pub const RLS_PARAMS: usize = 12;
@@ -1222,7 +1223,8 @@ fn grid_kc(model: &PolyModel) -> Option<(f32, f32)> {
 // ==================================================================== the sampler's own state
 
 /// The sampler task's own state: the frame being accumulated, the telemetry line buffer and
-/// the count of lines dropped. Not shared: no lock.
+/// the count of lines dropped, and the serial stream's side ([`SerialOut`], its own count).
+/// Not shared: no lock.
 #[derive(Debug)]
 pub struct Sampler {
     acc: FrameAcc,
@@ -1230,6 +1232,7 @@ pub struct Sampler {
     period_us: u64,
     line: LineBuf,
     drops: u32,
+    serial: SerialOut,
 }
 
 impl Sampler {
@@ -1241,6 +1244,7 @@ impl Sampler {
             period_us: cfg.oversample_period_us(),
             line: LineBuf::new(),
             drops: 0,
+            serial: SerialOut::default(),
         }
     }
     /// Conversion period, µs.
@@ -1250,6 +1254,10 @@ impl Sampler {
     /// Telemetry lines dropped so far (wrapping).
     pub fn drops(&self) -> u32 {
         self.drops
+    }
+    /// Serial telemetry packets dropped so far (wrapping).
+    pub fn serial_drops(&self) -> u32 {
+        self.serial.drops()
     }
 
     /// Hand `self.line` plus `\n` to the sink; count it if refused.
@@ -1350,6 +1358,8 @@ pub struct Shared {
     link: Mutex<CriticalSectionRawMutex, Cell<LinkState>>,
     /// Wakes the stepper task when the plan changes (new move, stop, fault).
     wake: Signal<CriticalSectionRawMutex, ()>,
+    /// The binary telemetry stream on the command port: its switch and bounded queue.
+    serial_tlm: SerialTelemetry,
 }
 
 /// Longest reply line (the longest is `status` with every field at its widest, ≈ 230 bytes).
@@ -1371,6 +1381,7 @@ impl Shared {
             est: AsyncMutex::new(Estimator::new(cfg)),
             link: Mutex::new(Cell::new(LinkState::default())),
             wake: Signal::new(),
+            serial_tlm: SerialTelemetry::new(),
         }
     }
 
@@ -1501,14 +1512,29 @@ impl Shared {
         frame
     }
 
-    /// Hand every queued event line to the sink (one short lock per event; formatting outside).
+    /// Hand every queued event line to the sink, and to the serial stream when it is on (one
+    /// short lock per event; formatting outside).
     pub fn send_events(&self, sampler: &mut Sampler, tlm: &mut impl TelemetrySink) {
         loop {
             let (ev, lost) = self.with_control(|c| (c.pop_event(), c.take_lost_events()));
             sampler.drops = sampler.drops.wrapping_add(lost);
+            sampler.serial.lost(&self.serial_tlm, lost);
             let Some(ev) = ev else { return };
             sampler.send_event(&ev, tlm);
+            sampler.serial.event(&ev, &self.serial_tlm);
         }
+    }
+
+    /// Queue the frame on the serial stream when it is on ([`crate::wire`]: encoded here,
+    /// outside any lock, never waiting; a full queue drops it and counts it). `false` if off or
+    /// dropped.
+    pub fn send_serial_frame(&self, sampler: &mut Sampler, frame: &Frame) -> bool {
+        sampler.serial.frame(frame, &self.serial_tlm)
+    }
+
+    /// The serial stream's switch and queue (drained by the command task onto the port).
+    pub fn serial_telemetry(&self) -> &SerialTelemetry {
+        &self.serial_tlm
     }
 
     // ---------------------------------------------------------------- commands
@@ -1660,6 +1686,13 @@ impl Shared {
             }
             Command::ModelEffect { ch, kind, params } => est.model_effect(*ch, *kind, params)?,
             Command::Rls { ch, lambda } => est.rls(*ch as usize, *lambda)?,
+            Command::Telemetry { on } => match on {
+                Some(on) => self.serial_tlm.set(*on),
+                None => {
+                    let on = self.serial_tlm.is_on();
+                    let _ = out.write_str(if on { " on" } else { " off" });
+                }
+            },
             Command::Checksum { require } => match require {
                 Some(r) => self.link.lock(|l| {
                     let mut s = l.get();
@@ -1770,19 +1803,30 @@ pub async fn sampler_task<A: PressureAdc, T: TelemetrySink, W: Watchdog>(
                 shared.finish_frame(&mut est, &acc)
             };
             sampler.send_frame(&mut frame, &mut tlm);
+            shared.send_serial_frame(&mut sampler, &frame);
         }
         shared.send_events(&mut sampler, &mut tlm);
     }
 }
 
 /// Read command lines from the serial port, execute them, reply one line each (`\r\n`). A
-/// receive error rejects the line it hit (`err line-corrupt`).
+/// receive error rejects the line it hit (`err line-corrupt`). Between lines it writes the
+/// queued binary telemetry packets ([`crate::wire`], when switched on): a packet and a reply
+/// never interleave, and the reads are never cancelled with bytes taken (the port's `read`
+/// and the queue's `next` take nothing until they return).
 pub async fn command_task<U: SerialPort>(shared: &Shared, mut port: U) -> ! {
     let mut asm = LineAssembler::new();
     let mut buf = [0u8; 32];
     let mut reply: heapless::String<{ REPLY_LEN + 8 }> = heapless::String::new();
     loop {
-        let n = match port.read(&mut buf).await {
+        let read = match select(port.read(&mut buf), shared.serial_tlm.next()).await {
+            Either::First(r) => r,
+            Either::Second(packet) => {
+                port.write_all(&packet).await;
+                continue;
+            }
+        };
+        let n = match read {
             Ok(n) => n.min(buf.len()),
             Err(_) => {
                 asm.error();

@@ -26,6 +26,7 @@
 //! | `model <ch> read effect <index>` | `ok <name> <param>…` of the installed chain's effect `index` (in evaluation order); `err out-of-range 4` past the last |
 //! | `rls <ch> on [<lambda>]` / `rls <ch> off` | online RLS identification (chamber force-free!) |
 //! | `checksum require` / `checksum optional` / `checksum` | require a checksum on every line, or not; alone: `ok require` or `ok optional` |
+//! | `telemetry on` / `telemetry off` / `telemetry` | the binary telemetry stream on this serial port ([`crate::wire`]) on or off (off at boot); alone: `ok on` or `ok off` |
 //!
 //! Replies: `ok` (possibly followed by fields) or `err <code> [<detail>]`. The parser never
 //! panics; every bad line gets an `err` reply naming the argument.
@@ -230,6 +231,12 @@ pub enum Command {
     Checksum {
         /// The new mode.
         require: Option<bool>,
+    },
+    /// Switch the binary telemetry stream on this port on (`Some(true)`) or off, or report it
+    /// (`None`).
+    Telemetry {
+        /// The new state.
+        on: Option<bool>,
     },
 }
 
@@ -537,6 +544,14 @@ pub fn parse(line: &[u8]) -> Result<Command, ParseError> {
                 None => None,
                 Some((_, "require")) => Some(true),
                 Some((_, "optional")) => Some(false),
+                Some((i, _)) => return Err(ParseError::Invalid { index: i }),
+            },
+        },
+        "telemetry" => Command::Telemetry {
+            on: match w.next_word() {
+                None => None,
+                Some((_, "on")) => Some(true),
+                Some((_, "off")) => Some(false),
                 Some((i, _)) => return Err(ParseError::Invalid { index: i }),
             },
         },
@@ -1077,6 +1092,19 @@ mod tests {
         assert_eq!(p("checksum maybe"), Err(ParseError::Invalid { index: 1 }));
     }
 
+    #[test]
+    fn telemetry_switch() {
+        let p = |s: &str| parse(s.as_bytes());
+        assert_eq!(p("telemetry on"), Ok(Command::Telemetry { on: Some(true) }));
+        assert_eq!(
+            p("telemetry off"),
+            Ok(Command::Telemetry { on: Some(false) })
+        );
+        assert_eq!(p("telemetry"), Ok(Command::Telemetry { on: None }));
+        assert_eq!(p("telemetry up"), Err(ParseError::Invalid { index: 1 }));
+        assert_eq!(p("telemetry on x"), Err(ParseError::TooMany { index: 2 }));
+    }
+
     /// Render a command back into a line (test oracle: the documented grammar).
     fn render(c: &Command) -> std::string::String {
         use std::fmt::Write as _;
@@ -1125,6 +1153,11 @@ mod tests {
             Command::Clear => s.push_str("clear"),
             Command::Zero => s.push_str("zero"),
             Command::Status => s.push_str("status"),
+            Command::Telemetry { on } => s.push_str(match on {
+                None => "telemetry",
+                Some(true) => "telemetry on",
+                Some(false) => "telemetry off",
+            }),
             Command::Origin { axes: a, volume } => {
                 write!(s, "origin {} {volume:?}", axes(*a)).unwrap()
             }
@@ -1193,6 +1226,8 @@ mod tests {
             Just(Command::Clear),
             Just(Command::Zero),
             Just(Command::Status),
+            Just(Command::Telemetry { on: Some(true) }),
+            Just(Command::Telemetry { on: None }),
         ]
     }
 

@@ -3,7 +3,8 @@
 //! - [`app`]: shared state ([`app::Shared`], [`app::Config`]) and the task entry points
 //!   [`app::stepper_task`], [`app::sampler_task`], [`app::command_task`].
 //! - [`motion`]: trapezoidal profiles → step instants; [`protocol`]: the characterisation cycles.
-//! - [`command`]: the serial line protocol; [`telemetry`]: frame and event lines.
+//! - [`command`]: the serial line protocol; [`telemetry`]: frame and event lines; [`wire`]: the
+//!   same frames and events as binary packets over the command UART.
 //! - [`board`]: pin map and pressure-sensor transfer function; [`hal`]: the hardware traits.
 //! - [`reset`]: why the board reset (reset flags + the crash record); [`store`]: the committed
 //!   models in flash.
@@ -21,3 +22,4 @@ pub mod protocol;
 pub mod reset;
 pub mod store;
 pub mod telemetry;
+pub mod wire;

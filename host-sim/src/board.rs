@@ -75,6 +75,9 @@ pub struct Rig {
     /// Reply lines from the command port with their time, µs.
     pub replies: Vec<(u64, String)>,
     reply_buf: String,
+    /// Every byte the board wrote to the command port, in order: reply lines and the binary
+    /// telemetry packets between them (`firmware::wire`, after `telemetry on`).
+    pub serial_out: Vec<u8>,
     /// Telemetry lines with their time, µs.
     pub telemetry: Vec<(u64, String)>,
     /// Times the host does not read telemetry, `[start, end)` µs.
@@ -112,6 +115,7 @@ impl Rig {
             rx_waker: None,
             replies: Vec::new(),
             reply_buf: String::new(),
+            serial_out: Vec::new(),
             telemetry: Vec::new(),
             stalls: Vec::new(),
             refused: Vec::new(),
@@ -292,6 +296,11 @@ impl SerialPort for SimSerial {
     async fn write_all(&mut self, data: &[u8]) {
         let mut rig = self.0.borrow_mut();
         let t = now_us();
+        rig.serial_out.extend_from_slice(data);
+        // A binary telemetry packet is written whole, from its leading zero: not a reply.
+        if data.first() == Some(&0) {
+            return;
+        }
         rig.reply_buf.push_str(&String::from_utf8_lossy(data));
         while let Some(end) = rig.reply_buf.find('\n') {
             let line: String = rig.reply_buf.drain(..=end).collect();

@@ -90,6 +90,9 @@ pub struct SimRun {
     pub events: Vec<Event>,
     /// Command replies with their time, µs.
     pub replies: Vec<(u64, String)>,
+    /// Every byte written to the command port: the replies and, after `telemetry on`, the
+    /// binary telemetry packets (`firmware::wire`) between them.
+    pub serial_out: Vec<u8>,
     /// Step pulses applied per axis.
     pub step_count: [u64; CHAMBERS],
     /// Instant of the last step pulse per axis, µs.
@@ -291,6 +294,7 @@ pub fn simulate_with(scenario: &Scenario, fw: Config) -> Result<SimRun, SimError
         truth,
         events,
         replies: rig.replies,
+        serial_out: rig.serial_out,
         stats: RunStats {
             end_us,
             quanta,

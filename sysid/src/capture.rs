@@ -26,6 +26,18 @@ pub enum CaptureLine<'a> {
     Other(Cow<'a, str>),
 }
 
+impl CaptureLine<'_> {
+    /// The same item, owning its text.
+    pub fn into_owned(self) -> CaptureLine<'static> {
+        match self {
+            CaptureLine::Frame(f) => CaptureLine::Frame(f),
+            CaptureLine::Event(e, t) => CaptureLine::Event(e, Cow::Owned(t.into_owned())),
+            CaptureLine::Corrupted(why) => CaptureLine::Corrupted(why),
+            CaptureLine::Other(t) => CaptureLine::Other(Cow::Owned(t.into_owned())),
+        }
+    }
+}
+
 /// Classifies one captured line (with or without its line end).
 pub fn classify(raw: &[u8]) -> CaptureLine<'_> {
     let Ok(text) = std::str::from_utf8(raw) else {

@@ -10,7 +10,8 @@
 //! [`export`] (coefficients for the device) → [`deploy`] (the firmware's command protocol over any
 //! `Read + Write`). [`residual`] traces a model's residual to physical effects; [`diag`] holds the
 //! paper's §IV analyses; [`record`] turns the firmware's telemetry into a log, [`capture`] reads it
-//! one line at a time.
+//! one line at a time, [`packets`] reads the binary stream of the board's serial port (from any
+//! `Read`), and [`sequence`] places each frame (gaps, reboots, drops) for every reader.
 
 pub mod capture;
 pub mod columns;
@@ -24,8 +25,10 @@ pub mod linreg;
 pub mod log;
 pub mod metrics;
 pub mod nn;
+pub mod packets;
 pub mod poly;
 pub mod polyar;
 pub mod record;
 pub mod residual;
+pub mod sequence;
 pub mod synth;

@@ -42,6 +42,7 @@ use std::path::Path;
 use firmware::telemetry::{EventKind, Frame};
 
 use crate::capture::{classify, CaptureLine};
+use crate::sequence::SeqTracker;
 
 use crate::log::{Log, RowLayout, Sample};
 
@@ -260,8 +261,7 @@ struct Converter {
     rec: Recording,
     /// Keep every gap, bad line and restart in the lists (else the first [`LIST_LIMIT`]).
     keep_all: bool,
-    last: Option<(u32, u64)>,
-    boot_seen: bool,
+    seq: SeqTracker,
     offset_us: u64,
     /// Largest time written so far (with offset), µs.
     last_time_us: Option<u64>,
@@ -291,8 +291,7 @@ impl Converter {
                 counts: Counts::default(),
             },
             keep_all,
-            last: None,
-            boot_seen: false,
+            seq: SeqTracker::new(),
             offset_us: 0,
             last_time_us: None,
             periods: BTreeMap::new(),
@@ -304,15 +303,21 @@ impl Converter {
     /// Converts one capture line (with or without its line terminator), classified by
     /// [`capture::classify`](crate::capture::classify), the one reading of a captured line.
     fn line(&mut self, bytes: &[u8]) {
+        self.item(classify(bytes));
+    }
+
+    /// Converts one item of the capture: a classified text line, or a packet of the binary
+    /// stream ([`crate::packets`]); each counts as one capture line.
+    fn item(&mut self, item: CaptureLine<'_>) {
         self.rec.lines += 1;
         let no = self.rec.lines;
-        match classify(bytes) {
+        match item {
             CaptureLine::Other(_) => self.rec.other_lines += 1,
             CaptureLine::Corrupted(why) => self.corrupted(no, why),
             CaptureLine::Event(ev, part) => {
                 self.rec.events += 1;
                 if matches!(ev.kind, EventKind::Boot { .. }) {
-                    self.boot_seen = true;
+                    self.seq.boot();
                 }
                 self.notes.push(Note::Event(format!(
                     "event at {:.6} s (capture line {no}): {part}",
@@ -378,13 +383,14 @@ impl Converter {
         self.keep_all || len < LIST_LIMIT
     }
 
-    /// Checks a frame's place in the sequence; `false` when it was rejected.
-    fn sequence(&mut self, f: &Frame, line: usize) -> bool {
-        let Some((seq, t_us)) = self.last else {
-            return true;
+    /// Places a frame in the sequence ([`SeqTracker`]: gaps, reboots, order) and writes its
+    /// rows unless it was rejected.
+    fn frame(&mut self, f: &Frame, line: usize) {
+        let placed = match self.seq.frame(f) {
+            Ok(p) => p,
+            Err(why) => return self.rejected(line, why),
         };
-        let restarted = f.seq <= seq && (self.boot_seen || f.seq == 0);
-        if restarted {
+        if placed.restarted {
             // Continue time one median period after the last frame written.
             let period = self.median_period().unwrap_or(40_000);
             let end = self.last_time_us.unwrap_or(0) + period;
@@ -394,46 +400,14 @@ impl Converter {
                 seq: f.seq,
                 time_offset_us: self.offset_us,
             });
-        } else if f.seq <= seq {
-            let why = format!(
-                "seq {} does not follow seq {seq} (duplicate or out of order)",
-                f.seq
-            );
-            self.rejected(line, why);
-            return false;
-        } else if f.t_us <= t_us {
-            let why = format!("seq {}: time {} us is not after {t_us} us", f.seq, f.t_us);
-            self.rejected(line, why);
-            return false;
-        } else {
-            if f.seq > seq + 1 {
-                self.gap(Gap {
-                    line,
-                    first: seq + 1,
-                    last: f.seq - 1,
-                });
-            }
-            let period = (f.t_us - t_us) / u64::from(f.seq - seq);
-            *self.periods.entry(period).or_default() += 1;
         }
-        true
-    }
-
-    fn frame(&mut self, f: &Frame, line: usize) {
-        if !self.sequence(f, line) {
-            return;
+        if let Some((first, last)) = placed.gap {
+            self.gap(Gap { line, first, last });
         }
-        self.boot_seen = false;
-        self.last = Some((f.seq, f.t_us));
-        if let Some(i) = f
-            .chambers
-            .iter()
-            .position(|c| !(c.v.is_finite() && c.p.is_finite() && c.vdot.is_finite()))
-        {
-            let why = format!(
-                "seq {}: chamber {i} has a non-finite volume, flow or pressure",
-                f.seq
-            );
+        if let Some(p) = placed.period_us {
+            *self.periods.entry(p).or_default() += 1;
+        }
+        if let Some(why) = placed.unusable {
             return self.rejected(line, why);
         }
         self.rec.first_seq.get_or_insert(f.seq);
@@ -586,7 +560,13 @@ impl<W: Write> Recorder<W> {
 
     /// Converts one capture line and writes what it gives (buffered; see [`flush`](Self::flush)).
     pub fn line(&mut self, line: &[u8]) -> std::io::Result<()> {
-        self.conv.line(line);
+        self.item(classify(line))
+    }
+
+    /// Converts one item (a classified text line, or a packet of the binary stream read by
+    /// [`crate::packets::PacketReader`]) and writes what it gives, like [`line`](Self::line).
+    pub fn item(&mut self, item: CaptureLine<'_>) -> std::io::Result<()> {
+        self.conv.item(item);
         for (s, extra) in self.conv.rows.drain(..) {
             RECORDED.row(&s, &extra, &mut self.row);
             writeln!(self.out, "{}", self.row.join(","))?;
