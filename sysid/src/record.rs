@@ -269,6 +269,10 @@ struct Converter {
     periods: BTreeMap<u64, u64>,
     rows: Vec<(Sample, Vec<String>)>,
     notes: Vec<Note>,
+    /// Whole-capture mode ([`convert`]): rows go straight into the log, event notes into
+    /// `event_comments`, after every item.
+    collect: bool,
+    event_comments: Vec<String>,
 }
 
 impl Converter {
@@ -297,6 +301,8 @@ impl Converter {
             periods: BTreeMap::new(),
             rows: Vec::new(),
             notes: Vec::new(),
+            collect: false,
+            event_comments: Vec::new(),
         }
     }
 
@@ -325,6 +331,17 @@ impl Converter {
                 )));
             }
             CaptureLine::Frame(f) => self.frame(&f, no),
+        }
+        if self.collect {
+            for (s, extra) in self.rows.drain(..) {
+                self.rec.log.samples.push(s);
+                self.rec.log.extra.push(extra);
+            }
+            self.event_comments
+                .extend(self.notes.drain(..).filter_map(|n| match n {
+                    Note::Event(e) => Some(e),
+                    Note::Problem(_) => None,
+                }));
         }
     }
 
@@ -478,30 +495,41 @@ fn restart_comment(r: &Restart) -> String {
 /// [`Recording`]); fails only when the input cannot be read or holds no frame at all.
 /// [`Recorder`] does the same conversion as a stream, straight into a file.
 pub fn convert(mut reader: impl BufRead, source: &str) -> Result<Recording, RecordError> {
+    convert_with(source, |c| {
+        let mut buf = Vec::new();
+        loop {
+            buf.clear();
+            if reader.read_until(b'\n', &mut buf)? == 0 {
+                return Ok(());
+            }
+            c.line(&buf);
+        }
+    })
+}
+
+/// Converts a capture of the binary serial stream ([`crate::packets`]) in memory, like
+/// [`convert`] does a text capture.
+pub fn convert_packets(input: impl std::io::Read, source: &str) -> Result<Recording, RecordError> {
+    convert_with(source, |c| {
+        crate::packets::read_all::<std::io::Error>(input, |item| {
+            c.item(item);
+            Ok(())
+        })
+    })
+}
+
+/// The whole-capture conversion around `feed`, which hands the converter every item.
+fn convert_with(
+    source: &str,
+    feed: impl FnOnce(&mut Converter) -> std::io::Result<()>,
+) -> Result<Recording, RecordError> {
     let mut c = Converter::new(true);
-    let mut buf = Vec::new();
-    let mut event_comments = Vec::new();
-    loop {
-        buf.clear();
-        let n = reader
-            .read_until(b'\n', &mut buf)
-            .map_err(|e| RecordError::Io {
-                file: source.to_string(),
-                source: e,
-            })?;
-        if n == 0 {
-            break;
-        }
-        c.line(&buf);
-        for (s, extra) in c.rows.drain(..) {
-            c.rec.log.samples.push(s);
-            c.rec.log.extra.push(extra);
-        }
-        event_comments.extend(c.notes.drain(..).filter_map(|n| match n {
-            Note::Event(e) => Some(e),
-            Note::Problem(_) => None,
-        }));
-    }
+    c.collect = true;
+    feed(&mut c).map_err(|e| RecordError::Io {
+        file: source.to_string(),
+        source: e,
+    })?;
+    let event_comments = std::mem::take(&mut c.event_comments);
     if c.rec.frames == 0 {
         return Err(RecordError::NoFrames {
             file: source.to_string(),

@@ -8,6 +8,7 @@ pub mod error;
 pub mod figure;
 pub mod opts;
 pub mod plots;
+pub mod port;
 pub mod progress;
 
 pub use error::Error;

@@ -7,12 +7,16 @@
 //! the reading. q, Esc or Ctrl-C quits; then the log is converted from the raw capture by
 //! `vfp record`'s own converter ([`sysid::record`]), so it is the same CSV `vfp record` writes
 //! for the lines received, every frame in it.
+//!
+//! With `--port DEV` the source is the board's serial port: its binary telemetry is switched on
+//! and read packet by packet ([`sysid::packets`]); the raw bytes go to `LOG.capture.bin` and the
+//! log is converted from them the same way ([`sysid::record::convert_packets`]).
 
 mod render;
 mod state;
 
 use std::fs::File;
-use std::io::{BufRead, BufWriter, Write};
+use std::io::{BufRead, BufWriter, Read, Write};
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::thread::JoinHandle;
@@ -20,7 +24,8 @@ use std::time::Duration;
 
 use ratatui::crossterm::event::{self, Event, KeyCode, KeyEventKind, KeyModifiers};
 use ratatui::{backend::Backend, DefaultTerminal, Terminal};
-use sysid::record::{convert_file, Recording};
+use sysid::packets::PacketReader;
+use sysid::record::{convert_file, convert_packets, Recording};
 
 use crate::Error;
 pub use render::{buffer_text, flag_names, render, View};
@@ -30,10 +35,19 @@ pub use state::{Counts, MonitorState, Point};
 #[derive(Debug, Clone, clap::Args)]
 pub struct Args {
     /// Telemetry: `-` reads stdin (`cargo fw-run | vfp monitor -`), otherwise a file or a named
-    /// pipe holding `probe-rs run` output or raw `$F`/`$E` lines.
-    pub input: PathBuf,
+    /// pipe holding `probe-rs run` output or raw `$F`/`$E` lines. Not with `--port`.
+    #[arg(required_unless_present = "port", conflicts_with = "port")]
+    pub input: Option<PathBuf>,
+    /// Watch the board's serial port instead (e.g. /dev/ttyACM0, COM3): switches its binary
+    /// telemetry on (no debug probe needed) and off again on quitting.
+    #[arg(long, value_name = "DEV")]
+    pub port: Option<String>,
+    /// Baud rate of `--port` (the firmware's UART runs at 115200).
+    #[arg(long, default_value_t = crate::port::DEFAULT_BAUD, requires = "port")]
+    pub baud: u32,
     /// Record as it goes: every line received is appended to LOG.capture.txt beside the log at
-    /// once, and on quitting the log (the same CSV `vfp record` writes) is made from it.
+    /// once (the bytes of `--port` to LOG.capture.bin), and on quitting the log (the same CSV
+    /// `vfp record` writes) is made from it.
     #[arg(short, long, value_name = "LOG.csv")]
     pub out: Option<PathBuf>,
     /// Seconds of pressure history in the charts.
@@ -49,6 +63,11 @@ pub fn capture_path(out: &Path) -> PathBuf {
     out.with_extension("capture.txt")
 }
 
+/// The raw bytes of a binary stream written beside `LOG.csv`: `LOG.capture.bin`.
+pub fn binary_capture_path(out: &Path) -> PathBuf {
+    out.with_extension("capture.bin")
+}
+
 /// What the reader thread and the screen share.
 struct Shared {
     state: MonitorState,
@@ -61,6 +80,8 @@ pub struct Session {
     shared: Arc<Mutex<Shared>>,
     reader: Option<JoinHandle<()>>,
     out: Option<PathBuf>,
+    /// The input is the binary serial stream.
+    binary: bool,
     view: View,
 }
 
@@ -72,9 +93,33 @@ impl Session {
         out: Option<&Path>,
         window_s: f64,
     ) -> Result<Self, Error> {
+        Self::start_with(source, out, window_s, false, move |s| pump(input, s))
+    }
+
+    /// Starts reading the binary serial stream `input` ([`sysid::packets`]) on a thread of its
+    /// own; with `out`, records to it (the raw bytes to [`binary_capture_path`]).
+    pub fn start_binary(
+        input: Box<dyn Read + Send>,
+        source: &str,
+        out: Option<&Path>,
+        window_s: f64,
+    ) -> Result<Self, Error> {
+        Self::start_with(source, out, window_s, true, move |s| pump_binary(input, s))
+    }
+
+    fn start_with(
+        source: &str,
+        out: Option<&Path>,
+        window_s: f64,
+        binary: bool,
+        pump: impl FnOnce(&Mutex<Shared>) + Send + 'static,
+    ) -> Result<Self, Error> {
         let capture = match out {
             Some(o) => {
-                let path = capture_path(o);
+                let path = match binary {
+                    true => binary_capture_path(o),
+                    false => capture_path(o),
+                };
                 let f = File::create(&path).map_err(|e| Error::output(&path, e))?;
                 Some(BufWriter::new(f))
             }
@@ -87,11 +132,12 @@ impl Session {
         let for_reader = Arc::clone(&shared);
         let reader = std::thread::Builder::new()
             .name("vfp-monitor-reader".into())
-            .spawn(move || pump(input, &for_reader))?;
+            .spawn(move || pump(&for_reader))?;
         Ok(Self {
             shared,
             reader: Some(reader),
             out: out.map(Path::to_path_buf),
+            binary,
             view: View {
                 source: source.to_string(),
                 recording: out.map(|o| o.display().to_string()),
@@ -130,13 +176,22 @@ impl Session {
         let (Some(out), Some(capture)) = (self.out, capture) else {
             return Ok(None);
         };
-        let path = capture_path(&out);
+        let path = match self.binary {
+            true => binary_capture_path(&out),
+            false => capture_path(&out),
+        };
         capture
             .into_inner()
             .map_err(|e| Error::output(&path, e.error()))?
             .sync_all()
             .map_err(|e| Error::output(&path, e))?;
-        let rec = convert_file(&path)?;
+        let rec = if self.binary {
+            let f =
+                File::open(&path).map_err(|e| Error::Msg(format!("{}: {e}", path.display())))?;
+            convert_packets(std::io::BufReader::new(f), &path.display().to_string())?
+        } else {
+            convert_file(&path)?
+        };
         sysid::log::write_log(&out, &rec.log)?;
         Ok(Some(rec))
     }
@@ -183,6 +238,42 @@ fn pump(mut input: Box<dyn BufRead + Send>, shared: &Mutex<Shared>) {
     }
 }
 
+/// The reader thread for the binary stream: the bytes to the raw capture (flushed), each packet
+/// or text line to the state, until the input ends.
+fn pump_binary(mut input: Box<dyn Read + Send>, shared: &Mutex<Shared>) {
+    let mut packets = PacketReader::new();
+    let mut buf = [0u8; 4096];
+    loop {
+        let read = input.read(&mut buf);
+        let mut s = lock(shared);
+        let n = match read {
+            Ok(0) => {
+                s.state.input_ended = true;
+                if let Some(item) = packets.finish() {
+                    s.state.push_item(item);
+                }
+                return;
+            }
+            Ok(n) => n,
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
+            Err(e) => {
+                s.state.input_ended = true;
+                s.state
+                    .push_line(format!("vfp monitor: reading the input failed: {e}").as_bytes());
+                return;
+            }
+        };
+        if let Some(w) = s.capture.as_mut() {
+            if !(w.write_all(&buf[..n]).is_ok() && w.flush().is_ok()) {
+                s.capture = None;
+                s.state
+                    .push_line(b"vfp monitor: writing the raw capture failed; recording stopped");
+            }
+        }
+        packets.feed(&buf[..n], |item| s.state.push_item(item));
+    }
+}
+
 /// Runs `vfp monitor`.
 pub fn run(args: &Args) -> Result<(), Error> {
     if !(args.window > 0.0 && args.window.is_finite()) {
@@ -194,23 +285,16 @@ pub fn run(args: &Args) -> Result<(), Error> {
     if !(args.fps >= 0.5 && args.fps <= 100.0) {
         return Err(Error::Usage(format!("--fps {} (0.5 to 100)", args.fps)));
     }
-    let (input, source): (Box<dyn BufRead + Send>, String) = if args.input.as_os_str() == "-" {
-        (
-            Box::new(std::io::BufReader::new(std::io::stdin())),
-            "<stdin>".into(),
-        )
-    } else {
-        let f = File::open(&args.input)
-            .map_err(|e| Error::Msg(format!("{}: {e}", args.input.display())))?;
-        (
-            Box::new(std::io::BufReader::new(f)),
-            args.input.display().to_string(),
-        )
-    };
+    let input = open_input(args)?;
     // The terminal first: without one nothing is started and no file is made.
     let mut terminal = ratatui::try_init()
         .map_err(|e| Error::Msg(format!("vfp monitor needs a terminal to draw on: {e}")))?;
-    let session = match Session::start(input, &source, args.out.as_deref(), args.window) {
+    let source = input.source.clone();
+    let started = match input.reader {
+        Reader::Text(r) => Session::start(r, &source, args.out.as_deref(), args.window),
+        Reader::Binary(r) => Session::start_binary(r, &source, args.out.as_deref(), args.window),
+    };
+    let session = match started {
         Ok(s) => s,
         Err(e) => {
             ratatui::restore();
@@ -223,6 +307,7 @@ pub fn run(args: &Args) -> Result<(), Error> {
         Duration::from_secs_f64(1.0 / args.fps),
     );
     ratatui::restore();
+    drop(input.switch);
     let recorded = session.finish();
     shown?;
     if let Some(rec) = recorded? {
@@ -231,10 +316,58 @@ pub fn run(args: &Args) -> Result<(), Error> {
         println!(
             "wrote {} (raw capture: {})",
             out.display(),
-            capture_path(out).display()
+            match args.port {
+                Some(_) => binary_capture_path(out),
+                None => capture_path(out),
+            }
+            .display()
         );
     }
     Ok(())
+}
+
+enum Reader {
+    Text(Box<dyn BufRead + Send>),
+    Binary(Box<dyn Read + Send>),
+}
+
+/// The opened input: its reader, its name, and the serial stream's switch (off when dropped).
+struct Input {
+    reader: Reader,
+    source: String,
+    switch: Option<crate::port::StreamSwitch>,
+}
+
+fn open_input(args: &Args) -> Result<Input, Error> {
+    if let Some(dev) = &args.port {
+        let (reader, switch) = crate::port::open(dev, args.baud)?;
+        return Ok(Input {
+            reader: Reader::Binary(Box::new(reader)),
+            source: format!("{dev} (binary telemetry)"),
+            switch: Some(switch),
+        });
+    }
+    let path = args
+        .input
+        .as_deref()
+        .ok_or_else(|| Error::Usage("an INPUT or --port DEV".into()))?;
+    let (reader, source): (Box<dyn BufRead + Send>, String) = if path.as_os_str() == "-" {
+        (
+            Box::new(std::io::BufReader::new(std::io::stdin())),
+            "<stdin>".into(),
+        )
+    } else {
+        let f = File::open(path).map_err(|e| Error::Msg(format!("{}: {e}", path.display())))?;
+        (
+            Box::new(std::io::BufReader::new(f)),
+            path.display().to_string(),
+        )
+    };
+    Ok(Input {
+        reader: Reader::Text(reader),
+        source,
+        switch: None,
+    })
 }
 
 /// The terminal loop: draw, wait up to one tick for a key, until q, Esc or Ctrl-C.

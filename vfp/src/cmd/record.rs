@@ -7,19 +7,36 @@
 //! whenever no line is waiting, so the file always holds whole rows of what was received. End of
 //! input (including a closed pipe) and the first signal end the log the same way: the totals are
 //! appended, the summary printed, exit status 0. A second signal ends the process at once.
+//!
+//! With `--port DEV` the source is the board's serial port instead: the binary stream is switched
+//! on (`telemetry on`), its packets decoded by [`sysid::packets`] into the same items a text
+//! capture gives, and switched off again when recording stops.
 
 use crate::Error;
 use std::io::{BufRead, BufReader, Read, Write};
 use std::path::PathBuf;
 use std::sync::mpsc::{sync_channel, Receiver, SyncSender, TryRecvError};
+use sysid::capture::CaptureLine;
 use sysid::record::{Recorder, Recording};
 
 /// `vfp record`: convert a telemetry capture into an actuation log.
 #[derive(Debug, Clone, clap::Args)]
 pub struct Args {
     /// Telemetry capture: the output of `probe-rs run` (or raw `$F`/`$E` lines); `-` reads stdin
-    /// (e.g. `cargo fw-run | vfp record - -o LOG.csv`, ended by Ctrl-C).
-    pub capture: PathBuf,
+    /// (e.g. `cargo fw-run | vfp record - -o LOG.csv`, ended by Ctrl-C). Not with `--port`.
+    #[arg(required_unless_present = "port", conflicts_with = "port")]
+    pub capture: Option<PathBuf>,
+    /// Read the board's serial port instead of a probe's capture (e.g. /dev/ttyACM0, COM3):
+    /// switches its binary telemetry on and records it (no debug probe needed).
+    #[arg(long, value_name = "DEV")]
+    pub port: Option<String>,
+    /// CAPTURE holds the board's binary serial stream (bytes as the port gave them, e.g. the
+    /// `LOG.capture.bin` that `vfp monitor --port -o LOG.csv` keeps), not text.
+    #[arg(long, conflicts_with = "port")]
+    pub binary: bool,
+    /// Baud rate of `--port` (the firmware's UART runs at 115200).
+    #[arg(long, default_value_t = crate::port::DEFAULT_BAUD, requires = "port")]
+    pub baud: u32,
     /// Log file to write (CSV, docs/log-format.md). Rows are written as frames arrive; on end of
     /// input, Ctrl-C (SIGINT), SIGTERM or SIGHUP the log is completed and the summary printed.
     #[arg(short, long, value_name = "LOG.csv")]
@@ -32,6 +49,7 @@ pub struct Args {
 /// What the reader and signal threads report.
 enum Msg {
     Line(Vec<u8>),
+    Item(CaptureLine<'static>),
     End,
     ReadError(std::io::Error),
     Signal(&'static str),
@@ -42,25 +60,40 @@ const QUEUE: usize = 1024;
 
 /// Runs `vfp record`.
 pub fn run(args: &Args) -> Result<(), Error> {
-    let stdin = args.capture.as_os_str() == "-";
-    let source = if stdin {
-        "<stdin>".to_string()
-    } else {
-        args.capture.display().to_string()
-    };
-    let input: Box<dyn Read + Send> = if stdin {
-        Box::new(std::io::stdin())
-    } else {
-        Box::new(
-            std::fs::File::open(&args.capture).map_err(|e| Error::Msg(format!("{source}: {e}")))?,
-        )
+    let (tx, rx) = sync_channel(QUEUE);
+    let (source, switch) = match (&args.port, &args.capture) {
+        (Some(dev), _) => {
+            let (reader, switch) = crate::port::open(dev, args.baud)?;
+            let tx = tx.clone();
+            std::thread::spawn(move || read_packets(reader, &tx));
+            (format!("{dev} (binary telemetry)"), Some(switch))
+        }
+        (None, Some(capture)) => {
+            let stdin = capture.as_os_str() == "-";
+            let source = match stdin {
+                true => "<stdin>".to_string(),
+                false => capture.display().to_string(),
+            };
+            let input: Box<dyn Read + Send> = if stdin {
+                Box::new(std::io::stdin())
+            } else {
+                let f = std::fs::File::open(capture);
+                Box::new(f.map_err(|e| Error::Msg(format!("{source}: {e}")))?)
+            };
+            let tx = tx.clone();
+            match args.binary {
+                true => std::thread::spawn(move || read_packets(input, &tx)),
+                false => std::thread::spawn(move || read_lines(BufReader::new(input), &tx)),
+            };
+            (source, None)
+        }
+        (None, None) => return Err(Error::Usage("a CAPTURE or --port DEV".into())),
     };
     let out = std::fs::File::create(&args.out).map_err(|e| Error::output(&args.out, e))?;
     let mut rec = Recorder::new(out, &source).map_err(|e| Error::output(&args.out, e))?;
-    let (tx, rx) = sync_channel(QUEUE);
-    watch_signals(tx.clone())?;
-    std::thread::spawn(move || read_lines(BufReader::new(input), &tx));
+    watch_signals(tx)?;
     let (stopped, read_error) = pump(&rx, &mut rec).map_err(|e| Error::output(&args.out, e))?;
+    drop(switch);
     let (recording, _) = rec
         .finish(stopped)
         .map_err(|e| Error::output(&args.out, e))?;
@@ -90,6 +123,7 @@ fn pump<W: Write>(
         };
         match msg {
             Msg::Line(l) => rec.line(&l)?,
+            Msg::Item(i) => rec.item(i)?,
             Msg::End => return Ok(("end of input", None)),
             Msg::ReadError(e) => return Ok(("read error", Some(e))),
             Msg::Signal(s) => return Ok((s, None)),
@@ -111,6 +145,18 @@ fn read_lines(mut input: impl BufRead, tx: &SyncSender<Msg>) {
             return;
         }
     }
+}
+
+/// The binary stream's items, in order, then the end (or the read error).
+fn read_packets(input: impl Read, tx: &SyncSender<Msg>) {
+    let sent = sysid::packets::read_all(input, |item| {
+        tx.send(Msg::Item(item))
+            .map_err(|_| std::io::Error::other("the recorder stopped"))
+    });
+    let _ = tx.send(match sent {
+        Ok(()) => Msg::End,
+        Err(e) => Msg::ReadError(e),
+    });
 }
 
 #[cfg(unix)]

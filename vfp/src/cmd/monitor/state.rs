@@ -2,15 +2,16 @@
 //! the counts of everything received, missed or unusable, and the last lines of other output.
 //! Pure: lines in, numbers out; no terminal, no clock but the board's.
 //!
-//! The rules for a frame follow `vfp record` ([`sysid::record`]), so the monitor counts as
-//! frames exactly the frames that become rows of the log it records: a `seq` jump is a gap, a
-//! `seq` restart at 0 (or after a `boot` event) a reboot, a `seq` or time that does not advance
-//! is rejected, as is a frame with a non-finite volume, flow or pressure.
+//! A frame is placed by the tracker `vfp record` uses ([`sysid::sequence::SeqTracker`]), so the
+//! monitor counts as frames exactly the frames that become rows of the log it records: a `seq`
+//! jump is a gap, a `seq` restart at 0 (or after a `boot` event) a reboot, a `seq` or time that
+//! does not advance is rejected, as is a frame with a non-finite volume, flow or pressure.
 
 use std::collections::VecDeque;
 
 use firmware::telemetry::{Event, EventKind, Frame};
 use sysid::capture::{classify, CaptureLine};
+use sysid::sequence::SeqTracker;
 
 /// Lines kept for the log pane.
 pub const LOG_KEEP: usize = 200;
@@ -72,13 +73,10 @@ pub struct MonitorState {
     history: VecDeque<Point>,
     /// Recent other lines, events and problems, oldest first.
     log: VecDeque<String>,
-    /// `seq` and `t_us` of the last decoded frame, for gaps and order.
-    prev: Option<(u32, u64)>,
-    /// The last frame's `drops` in this boot.
-    prev_drops: Option<u32>,
+    /// Gaps, reboots and order.
+    seq: SeqTracker,
     /// First `seq` seen.
     pub first_seq: Option<u32>,
-    boot_seen: bool,
     /// Whether the input has ended (the board's output closed).
     pub input_ended: bool,
 }
@@ -92,18 +90,22 @@ impl MonitorState {
             last: None,
             history: VecDeque::new(),
             log: VecDeque::new(),
-            prev: None,
-            prev_drops: None,
+            seq: SeqTracker::new(),
             first_seq: None,
-            boot_seen: false,
             input_ended: false,
         }
     }
 
     /// Takes one captured line (with or without its line end).
     pub fn push_line(&mut self, raw: &[u8]) {
+        self.push_item(classify(raw));
+    }
+
+    /// Takes one item: a classified captured line, or a packet of the binary serial stream
+    /// ([`sysid::packets`]); each counts as a line.
+    pub fn push_item(&mut self, item: CaptureLine<'_>) {
         self.counts.lines += 1;
-        match classify(raw) {
+        match item {
             CaptureLine::Frame(f) => self.push_frame(&f),
             CaptureLine::Event(e, text) => self.push_event(&e, &text),
             CaptureLine::Corrupted(why) => {
@@ -126,7 +128,7 @@ impl MonitorState {
     pub fn push_event(&mut self, e: &Event, text: &str) {
         self.counts.events += 1;
         match e.kind {
-            EventKind::Boot { .. } => self.boot_seen = true,
+            EventKind::Boot { .. } => self.seq.boot(),
             EventKind::Fault { .. } => self.counts.fault_events += 1,
             _ => {}
         }
@@ -135,50 +137,30 @@ impl MonitorState {
 
     /// Takes one frame.
     pub fn push_frame(&mut self, f: &Frame) {
-        if let Some((seq, t_us)) = self.prev {
-            let restarted = f.seq <= seq && (self.boot_seen || f.seq == 0);
-            if restarted {
-                self.counts.restarts += 1;
-                self.prev = None;
-                self.history.clear();
-                self.prev_drops = Some(0);
-                self.note(format!("board restarted (seq {} after {seq})", f.seq));
-            } else if f.seq <= seq {
-                let why = format!("seq {} does not follow seq {seq}", f.seq);
-                return self.reject(why);
-            } else if f.t_us <= t_us {
-                let why = format!("seq {}: time {} us is not after {t_us} us", f.seq, f.t_us);
-                return self.reject(why);
-            }
+        let placed = match self.seq.frame(f) {
+            Ok(p) => p,
+            Err(why) => return self.reject(why),
+        };
+        if placed.restarted {
+            self.counts.restarts += 1;
+            self.history.clear();
+            self.note(format!("board restarted (seq {})", f.seq));
         }
-        self.boot_seen = false;
-        let board = self
-            .prev_drops
-            .map_or(0, |d| u64::from(f.drops.wrapping_sub(d)));
+        let board = placed.board_drops;
         self.counts.board_drops += board;
-        self.prev_drops = Some(f.drops);
-        // Past the checks above a previous frame of this boot has a smaller `seq`.
-        if let Some((seq, _)) = self.prev.filter(|&(seq, _)| f.seq - seq > 1) {
-            let missing = u64::from(f.seq - seq - 1);
+        if let Some((a, b)) = placed.gap {
+            let missing = placed.missing();
             self.counts.gaps += 1;
             self.counts.missing += missing;
             self.counts.lost_in_transit += missing.saturating_sub(board);
-            let (a, b) = (seq + 1, f.seq - 1);
             self.note(format!(
                 "gap: seq {a}..={b} missing ({missing} frames; the board dropped {board} lines)"
             ));
         }
-        self.prev = Some((f.seq, f.t_us));
-        let finite = |c: &firmware::telemetry::ChamberFrame| {
-            c.v.is_finite() && c.p.is_finite() && c.vdot.is_finite()
-        };
-        if !f.chambers.iter().all(finite) {
-            return self.reject(format!(
-                "seq {}: non-finite volume, flow or pressure",
-                f.seq
-            ));
+        match placed.unusable {
+            Some(why) => self.reject(why),
+            None => self.accept(f),
         }
-        self.accept(f);
     }
 
     fn accept(&mut self, f: &Frame) {
