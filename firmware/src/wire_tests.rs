@@ -258,3 +258,44 @@ fn a_full_queue_drops_and_counts_and_the_next_frame_says_so() {
     link.set(false);
     assert_eq!((out.drops(), link.try_next()), (5, None));
 }
+
+/// A stream written by an independent encoder (Python: `zlib.crc32` and a hand-written COBS,
+/// the fuzz seed `fuzz/seeds/wire/frame`): a frame packet, a reply line, an event packet.
+#[test]
+fn a_stream_from_an_independent_encoder_decodes() {
+    let stream = include_bytes!("../fuzz/seeds/wire/frame");
+    let chunks: std::vec::Vec<&[u8]> = stream
+        .split(|&b| b == 0)
+        .filter(|c| !c.is_empty())
+        .collect();
+    assert_eq!(chunks.len(), 3);
+    assert_eq!(chunks[1], b"ok\r\n");
+    let mut scratch = [0u8; MAX_RAW];
+    let Ok(Record::Frame(f)) = decode(chunks[0], &mut scratch) else {
+        panic!("not a frame")
+    };
+    assert_eq!(
+        (f.seq, f.t_us, f.flags.0, f.force_n, f.drops),
+        (7, 320_000, 1 << 16, 0.25, 2)
+    );
+    let all: std::vec::Vec<f32> = f
+        .chambers
+        .iter()
+        .flat_map(|c| [c.v, c.vdot, c.p, c.p_hat, c.residual, c.k, c.c])
+        .collect();
+    assert_eq!(
+        all,
+        (0..21)
+            .map(|i| 0.5 * i as f32)
+            .collect::<std::vec::Vec<_>>()
+    );
+    match decode(chunks[2], &mut scratch) {
+        Ok(Record::Event(e, text)) => {
+            assert_eq!(
+                (e.t_us, e.kind, text),
+                (5, EventKind::Cleared, "$E 5 cleared")
+            )
+        }
+        other => panic!("{other:?}"),
+    }
+}

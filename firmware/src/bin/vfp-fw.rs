@@ -21,6 +21,12 @@
 //! counted in the next frame's `drops` field. defmt logs keep channel 0 ("defmt", which
 //! `probe-rs run` switches to blocking mode); they are only the boot message and a panic.
 //!
+//! Serial telemetry (`telemetry on`, `firmware::wire`): the same frames and events as binary
+//! packets on the command UART (USART2, the ST-LINK's virtual COM port). The library's command
+//! task writes each queued packet with the port's DMA `write_all` between two replies (117 bytes,
+//! about 10 ms at 115200 baud, during which reception continues into the 256-byte DMA ring); the
+//! sampler only ever queues them, never waits. Nothing else here changes for it.
+//!
 //! Faults: the panic and HardFault handlers below drive the drivers' EN high (disabled) with
 //! one store to GPIOA's BSRR, leave a crash record in `.uninit` RAM ([`firmware::reset`]) and
 //! reset; nothing in them can block (no defmt: with probe-rs attached the RTT channel may be in
@@ -254,7 +260,8 @@ mod device {
         }
     }
 
-    /// The command port: DMA transmit, DMA ring-buffered receive that reports receive errors.
+    /// The command port: DMA transmit (replies and, when switched on, telemetry packets), DMA
+    /// ring-buffered receive that reports receive errors.
     struct Serial {
         tx: UartTx<'static, embassy_stm32::mode::Async>,
         rx: RingBufferedUartRx<'static>,

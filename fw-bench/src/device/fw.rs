@@ -14,7 +14,10 @@
 //!   (`app::Shared::estimator`, taken the way the task's `lock().await` takes it: its `lock()`
 //!   future polled once, `embassy_futures::poll_once`, there being no executor here; it is always
 //!   free, so the first poll is ready), `app::Shared::finish_frame`, `app::Sampler::send_frame`
-//!   and `app::Shared::send_events` into the board's telemetry sink (below);
+//!   and `app::Shared::send_events` into the board's telemetry sink (below), and
+//!   `app::Shared::send_serial_frame` (the binary packet of `firmware::wire` into the UART queue;
+//!   the stream is switched on at set-up, and the bench drains and decodes the queue as the
+//!   command task and the host would, `app::Shared::serial_telemetry`, `wire::decode`);
 //! - command task: `command::LineAssembler::push` per byte, then, with the estimator taken as
 //!   above, `app::Shared::command_raw` (checksum rules, parse, execute, reply) and the `\r\n`.
 //!
@@ -144,7 +147,7 @@ impl Board {
             drift_frac,
             ..Config::default()
         };
-        Self {
+        let board = Self {
             shared: Shared::new(cfg),
             rls_min_flow: cfg.rls_min_flow,
             steppers: BenchSteppers::default(),
@@ -153,7 +156,10 @@ impl Board {
             asm: LineAssembler::new(),
             reply: heapless::String::new(),
             host_line: heapless::String::new(),
-        }
+        };
+        // The binary serial stream on (`telemetry on`), so every frame takes that path too.
+        board.shared.serial_telemetry().set(true);
+        board
     }
 
     /// The sampler task's conversion period, µs.
@@ -209,6 +215,33 @@ impl Board {
     #[inline(always)]
     pub fn send_frame(&mut self, frame: &mut FrameOut) {
         self.sampler.send_frame(&mut frame.0, &mut self.sink);
+    }
+
+    /// The sampler task, a completed frame, after the line: encoded as a binary packet and queued
+    /// for the UART (`app::Shared::send_serial_frame`, `firmware::wire`).
+    #[inline(always)]
+    pub fn send_serial_frame(&mut self, frame: &FrameOut) {
+        self.shared.send_serial_frame(&mut self.sampler, &frame.0);
+    }
+
+    /// Serial packets dropped so far (the queue was full): must stay 0, the bench drains it.
+    pub fn serial_drops(&self) -> u32 {
+        self.sampler.serial_drops()
+    }
+
+    /// The command task's side of the serial stream, and the host's: take every queued packet
+    /// (`wire::SerialTelemetry::try_next`) and decode it (`wire::decode`); the frames read.
+    pub fn read_serial(&mut self) -> u32 {
+        let mut frames = 0;
+        let mut scratch = [0u8; firmware::wire::MAX_RAW];
+        while let Some(p) = self.shared.serial_telemetry().try_next() {
+            match firmware::wire::decode(&p[1..p.len() - 1], &mut scratch) {
+                Ok(firmware::wire::Record::Frame(_)) => frames += 1,
+                Ok(firmware::wire::Record::Event(..)) => {}
+                Err(_) => panic!("undecodable serial packet"),
+            }
+        }
+        frames
     }
 
     /// The sampler task, after every conversion: the queued event lines to the sink.

@@ -59,6 +59,7 @@ pub(crate) mod marks {
         fwb_retag_frame_rls_drift,
         fwb_begin_frame_chain,
         fwb_begin_telemetry_line,
+        fwb_begin_telemetry_packet,
         // command task
         fwb_begin_cmd_status,
         fwb_begin_cmd_move,

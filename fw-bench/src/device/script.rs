@@ -272,6 +272,12 @@ impl Rig {
         let tlm = self.b.read_telemetry();
         assert_eq!(tlm.frames, u32::from(sent), "frame lines read back");
         assert_eq!(self.b.drops(), 0, "telemetry lines dropped");
+        assert_eq!(
+            self.b.read_serial(),
+            u32::from(sent),
+            "serial frames read back"
+        );
+        assert_eq!(self.b.serial_drops(), 0, "serial packets dropped");
         self.s.event_lines += tlm.events;
         assert!(tlm.faults == 0 && !self.b.faulted(), "fault during the run");
         // Every drift check after a chamber's first warns (threshold 0), one event each; no
@@ -286,9 +292,11 @@ impl Rig {
     fn send(&mut self, f: &mut FrameOut) {
         if self.measure_conv == Measure::Off {
             self.b.send_frame(f);
+            self.b.send_serial_frame(f);
         } else {
             let b = &mut self.b;
             measure(fwb_begin_telemetry_line, || b.send_frame(f));
+            measure(fwb_begin_telemetry_packet, || b.send_serial_frame(f));
         }
     }
 

@@ -8,7 +8,7 @@ use serde::Serialize;
 use super::trace::{Counts, Layout};
 
 /// The reported keys, in order.
-pub const KEYS: [&str; 9] = [
+pub const KEYS: [&str; 10] = [
     "step",
     "oversample",
     "frame",
@@ -16,6 +16,7 @@ pub const KEYS: [&str; 9] = [
     "frame_rls_drift",
     "frame_chain",
     "telemetry_line",
+    "telemetry_packet",
     "command_max",
     "max_irq_off",
 ];
@@ -30,6 +31,7 @@ fn sources(key: &str) -> &'static [&'static str] {
         "frame_rls_drift" => &["frame_rls_drift"],
         "frame_chain" => &["frame_chain"],
         "telemetry_line" => &["telemetry_line"],
+        "telemetry_packet" => &["telemetry_packet"],
         _ => &[],
     }
 }
@@ -60,6 +62,8 @@ pub struct Figures {
     /// A frame with a three-effect chain on every chamber.
     pub frame_chain: u64,
     pub telemetry_line: u64,
+    /// A frame encoded as a binary serial packet and queued (`firmware::wire`).
+    pub telemetry_packet: u64,
     pub command_max: u64,
     pub max_irq_off: u64,
 }
@@ -75,6 +79,7 @@ impl Figures {
             "frame_rls_drift" => self.frame_rls_drift,
             "frame_chain" => self.frame_chain,
             "telemetry_line" => self.telemetry_line,
+            "telemetry_packet" => self.telemetry_packet,
             "command_max" => self.command_max,
             "max_irq_off" => self.max_irq_off,
             _ => return None,
@@ -191,6 +196,7 @@ pub fn report(layout: &Layout, counts: &Counts) -> Result<Report, String> {
         frame_rls_drift: max_of(sources("frame_rls_drift"))?,
         frame_chain: max_of(sources("frame_chain"))?,
         telemetry_line: max_of(sources("telemetry_line"))?,
+        telemetry_packet: max_of(sources("telemetry_packet"))?,
         command_max,
         max_irq_off: w.len,
     };
@@ -324,6 +330,7 @@ mod tests {
             "cmd_model_commit",
             "step_batch3",
             "frame_chain",
+            "telemetry_packet",
         ] {
             l.name_index(n);
         }
@@ -361,6 +368,7 @@ mod tests {
                 r("cmd_status", 13, 3),
                 r("step_batch3", 40, 5),
                 r("frame_chain", 75, 60),
+                r("telemetry_packet", 8, 4),
             ],
             total: 1000,
             script_insns: 900,
@@ -389,6 +397,7 @@ mod tests {
                 frame_rls_drift: 90,
                 frame_chain: 75,
                 telemetry_line: 9,
+                telemetry_packet: 8,
                 command_max: 13,
                 max_irq_off: 85,
             }
@@ -451,6 +460,7 @@ mod tests {
             frame_rls_drift: 1,
             frame_chain: 1,
             telemetry_line: 1,
+            telemetry_packet: 1,
             command_max: 1,
             max_irq_off: 118_000,
         };
