@@ -193,12 +193,7 @@ fn plot_chow(
         .unwrap_or(0.0);
     let n = r.pairs.len().max(1) as f64;
     let curves = vec![
-        Curve::new(
-            "log10 F per pair (x = pair index)",
-            fs,
-            plot::color(0),
-            Mark::LineDots,
-        ),
+        Curve::new("log10 F per pair", fs, plot::color(0), Mark::Points),
         Curve::new(
             format!("log10 critical value (alpha = {})", r.alpha),
             vec![(-0.5, crit), (n - 0.5, crit)],
@@ -206,13 +201,28 @@ fn plot_chow(
             Mark::Line,
         ),
     ];
-    plot::panel(
+    // The pair's logs by their index in the V-P panel's legend.
+    let idx = |name: &str| {
+        logs.iter()
+            .position(|l| {
+                let stem = std::path::Path::new(name).file_stem();
+                l.label() == name || stem.and_then(|s| s.to_str()) == Some(l.label().as_str())
+            })
+            .map_or(name.to_string(), |i| i.to_string())
+    };
+    let pairs: Vec<String> = r
+        .pairs
+        .iter()
+        .map(|p| format!("[{}]-[{}]", idx(&p.a), idx(&p.b)))
+        .collect();
+    plot::panel_categorical(
         &right,
         &path,
         "Chow F per pair",
-        "pair (order of the report)",
+        "pair of logs",
         "log10 F",
         &curves,
+        &pairs,
     )?;
     plot::finish(root, &path)?;
     Ok(path.clone())

@@ -15,6 +15,8 @@ pub(crate) enum Mark {
     LineDots,
     /// Small dots only.
     Dots,
+    /// Large circles only, unconnected (categorical points: nothing lies between them).
+    Points,
     /// Upward triangles only.
     Triangles,
 }
@@ -90,9 +92,45 @@ pub(crate) fn panel(
     ydesc: &str,
     curves: &[Curve],
 ) -> Result<(), Error> {
+    panel_with(area, path, [title, xdesc, ydesc], curves, &[])
+}
+
+/// [`panel`] whose x axis is categorical: point `i` stands for `categories[i]`, and only whole
+/// positions get a tick label (its name).
+pub(crate) fn panel_categorical(
+    area: &Canvas<'_>,
+    path: &Path,
+    title: &str,
+    xdesc: &str,
+    ydesc: &str,
+    curves: &[Curve],
+    categories: &[String],
+) -> Result<(), Error> {
+    panel_with(area, path, [title, xdesc, ydesc], curves, categories)
+}
+
+fn category_tick(x: f64, categories: &[String]) -> String {
+    let i = x.round();
+    if (x - i).abs() > 1e-6 || i < 0.0 {
+        return String::new();
+    }
+    categories.get(i as usize).cloned().unwrap_or_default()
+}
+
+fn panel_with(
+    area: &Canvas<'_>,
+    path: &Path,
+    [title, xdesc, ydesc]: [&str; 3],
+    curves: &[Curve],
+    categories: &[String],
+) -> Result<(), Error> {
     let e = |e: DrawingAreaErrorKind<_>| Error::output(path, e);
     let (x0, x1) = range(curves.iter().flat_map(|c| c.pts.iter().map(|p| p.0)));
     let (y0, y1) = range(curves.iter().flat_map(|c| c.pts.iter().map(|p| p.1)));
+    // Headroom above the data for the legend (upper right): 15 % of the data's range per entry
+    // leaves at least 60 px per entry on a 440 px panel, more than an entry's 20 px.
+    let entries = curves.iter().filter(|c| !c.label.is_empty()).count();
+    let y1 = y1 + (y1 - y0) * 0.15 * entries as f64;
     let mut chart = ChartBuilder::on(area)
         .caption(title, ("sans-serif", 17))
         .margin(12)
@@ -105,7 +143,14 @@ pub(crate) fn panel(
         .x_desc(xdesc)
         .y_desc(ydesc)
         .y_label_formatter(&|y| crate::figure::tick(*y))
-        .x_label_formatter(&|x| crate::figure::tick(*x))
+        .x_label_formatter(&|x| match categories.is_empty() {
+            true => crate::figure::tick(*x),
+            false => category_tick(*x, categories),
+        })
+        .x_labels(match categories.is_empty() {
+            true => 10,
+            false => categories.len().clamp(1, 12),
+        })
         .light_line_style(WHITE.mix(0.0))
         .draw()
         .map_err(e)?;
@@ -126,6 +171,7 @@ pub(crate) fn panel(
                 chart.draw_series(v.into_iter().map(|p| Circle::new(p, 4, col.filled())))
             }
             Mark::Dots => chart.draw_series(pts.map(|p| Circle::new(p, 1, col.filled()))),
+            Mark::Points => chart.draw_series(pts.map(|p| Circle::new(p, 5, col.filled()))),
             Mark::Triangles => {
                 chart.draw_series(pts.map(|p| TriangleMarker::new(p, 6, col.filled())))
             }
