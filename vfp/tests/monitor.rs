@@ -12,7 +12,7 @@ use std::path::PathBuf;
 use firmware::telemetry::Frame;
 use host_sim::{simulate, Scenario, SimRun, TelemetryStall, TimedCommand};
 use ratatui::{backend::TestBackend, Terminal};
-use vfp::cmd::monitor::{buffer_text, capture_path, Session};
+use vfp::cmd::monitor::{binary_capture_path, buffer_text, capture_path, Session};
 
 /// Frames deleted from the capture (lost on the way), and the one garbled.
 const DELETED: [u32; 4] = [20, 21, 22, 120];
@@ -185,6 +185,45 @@ fn garbage_input_is_counted_and_nothing_is_recorded() {
     assert!(e.to_string().contains("no telemetry frame"), "{e}");
     assert!(!out.exists());
     assert!(capture_path(&out).exists());
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+/// `vfp monitor --port`'s path: the simulated board's serial bytes after `telemetry on` (the same
+/// stall of its RTT channel, which the serial stream does not share) through the binary reader
+/// into the state and the recording: every frame the board made, none missing.
+#[test]
+fn the_serial_stream_is_shown_and_recorded() {
+    let mut sc = scenario();
+    sc.commands
+        .insert(0, TimedCommand::new(0.0, "telemetry on"));
+    let run = simulate(&sc).unwrap();
+    assert!(
+        !run.refused_telemetry.is_empty(),
+        "the RTT stall dropped lines"
+    );
+    // Frames the board made: seq 0 ..= the last one RTT delivered (after the stall).
+    let made = u64::from(run.frames.last().unwrap().seq) + 1;
+    let dir = scratch("serial");
+    let out = dir.join("LOG.csv");
+    let mut session = Session::start_binary(
+        Box::new(Cursor::new(run.serial_out.clone())),
+        "serial",
+        Some(&out),
+        10.0,
+    )
+    .unwrap();
+    session.wait_for_end_of_input();
+    let c = session.with_state(|s| s.counts);
+    assert!(c.frames >= made, "{} of {made}", c.frames);
+    assert_eq!((c.gaps, c.missing, c.corrupted, c.rejected), (0, 0, 0, 0));
+    assert_eq!(c.other, 2, "the replies `ok` (telemetry on, move)");
+    let rec = session.finish().unwrap().expect("recording");
+    assert_eq!(rec.frames as u64, c.frames);
+    assert!(rec.is_complete());
+    assert_eq!(
+        std::fs::read(binary_capture_path(&out)).unwrap(),
+        run.serial_out
+    );
     let _ = std::fs::remove_dir_all(dir);
 }
 
