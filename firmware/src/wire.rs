@@ -252,11 +252,9 @@ impl SerialTelemetry {
     pub fn is_on(&self) -> bool {
         self.on.load(Ordering::Relaxed)
     }
-    /// Queue a packet now, or give it back when the queue is full.
-    pub fn try_push(&self, p: Packet) -> Result<(), Packet> {
-        self.queue.try_send(p).map_err(|e| match e {
-            embassy_sync::channel::TrySendError::Full(p) => p,
-        })
+    /// Queue a packet now; `false` (the packet dropped) when the queue is full.
+    pub fn try_push(&self, p: Packet) -> bool {
+        self.queue.try_send(p).is_ok()
     }
     /// The next queued packet, waiting for one (cancel safe: nothing is taken until it is
     /// returned).
@@ -317,7 +315,7 @@ impl SerialOut {
         self.push(p, link)
     }
     fn push(&mut self, p: Packet, link: &SerialTelemetry) -> bool {
-        let ok = link.try_push(p).is_ok();
+        let ok = link.try_push(p);
         if !ok {
             self.drops = self.drops.wrapping_add(1);
         }
