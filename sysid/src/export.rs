@@ -44,8 +44,12 @@ from_display!(
 /// Most values on one `model … coef`/`ar` line (the firmware's `MAX_CHUNK`).
 pub const CHUNK: usize = 8;
 
-/// Serial command lines that load `model` into chamber `ch`.
-pub fn command_lines(ch: u8, model: &PolyModel) -> Vec<String> {
+/// Serial command lines that load `model` into chamber `ch`: a [`PolyModel`] alone, or a
+/// `firmware::store::Model` whose effect chain follows the coefficients as `model <ch> effect
+/// <name> <param>…` lines (evaluation order, every value in shortest round-trip form).
+pub fn command_lines(ch: u8, model: impl Into<firmware::store::Model>) -> Vec<String> {
+    let full: firmware::store::Model = model.into();
+    let model = &full.poly;
     let sh = model.shape();
     let sc = model.scaling();
     let mut out = vec![format!(
@@ -60,6 +64,14 @@ pub fn command_lines(ch: u8, model: &PolyModel) -> Vec<String> {
     for (c, chunk) in ar.chunks(CHUNK).enumerate() {
         let vals: Vec<String> = chunk.iter().map(|x| format!("{x:e}")).collect();
         out.push(format!("model {ch} ar {} {}", c * CHUNK, vals.join(" ")));
+    }
+    for e in full.chain.effects() {
+        let vals: Vec<String> = e.params().iter().map(|x| format!("{x:e}")).collect();
+        out.push(format!(
+            "model {ch} effect {} {}",
+            e.kind().name(),
+            vals.join(" ")
+        ));
     }
     out.push(format!("model {ch} commit"));
     out

@@ -27,5 +27,6 @@ pub mod nn;
 pub mod poly;
 pub mod polyar;
 pub mod record;
+pub mod replay;
 pub mod residual;
 pub mod synth;
