@@ -551,8 +551,7 @@ fn read_back_effects<P: Read + Write>(
         let words: Vec<&str> = r.split_ascii_whitespace().collect();
         let got: Option<Vec<f32>> = words
             .get(2..)
-            .map(|w| w.iter().map(|x| x.parse().ok()).collect())
-            .flatten();
+            .and_then(|w| w.iter().map(|x| x.parse().ok()).collect());
         let ok = words.first() == Some(&"ok")
             && words.get(1) == Some(&e.kind().name())
             && got.is_some_and(|g| {
@@ -742,7 +741,7 @@ mod tests {
             }
         );
         assert_eq!(r[0].lines_acked, 6);
-        let chain = port.shared.lock(|s| s.estimator().chain(1).clone());
+        let chain = port.shared.lock(|s| *s.estimator().chain(1));
         let kinds: Vec<_> = chain.effects().iter().map(|e| e.kind().name()).collect();
         assert_eq!(kinds, ["hysteresis", "sensor_lag"]);
         assert_eq!(

@@ -44,11 +44,15 @@ from_display!(
 /// Most values on one `model … coef`/`ar` line (the firmware's `MAX_CHUNK`).
 pub const CHUNK: usize = 8;
 
-/// Serial command lines that load `model` into chamber `ch`: a [`PolyModel`] alone, or a
-/// `firmware::store::Model` whose effect chain follows the coefficients as `model <ch> effect
-/// <name> <param>…` lines (evaluation order, every value in shortest round-trip form).
-pub fn command_lines(ch: u8, model: impl Into<firmware::store::Model>) -> Vec<String> {
-    let full: firmware::store::Model = model.into();
+/// Serial command lines that load `model` into chamber `ch`.
+pub fn command_lines(ch: u8, model: &PolyModel) -> Vec<String> {
+    board_lines(ch, &firmware::store::Model::from(model))
+}
+
+/// Serial command lines that load the board's `full` model (polynomial and effect chain) into
+/// chamber `ch`: [`command_lines`]' lines with the chain's `model <ch> effect <name> <param>…`
+/// lines before `commit` (evaluation order, every value in shortest round-trip form).
+pub fn board_lines(ch: u8, full: &firmware::store::Model) -> Vec<String> {
     let model = &full.poly;
     let sh = model.shape();
     let sc = model.scaling();

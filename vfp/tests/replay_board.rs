@@ -13,7 +13,7 @@ use common::{ok, scratch, vfp};
 use firmware::telemetry::{EventKind, Frame};
 use host_sim::{simulate, Effects, PlantConfig, Protocol, Scenario, SimRun, TimedCommand};
 use sysid::dataset::{Dataset, DatasetConfig};
-use sysid::export::command_lines;
+use sysid::export::board_lines;
 use sysid::residual::export::augmented_export;
 use sysid::residual::{series_from_dataset, Config, EffectKind};
 
@@ -70,7 +70,7 @@ fn export(preset: &str, name: &str, seed: u64) -> (Vec<String>, sysid::residual:
         .collect();
     assert_eq!(chain, [name], "{preset}: carried {:?}", x.carried);
     assert!(x.dropped.is_empty(), "{:?}", x.dropped);
-    (command_lines(0, x.device.board_model()), x.rmse)
+    (board_lines(0, &x.device.board_model()), x.rmse)
 }
 
 /// The board's frames from the first one its new chain estimated: one of the first two frames

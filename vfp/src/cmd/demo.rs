@@ -176,7 +176,7 @@ pub struct DemoReport {
     pub force: Option<ForceResult>,
     /// The augmented models deployed (`vfp export --augmented`'s path): per chamber the effects
     /// its chain carries.
-    pub augmented: Vec<(u8, Vec<String>)>,
+    pub augmented: Vec<ChamberEffects>,
     /// Force estimate of the board running the augmented models (same pushes, same noise).
     pub force_augmented: Option<ForceResult>,
     /// Total wall time, s.
@@ -604,6 +604,9 @@ pub fn run_plan(plan: Plan, seed: u64, out: &Path) -> Result<DemoReport, Error> 
     Ok(report)
 }
 
+/// A chamber and the effects its deployed chain carries.
+pub type ChamberEffects = (u8, Vec<String>);
+
 /// The simulated board's force run with `lines` sent first; every line must be acknowledged.
 /// Returns the run and the number of lines acknowledged.
 fn run_deployed(plan: &Plan, seed: u64, lines: &[String]) -> Result<(SimRun, usize), Error> {
@@ -634,7 +637,7 @@ fn run_deployed(plan: &Plan, seed: u64, lines: &[String]) -> Result<(SimRun, usi
 pub fn augmented_lines(
     datasets: &[Dataset],
     diagnosis: &residual::Diagnosis,
-) -> Result<(Vec<String>, Vec<(u8, Vec<String>)>), Error> {
+) -> Result<(Vec<String>, Vec<ChamberEffects>), Error> {
     use sysid::residual::export::{augmented_export, from_diagnosis};
     let kept: Vec<residual::EffectKind> = diagnosis.effects.iter().map(|e| e.kind).collect();
     let mut lines = Vec::new();
@@ -658,12 +661,12 @@ pub fn augmented_lines(
             ds.chamber,
             x.carried.iter().map(|c| c.name.to_string()).collect(),
         ));
-        lines.extend(export::command_lines(ds.chamber, x.device.board_model()));
+        lines.extend(export::board_lines(ds.chamber, &x.device.board_model()));
     }
     Ok((lines, carried))
 }
 
-fn effects_summary(aug: &[(u8, Vec<String>)]) -> String {
+fn effects_summary(aug: &[ChamberEffects]) -> String {
     aug.iter()
         .map(|(c, e)| {
             format!(

@@ -5,7 +5,9 @@
 use crate::opts::{effect_parser, LogInput};
 use crate::Error;
 use sysid::dataset::Dataset;
-use sysid::export::{augmented_report, command_lines, f32_warning, model_for, rust_constants};
+use sysid::export::{
+    augmented_report, board_lines, command_lines, f32_warning, model_for, rust_constants,
+};
 use sysid::poly;
 use sysid::residual::export::augmented_export;
 use sysid::residual::{self, EffectKind};
@@ -150,7 +152,7 @@ pub fn run(args: &Args) -> Result<(), Error> {
             }
             let comments: Vec<String> = report.iter().map(|l| format!("// {l}")).collect();
             lines.extend(comments.iter().cloned());
-            lines.extend(command_lines(ds.chamber, x.device.board_model()));
+            lines.extend(board_lines(ds.chamber, &x.device.board_model()));
             if args.format == Format::Rust {
                 // With `both` the same comments already head the lines.
                 for c in &comments {
