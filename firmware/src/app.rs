@@ -866,6 +866,20 @@ impl Estimator {
         for ch in 0..AXES {
             chambers[ch].p = raw_kpa[ch] - self.zero_kpa[ch];
         }
+        (self.estimate_frame(chambers, t_us, events), new_zero)
+    }
+
+    /// The estimation half of [`finish_frame`](Self::finish_frame) on a frame's means: each
+    /// chamber's `v` (mm³), `v̇` (mm³/s) and zeroed `p` (kPa) in, P̂, residual, k, c (the effect
+    /// chain, RLS and drift checks as on the board) and the force out; the frame counter
+    /// advances. `vfp replay` runs a log's frames through it (the board's own arithmetic on the
+    /// host); the pressure zero is not touched.
+    pub fn estimate_frame(
+        &mut self,
+        mut chambers: [ChamberFrame; AXES],
+        t_us: u64,
+        events: &mut EventBuf,
+    ) -> Frame {
         self.warnings &= !(Flags::MODEL_RANGE * 0b111);
         for (ch, c) in chambers.iter_mut().enumerate() {
             if let Err(flag) = self.estimate(ch, c, t_us, events) {
@@ -884,7 +898,7 @@ impl Estimator {
             drops: 0,
         };
         self.seq = self.seq.wrapping_add(1);
-        (frame, new_zero)
+        frame
     }
 
     fn update_zero(

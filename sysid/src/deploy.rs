@@ -2,15 +2,17 @@
 //! firmware's command protocol (`firmware::command`), then read it back to confirm.
 //!
 //! The lines are those printed by `vfp export --format lines` (`model <ch> begin …`, `coef`, `ar`,
-//! `commit`). Each is checked with the firmware's own parser before anything is sent, sent with
+//! `effect`, `commit`). Each is checked with the firmware's own parser before anything is sent, sent with
 //! `\n`, and must be answered `ok`; the first `err` reply stops the upload and is reported with the
 //! line that caused it. Before the upload a `status` command checks that the other end speaks the
 //! protocol (stale bytes in the port are skipped).
 //!
 //! # Read-back
 //! After `commit`, each channel is read back with `model <ch> read` (shape and scaling) and
-//! `model <ch> read coef <i>` / `model <ch> read ar <i>` (up to 8 values from index i), and every
-//! value is compared bit for bit (as `f32`) with what was sent. A firmware that does not know the
+//! `model <ch> read coef <i>` / `model <ch> read ar <i>` (up to 8 values from index i) and
+//! `model <ch> read effect <i>` (the chain's effect i in evaluation order, name and parameters),
+//! and every value is compared bit for bit (as `f32`) with what was sent; a board that holds more
+//! effects than were sent is refused too. A firmware that does not know the
 //! `read` verb answers `err …`; the deploy then says plainly that the model is confirmed by the
 //! board's acknowledgements only.
 //!
@@ -37,6 +39,30 @@ pub struct Upload {
     pub coef: Vec<f32>,
     /// Flattened AR coefficients by index.
     pub ar: Vec<f32>,
+    /// The effect chain (`model <ch> effect …` lines), in the order sent.
+    pub effects: Vec<model_core::chain::Effect>,
+}
+
+impl Upload {
+    /// The model the board installs on `commit`: the polynomial and its chain, or why the values
+    /// do not make one (the firmware's own checks).
+    pub fn model(&self) -> Result<firmware::store::Model, model_core::ModelError> {
+        use model_core::poly::{PolyModel, Scaling, Shape};
+        let [n, m, p] = self.shape;
+        let [vo, vs, fo, fs] = self.scaling;
+        let pairs: Vec<[f32; 2]> = self.ar.chunks_exact(2).map(|c| [c[0], c[1]]).collect();
+        let poly = PolyModel::from_scaled(
+            Shape::new(n, m, p)?,
+            &self.coef,
+            &pairs,
+            Scaling::new(vo, vs, fo, fs)?,
+        )?;
+        let mut chain = model_core::chain::Chain::new();
+        for e in &self.effects {
+            chain.push(*e)?;
+        }
+        Ok(firmware::store::Model { poly, chain })
+    }
 }
 
 /// Why a deploy failed.
@@ -146,6 +172,34 @@ pub fn parse_lines(text: &str, source_name: &str) -> Result<Vec<Upload>, DeployE
                 format!("the firmware would refuse it ({e})"),
             )
         })?;
+        if let Command::ModelEffect { ch, kind, params } = &cmd {
+            let up = open
+                .as_mut()
+                .filter(|u| u.ch == *ch)
+                .ok_or_else(|| bad(source_name, no, t, "no `begin` for this channel before it"))?;
+            let e = model_core::chain::Effect::new(*kind, params).map_err(|e| {
+                bad(
+                    source_name,
+                    no,
+                    t,
+                    format!("the board would refuse it ({e})"),
+                )
+            })?;
+            let mut chain = model_core::chain::Chain::new();
+            for x in up.effects.iter().chain([&e]) {
+                chain.push(*x).map_err(|err| {
+                    bad(
+                        source_name,
+                        no,
+                        t,
+                        format!("the chain would not take it ({err}: at most {} effects, one of each kind)", model_core::chain::MAX_EFFECTS),
+                    )
+                })?;
+            }
+            up.effects.push(e);
+            up.lines.push(t.to_string());
+            continue;
+        }
         let Command::Model { ch, cmd } = cmd else {
             return Err(bad(source_name, no, t, "not a model command"));
         };
@@ -166,6 +220,7 @@ pub fn parse_lines(text: &str, source_name: &str) -> Result<Vec<Upload>, DeployE
                     scaling,
                     coef: vec![f32::NAN; (n as usize + 1) * (m as usize + 1)],
                     ar: vec![f32::NAN; 2 * p as usize],
+                    effects: Vec::new(),
                 });
             }
             ModelCmd::Coef { start, ref values } | ModelCmd::Ar { start, ref values } => {
@@ -333,17 +388,10 @@ impl<P: Read + Write> Link<'_, P> {
     }
 }
 
-/// The CRC-32 the board must report for the model of `up` (`firmware::store::model_crc`),
-/// when the values form a valid model.
+/// The CRC-32 the board must report for the model of `up` (`firmware::store::crc`, the chain
+/// included), when the values form a valid model.
 fn expected_crc(up: &Upload) -> Option<u32> {
-    use model_core::poly::{PolyModel, Scaling, Shape};
-    let [n, m, p] = up.shape;
-    let shape = Shape::new(n, m, p).ok()?;
-    let [vo, vs, fo, fs] = up.scaling;
-    let scaling = Scaling::new(vo, vs, fo, fs).ok()?;
-    let pairs: Vec<[f32; 2]> = up.ar.chunks_exact(2).map(|c| [c[0], c[1]]).collect();
-    let model = PolyModel::from_scaled(shape, &up.coef, &pairs, scaling).ok()?;
-    Some(firmware::store::model_crc(&model))
+    Some(firmware::store::crc(&up.model().ok()?))
 }
 
 /// After the values: `model <ch> read crc` must give the CRC-32 of exactly the uploaded model
@@ -471,8 +519,56 @@ fn read_back<P: Read + Write>(
             values += exp.len();
         }
     }
+    values += read_back_effects(link, up)?;
     verify_crc(link, up)?;
     Ok(Readback::Verified { values })
+}
+
+/// `model <ch> read effect <i>` for every effect sent, and one past them (which must be refused:
+/// the board holds no more than was sent); returns the number of values compared (the kind's code
+/// and the parameters). The chain is read in evaluation order, which is how [`Upload::model`]
+/// orders it.
+fn read_back_effects<P: Read + Write>(
+    link: &mut Link<'_, P>,
+    up: &Upload,
+) -> Result<usize, DeployError> {
+    let ch = up.ch;
+    let want = up.model().map(|m| m.chain).unwrap_or_default();
+    let mut values = 0;
+    for i in 0..=want.len() {
+        let r = link.send(&format!("model {ch} read effect {i}"))?;
+        let Some(e) = want.effects().get(i) else {
+            if r.starts_with("ok") {
+                return Err(DeployError::Mismatch {
+                    ch,
+                    what: format!("effect {i}"),
+                    sent: "no such effect".into(),
+                    got: r,
+                });
+            }
+            break;
+        };
+        let words: Vec<&str> = r.split_ascii_whitespace().collect();
+        let got: Option<Vec<f32>> = words
+            .get(2..)
+            .and_then(|w| w.iter().map(|x| x.parse().ok()).collect());
+        let ok = words.first() == Some(&"ok")
+            && words.get(1) == Some(&e.kind().name())
+            && got.is_some_and(|g| {
+                g.len() == e.params().len() && g.iter().zip(e.params()).all(|(a, b)| same(*a, *b))
+            });
+        if !ok {
+            let sent: Vec<String> = e.params().iter().map(|x| format!("{x:e}")).collect();
+            return Err(DeployError::Mismatch {
+                ch,
+                what: format!("effect {i}"),
+                sent: format!("{} {}", e.kind().name(), sent.join(" ")),
+                got: r,
+            });
+        }
+        values += 1 + e.params().len();
+    }
+    Ok(values)
 }
 
 /// The firmware's own command handler ([`firmware::app::Shared::command_line`]) behind
@@ -622,6 +718,73 @@ mod tests {
         up[0].scaling[3] = 100.00001;
         match deploy(&mut FirmwarePort::new(), &up) {
             Err(DeployError::Mismatch { ch: 1, what, .. }) => assert_eq!(what, "shape and scaling"),
+            other => panic!("{other:?}"),
+        }
+    }
+
+    #[test]
+    fn deploys_an_effect_chain_and_reads_it_back() {
+        // Effects sent out of evaluation order: the board orders them, the read-back follows.
+        let text = LINES.replace(
+            "model 1 commit",
+            "model 1 effect sensor_lag 1.5e-1\nmodel 1 effect hysteresis 6e0 8e-1 -1.0000001e-1\nmodel 1 commit",
+        );
+        let up = parse_lines(&text, "x").unwrap();
+        assert_eq!(up[0].effects.len(), 2);
+        let mut port = FirmwarePort::new();
+        let r = deploy(&mut port, &up).unwrap();
+        // Header 7, coefficients 12, each effect its kind and parameters (1 + 3, 1 + 1).
+        assert_eq!(
+            r[0].readback,
+            Readback::Verified {
+                values: 7 + 12 + 4 + 2
+            }
+        );
+        assert_eq!(r[0].lines_acked, 6);
+        let chain = port.shared.lock(|s| *s.estimator().chain(1));
+        let kinds: Vec<_> = chain.effects().iter().map(|e| e.kind().name()).collect();
+        assert_eq!(kinds, ["hysteresis", "sensor_lag"]);
+        assert_eq!(
+            chain.effects()[0].params()[2].to_bits(),
+            (-1.0000001e-1f32).to_bits()
+        );
+        assert_eq!(chain, up[0].model().unwrap().chain);
+    }
+
+    #[test]
+    fn effect_lines_the_board_would_refuse_are_named() {
+        let dup = LINES.replace(
+            "model 1 commit",
+            "model 1 effect sensor_lag 1e-1\nmodel 1 effect sensor_lag 2e-1\nmodel 1 commit",
+        );
+        let e = parse_lines(&dup, "f.txt").unwrap_err();
+        assert!(e.to_string().starts_with("f.txt:5:"), "{e}");
+        let neg = LINES.replace(
+            "model 1 commit",
+            "model 1 effect backlash -1e0\nmodel 1 commit",
+        );
+        let e = parse_lines(&neg, "f.txt").unwrap_err();
+        assert!(e.to_string().starts_with("f.txt:4:"), "{e}");
+        let e = parse_lines("model 2 effect leak 1e-3\n", "f.txt").unwrap_err();
+        assert!(e.to_string().contains("no `begin`"), "{e}");
+    }
+
+    #[test]
+    fn an_effect_read_back_that_differs_is_reported() {
+        let text = LINES.replace("model 1 commit", "model 1 effect leak 1e-3\nmodel 1 commit");
+        let mut up = parse_lines(&text, "x").unwrap();
+        // The board is sent 1e-3 but the expectation says otherwise: the read-back must catch it.
+        up[0].effects[0] =
+            model_core::chain::Effect::new(model_core::chain::EffectKind::Leak, &[1.0001e-3])
+                .unwrap();
+        match deploy(&mut FirmwarePort::new(), &up) {
+            Err(DeployError::Mismatch { ch: 1, what, .. }) => assert_eq!(what, "effect 0"),
+            other => panic!("{other:?}"),
+        }
+        // Expecting no effect while the board holds one: refused at `read effect 0`.
+        up[0].effects.clear();
+        match deploy(&mut FirmwarePort::new(), &up) {
+            Err(DeployError::Mismatch { ch: 1, what, .. }) => assert_eq!(what, "effect 0"),
             other => panic!("{other:?}"),
         }
     }

@@ -29,6 +29,7 @@ pub mod packets;
 pub mod poly;
 pub mod polyar;
 pub mod record;
+pub mod replay;
 pub mod residual;
 pub mod sequence;
 pub mod synth;

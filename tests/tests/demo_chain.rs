@@ -56,6 +56,19 @@ fn the_demo_chain_runs_and_finds_what_was_planted() {
         "mean error {} mN",
         f.mean_error_mn
     );
+    // The augmented models (export --augmented's lines) carry the hysteresis in every chamber's
+    // chain, and on the same pushes the board's bias is gone: the truth is host-sim's push force.
+    assert_eq!(r.augmented.len(), 3);
+    for (c, fx) in &r.augmented {
+        assert!(fx.iter().any(|e| e == "hysteresis"), "chamber {c}: {fx:?}");
+    }
+    let fa = r.force_augmented.as_ref().expect("augmented force frames");
+    assert!(
+        fa.mean_error_mn.abs() < 10.0 && fa.mean_error_mn.abs() < 0.2 * f.mean_error_mn.abs(),
+        "augmented mean error {} mN (bare {} mN)",
+        fa.mean_error_mn,
+        f.mean_error_mn
+    );
     for file in [
         "report.md",
         "report.json",

@@ -39,6 +39,8 @@ enum Command {
     Monitor(cmd::monitor::Args),
     /// Send a model to a board over its serial port and read it back.
     Deploy(cmd::deploy::Args),
+    /// What the board would have estimated on a log: the firmware's estimator over its frames with an exported model.
+    Replay(cmd::replay::Args),
 }
 
 fn main() -> ExitCode {
@@ -56,6 +58,7 @@ fn main() -> ExitCode {
         Command::Record(a) => cmd::record::run(a),
         Command::Monitor(a) => cmd::monitor::run(a),
         Command::Deploy(a) => cmd::deploy::run(a),
+        Command::Replay(a) => cmd::replay::run(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -225,7 +225,7 @@ fn device_form_recovers_the_known_plant() {
     let rms = (sse / (series.len() - 1) as f64).sqrt();
     // 13 parameters from 9 000 samples of σ = 0.05 kPa: the error is a small fraction of σ.
     assert!(rms < 0.2 * SIGMA, "device model vs plant: {rms:.4} kPa");
-    // Only AR-capable effects can be folded.
+    // Only AR-capable effects can be folded (hysteresis runs in the board's chain instead).
     assert!(device_model(&series, 3, 2, &[EffectKind(&Hysteresis)]).is_err());
 }
 
@@ -338,13 +338,14 @@ fn exported_lines_run_on_the_firmware_as_in_sysid() {
 
 #[test]
 fn nothing_runnable_exports_the_refitted_baseline_and_says_so() {
-    let log = host_sim_log(Effects::preset("hysteresis").expect("preset"), 6);
+    // A sensor drift in time: tied to the log's clock, the board cannot run it.
+    let log = host_sim_log(Effects::preset("thermal-drift").expect("preset"), 6);
     let ds = Dataset::from_log(&log, 0, &DatasetConfig::default()).expect("dataset");
     let series = series_from_dataset(&ds).expect("series");
     let cfg = Config {
         n: 3,
         m: 2,
-        candidates: vec![EffectKind(&Hysteresis)],
+        candidates: vec![EffectKind(&OffsetDrift)],
         ..Config::default()
     };
     let x = augmented_export(series.clone(), &cfg).expect("export");
@@ -354,7 +355,7 @@ fn nothing_runnable_exports_the_refitted_baseline_and_says_so() {
             .iter()
             .map(|e| e.name)
             .collect::<Vec<_>>(),
-        ["hysteresis"]
+        ["offset_drift"]
     );
     assert!(x.nothing_carried());
     assert!(x.carried.is_empty() && x.device.host.inertance.is_none());

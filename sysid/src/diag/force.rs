@@ -102,8 +102,9 @@ pub struct ForceTrace {
     pub pressures: BTreeMap<u8, (Vec<f64>, Vec<f64>)>,
 }
 
-/// Matches chambers by time; returns per matched instant the sample index of each chamber.
-fn match_times(chambers: &BTreeMap<u8, &Dataset>) -> (Vec<BTreeMap<u8, usize>>, usize) {
+/// Matches chambers by time; returns per matched instant the sample index of each chamber, and
+/// the number of instants dropped.
+pub(crate) fn match_times(chambers: &BTreeMap<u8, &Dataset>) -> (Vec<BTreeMap<u8, usize>>, usize) {
     let (&rc, rs) = chambers
         .iter()
         .min_by_key(|(_, s)| s.len())

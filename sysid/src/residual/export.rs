@@ -10,10 +10,23 @@
 //! x = (v − v_o)/v_s,  y = (v̇ − f_o)/f_s,
 //! ```
 //!
-//! i.e. a polynomial in the present (v, v̇) plus terms *linear* in past inputs, nothing else: no
-//! output feedback, no clock, no hysteron state. Each effect says whether it fits that form
-//! ([`super::EffectModel::device_support`]); this module carries those it knows how to fold in and lists
-//! the others by name with the reason.
+//! i.e. a polynomial in the present (v, v̇) plus terms *linear* in past inputs, and around it the
+//! effect chain (`model_core::chain`: hysteresis, sensor and delivery lag, transport delay,
+//! backlash, leak, air compliance, … in a causal `f32` form, at most
+//! [`model_core::chain::MAX_EFFECTS`] of them). Each effect says whether the board can run it
+//! ([`super::EffectModel::device_support`]) and, for a chain effect, its parameters in the
+//! chain's form ([`super::EffectModel::device_params`], in the effect's own file); inertance is
+//! folded into the polynomial (below). Effects tied to the log's clock (ripple in time, offset
+//! and volume drift) and pump ripple stay on the host and are listed by name with the reason.
+//!
+//! # The chain's effects
+//! The device model is refitted with the kept chain effects at the θ the loop found (same
+//! design, the polynomial's scaling rounded to `f32` first), so the polynomial and the effects'
+//! coefficients (the hysteresis gap) are fitted together; the chain then carries θ and those
+//! coefficients. The chain's lags and delay are causal where the loop's look one frame ahead
+//! (their cubic between frames uses the next frame's slope): the exported model's error is
+//! therefore measured as the board computes it, by running the firmware's estimator over the
+//! log ([`crate::replay`]), and reported next to the loop's.
 //!
 //! # Inertance as an AR(1) term
 //! The loop's inertance term is `L·v̈` with v̈ a smoothed (Hermite or three-point) derivative, which
@@ -36,7 +49,7 @@
 //! evaluated in f32 exactly as the firmware does (history of past samples included) and (c) the
 //! baseline polynomial, so the cost of what stays on the host is visible.
 
-use model_core::poly::{ArHistory, PolyModel};
+use model_core::poly::PolyModel;
 
 use super::effects::{Effect, Inertance, Prepared};
 use super::select::{fit_stage, Stage};
@@ -98,7 +111,8 @@ pub struct Rmses {
     pub device_samples: usize,
 }
 
-/// The f64 host form of the exported model: Chebyshev polynomial plus `L·(v̇ − v̇_prev)/Δt`.
+/// The f64 host form of the exported model's polynomial part: Chebyshev polynomial plus
+/// `L·(v̇ − v̇_prev)/Δt` (the chain, [`DeviceModel::chain`], runs on the board's estimator).
 #[derive(Clone, Debug)]
 pub struct HostModel {
     /// Basis of the polynomial part (its scaling is the exported one, exactly representable in f32).
@@ -126,8 +140,10 @@ impl HostModel {
 /// A device-runnable model refitted on a series: the baseline polynomial plus the carried terms.
 #[derive(Clone, Debug)]
 pub struct DeviceModel {
-    /// The model for the device.
+    /// The model for the device (its polynomial part).
     pub model: PolyModel,
+    /// The effect chain the board runs around [`Self::model`] (empty: none).
+    pub chain: model_core::chain::Chain,
     /// The same model in f64 on the host.
     pub host: HostModel,
     /// The device-form refit (its `pred` is the host prediction on the rows it was fitted over).
@@ -135,6 +151,16 @@ pub struct DeviceModel {
     /// Index in the input series of the refit's first row (1 when an AR term needs a previous
     /// sample, else 0).
     pub first_row: usize,
+}
+
+impl DeviceModel {
+    /// What the board installs: the polynomial and its chain.
+    pub fn board_model(&self) -> firmware::store::Model {
+        firmware::store::Model {
+            poly: self.model,
+            chain: self.chain,
+        }
+    }
 }
 
 /// The augmented model as exported to the device.
@@ -172,6 +198,15 @@ pub fn foldable(kind: EffectKind) -> bool {
     kind == EffectKind(&Inertance) && kind.device_support().runs_on_device
 }
 
+/// The board's chain effect of the same name as `kind`, when `kind` runs on the board as one
+/// (not folded into the polynomial).
+pub fn chain_kind(kind: EffectKind) -> Option<model_core::chain::EffectKind> {
+    if foldable(kind) || !kind.device_support().runs_on_device {
+        return None;
+    }
+    model_core::chain::EffectKind::from_name(kind.name())
+}
+
 /// Runs the residual loop on `series` and exports what it ends with (see the module docs).
 pub fn augmented_export(series: Series, cfg: &Config) -> Result<AugmentedExport, ExportError> {
     let diagnosis = diagnose(series.clone(), cfg)?;
@@ -185,12 +220,27 @@ pub fn from_diagnosis(
 ) -> Result<AugmentedExport, ExportError> {
     let (n, m) = (diagnosis.baseline.n, diagnosis.baseline.m);
     let mut carry = Vec::new();
+    let mut chain = Vec::new();
     let mut dropped = Vec::new();
     for e in &diagnosis.effects {
         let kind = e.kind;
         let reason = kind.device_support().reason;
+        let searched = diagnosis.final_effects.iter().find(|f| f.kind == kind);
         if foldable(kind) {
             carry.push(kind);
+        } else if let (Some(_), Some(f)) = (chain_kind(kind), searched) {
+            if chain.len() < model_core::chain::MAX_EFFECTS {
+                chain.push(f.clone());
+            } else {
+                dropped.push(Dropped {
+                    name: kind.name(),
+                    reason: format!(
+                        "the board's chain holds at most {} effects; the loop kept these after the first {} it carries",
+                        model_core::chain::MAX_EFFECTS,
+                        model_core::chain::MAX_EFFECTS
+                    ),
+                });
+            }
         } else if kind.device_support().runs_on_device {
             dropped.push(Dropped {
                 name: kind.name(),
@@ -205,8 +255,8 @@ pub fn from_diagnosis(
             });
         }
     }
-    let device = device_model(series, n, m, &carry)?;
-    let carried = device
+    let device = device_model_with(series, n, m, &carry, &chain)?;
+    let mut carried: Vec<Carried> = device
         .host
         .inertance
         .map(|l| Carried {
@@ -220,7 +270,20 @@ pub fn from_diagnosis(
         })
         .into_iter()
         .collect();
-    let (f32_rmse, device_samples) = device_rmse(&device.model, series);
+    carried.extend(device.chain.effects().iter().map(|e| {
+        let vals: Vec<String> = e.params().iter().map(|x| format!("{x:e}")).collect();
+        Carried {
+            name: e.kind().name(),
+            how: format!(
+                "the board's effect chain: `effect {} {}`",
+                e.kind().name(),
+                vals.join(" ")
+            ),
+            value: f64::from(e.params()[0]),
+            unit: chain_unit(e.kind()),
+        }
+    }));
+    let (f32_rmse, device_samples) = device_rmse(&device.board_model(), series);
     let rmse = Rmses {
         augmented: diagnosis.final_model.rmse_heldout,
         device: f32_rmse,
@@ -237,6 +300,17 @@ pub fn from_diagnosis(
     })
 }
 
+/// Unit of a chain effect's first parameter (the `value` of its [`Carried`]).
+fn chain_unit(kind: model_core::chain::EffectKind) -> &'static str {
+    use model_core::chain::EffectKind as K;
+    match kind {
+        K::SensorLag | K::DeliveryLag | K::TransportDelay => "s",
+        K::Leak => "mm3/(kPa*s)",
+        K::Inertance => "kPa*s^2/mm3",
+        _ => "mm3",
+    }
+}
+
 /// Refits the baseline polynomial of shape (n, m) plus the effects in `carry` in the device's form
 /// on the training rows of `series`, and builds the [`PolyModel`] (module docs). Every kind in
 /// `carry` must be [`foldable`].
@@ -246,8 +320,23 @@ pub fn device_model(
     m: usize,
     carry: &[EffectKind],
 ) -> Result<DeviceModel, ExportError> {
+    device_model_with(series, n, m, carry, &[])
+}
+
+/// [`device_model`] with the chain effects `chain` (each with its searched θ, each with a
+/// [`chain_kind`]) refitted alongside and carried in the board's chain (module docs).
+pub fn device_model_with(
+    series: &Series,
+    n: usize,
+    m: usize,
+    carry: &[EffectKind],
+    chain: &[Effect],
+) -> Result<DeviceModel, ExportError> {
     if let Some(k) = carry.iter().find(|&&k| !foldable(k)) {
         return Err(ExportError::NotFoldable(k.name()));
+    }
+    if let Some(e) = chain.iter().find(|e| chain_kind(e.kind).is_none()) {
+        return Err(ExportError::NotFoldable(e.kind.name()));
     }
     let dt = median_dt(&series.t);
     let inertance = carry.contains(&EffectKind(&Inertance));
@@ -278,7 +367,8 @@ pub fn device_model(
         f_scale: r(prep.basis.f_scale),
         ..prep.basis
     };
-    let effects: Vec<Effect> = carry.iter().map(|&k| Effect::new(k, 0.0)).collect();
+    let mut effects: Vec<Effect> = carry.iter().map(|&k| Effect::new(k, 0.0)).collect();
+    effects.extend(chain.iter().map(|e| from_row(e, k0)));
     let refit = fit_stage(&prep, &effects).ok_or_else(|| {
         ExportError::Degenerate(
             "its columns are linearly dependent on the training rows (is volume or flow constant?)"
@@ -295,6 +385,7 @@ pub fn device_model(
             .unwrap_or(nb);
         refit.fit.beta[col]
     });
+    let dev_chain = board_chain(&refit, &effects[carry.len()..], carry.len())?;
     let basis = prep.basis.clone();
     let mut power = crate::poly::chebyshev_to_power_2d(&beta, n, m);
     let mut ar = Vec::new();
@@ -314,6 +405,7 @@ pub fn device_model(
         .map_err(|e| ExportError::Device(e.to_string()))?;
     Ok(DeviceModel {
         model,
+        chain: dev_chain,
         host: HostModel {
             basis,
             beta,
@@ -325,21 +417,71 @@ pub fn device_model(
     })
 }
 
-/// Held-out RMSE of `model` run over the series in order as the firmware runs it (f32, history of
-/// past frames), with the number of held-out samples it produced an estimate for.
-pub fn device_rmse(model: &PolyModel, series: &Series) -> (f64, usize) {
-    let mut hist = ArHistory::new();
+/// `e` on the rows of a series from `k0` on (its per-sample data cut to match).
+fn from_row(e: &Effect, k0: usize) -> Effect {
+    let cut = |d: &Option<std::sync::Arc<Vec<f64>>>| {
+        d.as_ref()
+            .map(|d| std::sync::Arc::new(d[k0.min(d.len())..].to_vec()))
+    };
+    Effect {
+        damping: cut(&e.damping),
+        stiffness: cut(&e.stiffness),
+        ..e.clone()
+    }
+}
+
+/// The board's chain from the refit's chain effects (`effects`, the design's effects from index
+/// `first`), each mapped by its [`super::EffectModel::device_params`].
+fn board_chain(
+    refit: &Stage,
+    effects: &[Effect],
+    first: usize,
+) -> Result<model_core::chain::Chain, ExportError> {
+    let mut out = model_core::chain::Chain::new();
+    for (i, e) in effects.iter().enumerate() {
+        let coefs: Vec<f64> = (0..refit.design.owner.len())
+            .filter(|&c| refit.design.owner[c] == Some(first + i))
+            .map(|c| refit.fit.beta[c])
+            .collect();
+        let name = e.kind.name();
+        let (Some(kind), Some(p)) = (chain_kind(e.kind), e.kind.device_params(e, &coefs)) else {
+            return Err(ExportError::NotFoldable(name));
+        };
+        let p: Vec<f32> = p.iter().map(|&x| x as f32).collect();
+        let fx = model_core::chain::Effect::new(kind, &p)
+            .and_then(|fx| out.push(fx))
+            .map_err(|err| ExportError::Device(format!("{name} {p:?}: {err}")));
+        fx?;
+    }
+    Ok(out)
+}
+
+/// Held-out RMSE of the board's `model` (polynomial and chain) run over the series in order by
+/// the firmware's own estimator ([`crate::replay::run`], f32, the chain's state and the AR
+/// history carried from frame to frame), with the number of held-out samples it produced an
+/// estimate for.
+pub fn device_rmse(model: &firmware::store::Model, series: &Series) -> (f64, usize) {
+    let Ok(hz) = crate::replay::frame_hz(median_dt(&series.t)) else {
+        return (f64::NAN, 0);
+    };
+    let nan = (f32::NAN, f32::NAN, f32::NAN);
+    let frames = (0..series.len()).map(|k| {
+        let x = (
+            series.v[k] as f32,
+            series.vdot[k] as f32,
+            series.p[k] as f32,
+        );
+        (series.t[k], [x, nan, nan])
+    });
+    let out = crate::replay::run(&[Some(*model), None, None], hz, frames);
     let (mut sse, mut n) = (0.0, 0usize);
-    for k in 0..series.len() {
-        let (v, q) = (series.v[k] as f32, series.vdot[k] as f32);
-        if !series.train[k] {
-            if let Ok(e) = model.eval_ar(v, q, &hist) {
-                let r = series.p[k] - f64::from(e.p);
-                sse += r * r;
-                n += 1;
-            }
+    for (k, f) in out.iter().enumerate() {
+        let c = &f.chambers[0];
+        if !series.train[k] && c.p_hat.is_finite() {
+            let r = series.p[k] - f64::from(c.p_hat);
+            sse += r * r;
+            n += 1;
         }
-        hist.push(v, q);
     }
     ((sse / n.max(1) as f64).sqrt(), n)
 }

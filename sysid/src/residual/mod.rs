@@ -370,6 +370,9 @@ pub struct Diagnosis {
     /// Full analyses for the figures.
     #[serde(skip)]
     pub analysis_after: ResidualAnalysis,
+    /// The final model's effects with their searched parameters (what an export refits).
+    #[serde(skip)]
+    pub final_effects: Vec<effects::Effect>,
 }
 
 /// Device verdict for a list of effect names (for `vfp export`): per effect whether
@@ -608,6 +611,7 @@ fn report(prep: &effects::Prepared, cfg: &Config, baseline: &Stage, sel: Selecti
         after: (&analysis_after).into(),
         analysis_before,
         analysis_after,
+        final_effects: sel.model.effects.clone(),
     }
 }
 

@@ -172,8 +172,13 @@ pub struct DemoReport {
     pub diagnosis_error: Option<String>,
     /// Deployed models.
     pub deployed: Vec<Deployed>,
-    /// Force estimate.
+    /// Force estimate of the board running the bare polynomials.
     pub force: Option<ForceResult>,
+    /// The augmented models deployed (`vfp export --augmented`'s path): per chamber the effects
+    /// its chain carries.
+    pub augmented: Vec<ChamberEffects>,
+    /// Force estimate of the board running the augmented models (same pushes, same noise).
+    pub force_augmented: Option<ForceResult>,
     /// Total wall time, s.
     pub total_seconds: f64,
 }
@@ -483,25 +488,16 @@ pub fn run_plan(plan: Plan, seed: u64, out: &Path) -> Result<DemoReport, Error> 
         fits.push(fit);
     }
     let all_lines: Vec<String> = lines.iter().flatten().cloned().collect();
-    let force_run = simulate(&force_scenario(&plan, seed, &all_lines)).map_err(fail)?;
-    let acked = force_run
-        .replies
-        .iter()
-        .take(all_lines.len())
-        .take_while(|(_, r)| r == "ok")
-        .count();
-    if acked != all_lines.len() {
-        let (sent, reply) = (
-            &all_lines[acked.min(all_lines.len() - 1)],
-            force_run
-                .replies
-                .get(acked)
-                .map_or("no reply", |r| r.1.as_str()),
-        );
-        return Err(Error::Msg(format!(
-            "the simulated board refused `{sent}` with `{reply}`"
-        )));
-    }
+    let (force_run, acked) = run_deployed(&plan, seed, &all_lines)?;
+    let (aug_lines, augmented) = match &diagnosis {
+        Some(d) => augmented_lines(&datasets, d)?,
+        None => (Vec::new(), Vec::new()),
+    };
+    let aug_run = if aug_lines.is_empty() {
+        None
+    } else {
+        Some(run_deployed(&plan, seed, &aug_lines)?)
+    };
     let deployed = compare_p_hat(&datasets, &fits, &lines, &force_run);
     let worst = deployed
         .iter()
@@ -509,11 +505,13 @@ pub fn run_plan(plan: Plan, seed: u64, out: &Path) -> Result<DemoReport, Error> 
         .fold(0.0, f64::max);
     st.done(
         format!(
-            "{} lines acknowledged on {} channels; board p̂ = sysid p̂ within {:.1e} (relative) over {} frames",
+            "{} lines acknowledged on {} channels; board p̂ = sysid p̂ within {:.1e} (relative) over {} frames; augmented: {} lines acknowledged ({})",
             acked,
             lines.len(),
             worst,
-            deployed.first().map_or(0, |d| d.frames_compared)
+            deployed.first().map_or(0, |d| d.frames_compared),
+            aug_run.as_ref().map_or(0, |r| r.1),
+            effects_summary(&augmented)
         ),
         &mut stages,
     );
@@ -525,14 +523,22 @@ pub fn run_plan(plan: Plan, seed: u64, out: &Path) -> Result<DemoReport, Error> 
         .and_then(hysteresis_amplitude)
         .map(|a| 3.0 * f64::from(model_core::force::DEFAULT_AREA_MM2) * a);
     let (force, trace) = force_stats(&plan, &force_run, predicted_bias);
+    let force_augmented = aug_run
+        .as_ref()
+        .and_then(|(run, _)| force_stats(&plan, run, None).0);
+    let line = |f: &Option<ForceResult>| match f {
+        Some(f) => format!(
+            "error mean {:+.1} mN, std {:.1} mN, RMSE {:.1} mN over {} frames (true mean {:.0} mN)",
+            f.mean_error_mn, f.std_error_mn, f.rmse_mn, f.frames, f.mean_true_mn
+        ),
+        None => "no frames in the push window".into(),
+    };
     st.done(
-        match &force {
-            Some(f) => format!(
-                "error mean {:+.1} mN, std {:.1} mN, RMSE {:.1} mN over {} frames (true mean {:.0} mN)",
-                f.mean_error_mn, f.std_error_mn, f.rmse_mn, f.frames, f.mean_true_mn
-            ),
-            None => "no frames in the push window".into(),
-        },
+        format!(
+            "bare: {}; augmented: {}",
+            line(&force),
+            line(&force_augmented)
+        ),
         &mut stages,
     );
 
@@ -583,6 +589,8 @@ pub fn run_plan(plan: Plan, seed: u64, out: &Path) -> Result<DemoReport, Error> 
         diagnosis_error,
         deployed,
         force,
+        augmented,
+        force_augmented,
         total_seconds: 0.0,
     };
     st.done(format!("{} figures", figures.len()), &mut report.stages);
@@ -594,6 +602,84 @@ pub fn run_plan(plan: Plan, seed: u64, out: &Path) -> Result<DemoReport, Error> 
     std::fs::write(out.join("report.json"), json)
         .map_err(|e| Error::Msg(format!("{}: {e}", out.join("report.json").display())))?;
     Ok(report)
+}
+
+/// A chamber and the effects its deployed chain carries.
+pub type ChamberEffects = (u8, Vec<String>);
+
+/// The simulated board's force run with `lines` sent first; every line must be acknowledged.
+/// Returns the run and the number of lines acknowledged.
+fn run_deployed(plan: &Plan, seed: u64, lines: &[String]) -> Result<(SimRun, usize), Error> {
+    let run = simulate(&force_scenario(plan, seed, lines)).map_err(fail)?;
+    let acked = run
+        .replies
+        .iter()
+        .take(lines.len())
+        .take_while(|(_, r)| r == "ok")
+        .count();
+    if acked != lines.len() {
+        let (sent, reply) = (
+            &lines[acked.min(lines.len() - 1)],
+            run.replies.get(acked).map_or("no reply", |r| r.1.as_str()),
+        );
+        return Err(Error::Msg(format!(
+            "the simulated board refused `{sent}` with `{reply}`"
+        )));
+    }
+    Ok((run, acked))
+}
+
+/// Every chamber's augmented model through `vfp export --augmented`'s own path
+/// ([`sysid::residual::export`], [`export::command_lines`]): chamber 0's is the export of the
+/// residual loop the demo ran on it, the others' the loop run on them over the effects it kept
+/// on chamber 0 (the same plant). Returns the lines and, per chamber, the effects its chain
+/// carries.
+pub fn augmented_lines(
+    datasets: &[Dataset],
+    diagnosis: &residual::Diagnosis,
+) -> Result<(Vec<String>, Vec<ChamberEffects>), Error> {
+    use sysid::residual::export::{augmented_export, from_diagnosis};
+    let kept: Vec<residual::EffectKind> = diagnosis.effects.iter().map(|e| e.kind).collect();
+    let mut lines = Vec::new();
+    let mut carried = Vec::new();
+    for (i, ds) in datasets.iter().enumerate() {
+        let wrap = |e: &dyn std::fmt::Display| Error::Msg(format!("chamber {}: {e}", ds.chamber));
+        let series = residual::series_from_dataset(ds).map_err(|e| wrap(&e))?;
+        let x = if i == 0 {
+            from_diagnosis(diagnosis.clone(), &series)
+        } else {
+            let cfg = residual::Config {
+                n: DIAGNOSE_SHAPE.0,
+                m: DIAGNOSE_SHAPE.1,
+                candidates: kept.clone(),
+                ..residual::Config::default()
+            };
+            augmented_export(series, &cfg)
+        }
+        .map_err(|e| wrap(&e))?;
+        carried.push((
+            ds.chamber,
+            x.carried.iter().map(|c| c.name.to_string()).collect(),
+        ));
+        lines.extend(export::board_lines(ds.chamber, &x.device.board_model()));
+    }
+    Ok((lines, carried))
+}
+
+fn effects_summary(aug: &[ChamberEffects]) -> String {
+    aug.iter()
+        .map(|(c, e)| {
+            format!(
+                "ch{c} {}",
+                if e.is_empty() {
+                    "-".into()
+                } else {
+                    e.join("+")
+                }
+            )
+        })
+        .collect::<Vec<_>>()
+        .join(", ")
 }
 
 /// Half the up−down pressure gap of the hysteresis the residual loop found, kPa: how far the
@@ -909,6 +995,22 @@ fn markdown(r: &DemoReport, figures: &[(String, String)]) -> String {
         None => {
             let _ = writeln!(s, "No frames in the push window.");
         }
+    }
+    if let Some(f) = &r.force_augmented {
+        let _ = writeln!(
+            s,
+            "\nThe same pushes on a board running the augmented models (`vfp export --augmented`'s lines; effects carried: {}): \
+             error mean **{:+.1} mN**, std **{:.1} mN**, RMSE **{:.1} mN** over {} frames{}.",
+            effects_summary(&r.augmented),
+            f.mean_error_mn,
+            f.std_error_mn,
+            f.rmse_mn,
+            f.frames,
+            r.force.as_ref().map_or(String::new(), |b| format!(
+                " (bare polynomials: {:+.1} mN mean, {:.1} mN std)",
+                b.mean_error_mn, b.std_error_mn
+            ))
+        );
     }
     let _ = writeln!(s, "\n## Figures\n");
     for (f, cap) in figures {

@@ -5,7 +5,9 @@
 use crate::opts::{effect_parser, LogInput};
 use crate::Error;
 use sysid::dataset::Dataset;
-use sysid::export::{augmented_report, command_lines, f32_warning, model_for, rust_constants};
+use sysid::export::{
+    augmented_report, board_lines, command_lines, f32_warning, model_for, rust_constants,
+};
 use sysid::poly;
 use sysid::residual::export::augmented_export;
 use sysid::residual::{self, EffectKind};
@@ -32,9 +34,11 @@ pub struct Args {
     #[arg(long)]
     pub all_samples: bool,
     /// Export the model `vfp diagnose` ends with: run the residual loop on each chamber (baseline
-    /// shape from --n/--m, default the AICc selection), fold the kept effects the device can run
-    /// into the exported model (inertance L·v̈ becomes an AR(1) flow term, v̈ taken as the backward
-    /// difference at the log's frame interval), and name those it cannot with the reason. Comment
+    /// shape from --n/--m, default the AICc selection), refit it with the kept effects the board
+    /// can run (hysteresis, sensor and delivery lag, transport delay, backlash, leak, air
+    /// compliance as `model <ch> effect …` lines of its effect chain; inertance L·v̈ as an AR(1)
+    /// flow term, v̈ the backward difference at the log's frame interval), and name those it
+    /// cannot with the reason. Comment
     /// lines (`//`, skipped by `vfp deploy`) give the held-out RMSE of the full augmented model, of
     /// the exported model as the device evaluates it, and of the baseline.
     #[arg(long)]
@@ -148,7 +152,7 @@ pub fn run(args: &Args) -> Result<(), Error> {
             }
             let comments: Vec<String> = report.iter().map(|l| format!("// {l}")).collect();
             lines.extend(comments.iter().cloned());
-            lines.extend(command_lines(ds.chamber, &x.device.model));
+            lines.extend(board_lines(ds.chamber, &x.device.board_model()));
             if args.format == Format::Rust {
                 // With `both` the same comments already head the lines.
                 for c in &comments {
@@ -165,6 +169,17 @@ pub fn run(args: &Args) -> Result<(), Error> {
                 x.rmse.device
             );
             rust.push_str(&rust_constants(ds.chamber, &x.device.model, &prov));
+            for e in x.device.chain.effects() {
+                // The constants hold the polynomial; the chain travels as protocol lines.
+                let vals: Vec<String> = e.params().iter().map(|v| format!("{v:e}")).collect();
+                rust.push_str(&format!(
+                    "// CH{} chain (not in these constants; load with the lines): model {} effect {} {}\n",
+                    ds.chamber,
+                    ds.chamber,
+                    e.kind().name(),
+                    vals.join(" ")
+                ));
+            }
             continue;
         }
         let e = model_for(ds, args.n, args.m, args.p, args.all_samples)?;

@@ -11,5 +11,6 @@ pub mod force;
 pub mod identify;
 pub mod monitor;
 pub mod record;
+pub mod replay;
 pub mod simulate;
 pub mod stiffness;

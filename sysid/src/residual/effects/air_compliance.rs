@@ -139,7 +139,14 @@ impl EffectModel for AirCompliance {
         ]
     }
 
+    fn device_params(&self, e: &Effect, coefs: &[f64]) -> Option<Vec<f64>> {
+        let _ = coefs;
+        Some(vec![e.theta])
+    }
+
     fn device_support(&self) -> DeviceSupport {
-        DeviceSupport::host_only("needs the measured pressure and a pressure-scheduled lag; PolyModel has no output feedback")
+        DeviceSupport::on_device(
+            "the board's chain applies Boyle's law to the measured pressure and lags P̂ with the polynomial's damping (`model <ch> effect air_compliance <V_a>`)",
+        )
     }
 }

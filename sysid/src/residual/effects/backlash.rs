@@ -66,7 +66,14 @@ impl EffectModel for Backlash {
         ]
     }
 
+    fn device_params(&self, e: &Effect, coefs: &[f64]) -> Option<Vec<f64>> {
+        let _ = coefs;
+        Some(vec![e.theta])
+    }
+
     fn device_support(&self) -> DeviceSupport {
-        DeviceSupport::host_only("needs the play-operator state of the nut position; compensate in motion planning instead")
+        DeviceSupport::on_device(
+            "the board's chain runs the play operator on the frames' volume (`model <ch> effect backlash <b>`)",
+        )
     }
 }

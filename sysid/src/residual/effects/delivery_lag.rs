@@ -56,7 +56,14 @@ impl EffectModel for DeliveryLag {
         ]
     }
 
+    fn device_params(&self, e: &Effect, coefs: &[f64]) -> Option<Vec<f64>> {
+        let _ = coefs;
+        Some(vec![e.theta])
+    }
+
     fn device_support(&self) -> DeviceSupport {
-        DeviceSupport::host_only("needs the polynomial evaluated on filtered inputs; PolyModel's AR terms are only linear in past inputs")
+        DeviceSupport::on_device(
+            "the board's chain lags v (cubic between frames) and v̇ (straight line) through two stages (`model <ch> effect delivery_lag <tau>`)",
+        )
     }
 }

@@ -75,9 +75,15 @@ impl EffectModel for Hysteresis {
         ]
     }
 
+    fn device_params(&self, e: &Effect, coefs: &[f64]) -> Option<Vec<f64>> {
+        // Width, then the columns' coefficients H₀ (on h) and H₁ (on h·x), x in the model's scaling.
+        let [h0, h1] = coefs[..] else { return None };
+        Some(vec![e.theta, h0, h1])
+    }
+
     fn device_support(&self) -> DeviceSupport {
-        DeviceSupport::host_only(
-            "needs the hysteron state of the volume history; PolyModel has no such state",
+        DeviceSupport::on_device(
+            "the board's chain runs the same hysteron on the frames' volume (`model <ch> effect hysteresis <w> <H0> <H1>`)",
         )
     }
 }

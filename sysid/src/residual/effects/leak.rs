@@ -57,9 +57,14 @@ impl EffectModel for Leak {
         ]
     }
 
+    fn device_params(&self, e: &Effect, coefs: &[f64]) -> Option<Vec<f64>> {
+        let _ = coefs;
+        Some(vec![e.theta])
+    }
+
     fn device_support(&self) -> DeviceSupport {
-        DeviceSupport::host_only(
-            "needs the integral of measured pressure since the start; PolyModel has no such state",
+        DeviceSupport::on_device(
+            "the board's chain integrates the measured pressure (`model <ch> effect leak <lambda>`)",
         )
     }
 }

@@ -374,8 +374,16 @@ pub trait EffectModel: Send + Sync {
             .collect()
     }
 
+    /// The effect's parameters in the board's effect chain (`model_core::chain`: the effect of the
+    /// same name, its parameters in the order and units of the table there) from θ and the
+    /// coefficients of its columns, when the board runs it as a chain effect (default: it does
+    /// not). The one place each effect is mapped to its device form (`vfp export --augmented`).
+    fn device_params(&self, _e: &Effect, _coefs: &[f64]) -> Option<Vec<f64>> {
+        None
+    }
+
     /// Whether `model_core::poly::PolyModel` (polynomial plus linear AR terms on v(t−k), v̇(t−k))
-    /// can carry the effect, and why (not) (default: not).
+    /// or the board's effect chain around it can carry the effect, and why (not) (default: not).
     fn device_support(&self) -> DeviceSupport {
         DeviceSupport::host_only("no device form is known for this effect")
     }

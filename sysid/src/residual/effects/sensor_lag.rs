@@ -65,8 +65,15 @@ impl EffectModel for SensorLag {
         vec![param("time_constant", f.effect.theta, f.theta_se, "s")]
     }
 
+    fn device_params(&self, e: &Effect, coefs: &[f64]) -> Option<Vec<f64>> {
+        let _ = coefs;
+        Some(vec![e.theta])
+    }
+
     fn device_support(&self) -> DeviceSupport {
-        DeviceSupport::host_only("a lag on the output needs past pressures (output autoregression), which PolyModel does not have")
+        DeviceSupport::on_device(
+            "the board's chain lags P̂ by τ with a straight line between frames (`model <ch> effect sensor_lag <tau>`; the loop lags a cubic, the gap is bounded in sysid's tests)",
+        )
     }
 }
 

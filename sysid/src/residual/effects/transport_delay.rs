@@ -48,7 +48,14 @@ impl EffectModel for TransportDelay {
         ]
     }
 
+    fn device_params(&self, e: &Effect, coefs: &[f64]) -> Option<Vec<f64>> {
+        let _ = coefs;
+        Some(vec![e.theta])
+    }
+
     fn device_support(&self) -> DeviceSupport {
-        DeviceSupport::host_only("needs the polynomial evaluated on delayed inputs; PolyModel's AR terms are only linear in past inputs")
+        DeviceSupport::on_device(
+            "the board's chain delays v and v̇ on the cubic Hermite through its last 40 frames (`model <ch> effect transport_delay <d>`, d ≤ 1.5 s)",
+        )
     }
 }
