@@ -11,6 +11,7 @@
 //! `Read + Write`). [`residual`] traces a model's residual to physical effects; [`diag`] holds the
 //! paper's §IV analyses; [`record`] turns the firmware's telemetry into a log.
 
+pub mod cycles;
 pub mod dataset;
 pub mod deploy;
 pub mod diag;
@@ -25,4 +26,5 @@ pub mod poly;
 pub mod polyar;
 pub mod record;
 pub mod residual;
+pub mod select;
 pub mod synth;

@@ -16,10 +16,10 @@ pub struct Args {
     /// The log, `--chamber` (default: every chamber) and the data options.
     #[command(flatten)]
     pub input: LogInput,
-    /// Highest power of v (default: the polynomial sweep's AICc selection).
+    /// Highest power of v (default: the shape `vfp identify` selects).
     #[arg(long)]
     pub n: Option<usize>,
-    /// Highest power of v̇ (default: the polynomial sweep's AICc selection).
+    /// Highest power of v̇ (default: the shape `vfp identify` selects).
     #[arg(long)]
     pub m: Option<usize>,
     /// Autoregressive order (0..=5) of the exported model.
@@ -32,7 +32,7 @@ pub struct Args {
     #[arg(long)]
     pub all_samples: bool,
     /// Export the model `vfp diagnose` ends with: run the residual loop on each chamber (baseline
-    /// shape from --n/--m, default the AICc selection), fold the kept effects the device can run
+    /// shape from --n/--m, default the selected shape), fold the kept effects the device can run
     /// into the exported model (inertance L·v̈ becomes an AR(1) flow term, v̈ taken as the backward
     /// difference at the log's frame interval), and name those it cannot with the reason. Comment
     /// lines (`//`, skipped by `vfp deploy`) give the held-out RMSE of the full augmented model, of
@@ -114,7 +114,7 @@ fn loop_config(args: &Args, ds: &Dataset) -> Result<residual::Config, Error> {
         (None, None) => residual::select_shape(ds).unwrap_or((3, 2)),
         _ => {
             return Err(Error::Msg(
-                "give both --n and --m, or neither (then the AICc selection is used)".into(),
+                "give both --n and --m, or neither (then the selected shape is used)".into(),
             ))
         }
     };
