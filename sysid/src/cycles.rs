@@ -22,7 +22,7 @@ pub const TURN_FRACTION: f64 = 0.5;
 /// hysteresis `h` (see the module docs). The trough's index is the last sample at its minimum.
 pub fn turning_points(v: &[f64], h: f64) -> Vec<(usize, bool)> {
     let mut out = Vec::new();
-    if v.is_empty() || !(h > 0.0) {
+    if v.is_empty() || h.is_nan() || h <= 0.0 {
         return out;
     }
     // Until the first turn is confirmed, track both extremes.
