@@ -38,6 +38,7 @@ use embassy_sync::mutex::Mutex as AsyncMutex;
 use embassy_sync::signal::Signal;
 use embassy_time::{Duration, Instant, Ticker, Timer};
 use heapless::Deque;
+use model_core::chain::{Chain, ChainInput, ChainState, Effect, EffectKind};
 use model_core::poly::{ArHistory, PolyModel, Scaling, Shape, MAX_AR, MAX_TERMS};
 use model_core::rls::Rls;
 use model_core::ModelError;
@@ -50,7 +51,7 @@ use crate::hal::{Direction, PressureAdc, SerialPort, Steppers, TelemetrySink, Wa
 use crate::motion::{Motion, MotionConfig, MotionError, PlannedMove, StepBatch};
 use crate::protocol::{ProtocolPoll, ProtocolRun};
 use crate::reset::ResetCause;
-use crate::store::{Loaded, Persist};
+use crate::store::{Loaded, Model, Persist};
 use crate::telemetry::{ChamberFrame, Event, EventKind, Flags, Frame, LineBuf};
 
 /// Number of parameters the online RLS identifies: the paper's n = 3, m = 2 model.
@@ -216,6 +217,8 @@ struct Staged {
     ar: [f32; 2 * MAX_AR],
     /// Bit i set when coefficient i arrived (poly terms, then AR values from bit 64).
     got: u128,
+    /// The effects received so far (`model <ch> effect …`).
+    chain: Chain,
 }
 
 /// Online identification state of one chamber.
@@ -226,12 +229,43 @@ struct Online {
     baseline: Option<(f32, f32)>,
 }
 
-/// Estimation state of one chamber.
+/// Estimation state of one chamber. `hist` holds the inputs the polynomial saw (after the
+/// chain's input transforms); `state` is the chain's, reset at boot, `origin` and model load.
 #[derive(Clone, Debug)]
 struct Chamber {
     model: PolyModel,
+    chain: Chain,
+    state: ChainState,
     hist: ArHistory,
     online: Option<Online>,
+}
+
+impl Chamber {
+    fn new(model: Model, dt: f32) -> Self {
+        let mut c = Chamber {
+            model: model.poly,
+            chain: model.chain,
+            state: ChainState::new(),
+            hist: ArHistory::new(),
+            online: None,
+        };
+        c.reset_chain(dt);
+        c
+    }
+
+    /// Boot, `origin`, model load: the chain starts over, its per-frame constants computed here
+    /// (outside the frame; a bad `dt` leaves them to the first frame, which then reports it).
+    fn reset_chain(&mut self, dt: f32) {
+        self.state.reset();
+        let _ = self.state.prepare(&self.chain, dt);
+    }
+}
+
+impl Config {
+    /// The frame period, s (the chain's Δt).
+    pub fn frame_dt(&self) -> f32 {
+        1.0 / self.frame_hz.max(1) as f32
+    }
 }
 
 /// Largest number of queued event lines.
@@ -360,7 +394,7 @@ impl Control {
     /// protocol, no zero in progress) and the command port is quiet ([`Persist::begin`]);
     /// motion is refused until [`persist_end`](Self::persist_end). O(1) apart from copying the
     /// model out.
-    pub fn persist_begin(&mut self, now_us: u64) -> Option<(u8, PolyModel)> {
+    pub fn persist_begin(&mut self, now_us: u64) -> Option<(u8, Model)> {
         let at_rest = self.motion.all_idle() && self.protocol.is_none() && !self.zeroing;
         self.store.begin(at_rest, now_us)
     }
@@ -452,6 +486,33 @@ impl Control {
         mut set_dir: impl FnMut(usize, Direction),
     ) -> (Option<StepBatch>, StepperWait) {
         self.stepper_seen_us = now_us;
+        let dwell = if self.protocol.is_some() {
+            self.poll_protocol(now_us)
+        } else {
+            None
+        };
+        while let Some((a, d)) = self.motion.take_direction_change(now_us) {
+            set_dir(a, d);
+        }
+        let batch = match self.motion.next_batch() {
+            Some(b) if b.at_us <= now_us => self.take_batch(b),
+            _ => None,
+        };
+        let wait = match (self.motion.next_due_us(), dwell) {
+            (Some(at_us), _) => StepperWait::Step { at_us },
+            (None, Some(t)) => StepperWait::Until(t),
+            // A leg just finished: poll the protocol again now.
+            (None, None) if self.protocol.is_some() => StepperWait::Until(now_us),
+            (None, None) => StepperWait::Idle,
+        };
+        (batch, wait)
+    }
+
+    /// The characterisation protocol's progress at a stepper wake-up (its next legs started
+    /// when due); the instant its dwell ends, if it dwells. Kept out of line: the wake-ups of
+    /// plain moves do not pay for it.
+    #[inline(never)]
+    fn poll_protocol(&mut self, now_us: u64) -> Option<u64> {
         let mut dwell = None;
         // A leg can be empty (already at its target): then the protocol moves on at once,
         // a bounded number of legs per wake-up.
@@ -482,21 +543,7 @@ impl Control {
                 }
             }
         }
-        while let Some((a, d)) = self.motion.take_direction_change(now_us) {
-            set_dir(a, d);
-        }
-        let batch = match self.motion.next_batch() {
-            Some(b) if b.at_us <= now_us => self.take_batch(b),
-            _ => None,
-        };
-        let wait = match (self.motion.next_step(), dwell) {
-            (Some((_, at_us)), _) => StepperWait::Step { at_us },
-            (None, Some(t)) => StepperWait::Until(t),
-            // A leg just finished: poll the protocol again now.
-            (None, None) if self.protocol.is_some() => StepperWait::Until(now_us),
-            (None, None) => StepperWait::Idle,
-        };
-        (batch, wait)
+        dwell
     }
 
     /// Check and record a batch of steps due now: nothing steps while a fault is latched, and a
@@ -506,18 +553,13 @@ impl Control {
             self.motion.stop_all();
             return None;
         }
-        for a in b.iter() {
-            if let Some(next) = self.motion.position_after_next_step(a) {
-                if !(0..=self.cap_steps[a]).contains(&next) {
-                    self.raise(Flags::channel(Flags::VOLUME_LIMIT, a), b.at_us);
-                    return None;
-                }
+        match self.motion.record_batch(b.axes, &self.cap_steps) {
+            Ok(()) => Some(b),
+            Err(a) => {
+                self.raise(Flags::channel(Flags::VOLUME_LIMIT, a), b.at_us);
+                None
             }
         }
-        for a in b.iter() {
-            self.motion.record_step(a);
-        }
-        Some(b)
     }
 
     // ---------------------------------------------------------------- sampler side
@@ -741,11 +783,7 @@ pub struct Estimator {
 impl Estimator {
     /// Boot state: SBA1 model on every chamber, pressure zero pending.
     pub fn new(cfg: Config) -> Self {
-        let chamber = Chamber {
-            model: model_core::poly::sba1(),
-            hist: ArHistory::new(),
-            online: None,
-        };
+        let chamber = Chamber::new(Model::default_model(), cfg.frame_dt());
         Self {
             zero_kpa: [0.0; AXES],
             zeroing: Some((cfg.zero_frames, [0.0; AXES])),
@@ -761,6 +799,17 @@ impl Estimator {
     pub fn model(&self, ch: usize) -> &PolyModel {
         &self.chambers[ch].model
     }
+    /// The effect chain of a chamber.
+    pub fn chain(&self, ch: usize) -> &Chain {
+        &self.chambers[ch].chain
+    }
+    /// The model and chain of a chamber, as committed and stored.
+    pub fn full_model(&self, ch: usize) -> Model {
+        Model {
+            poly: self.chambers[ch].model,
+            chain: self.chambers[ch].chain,
+        }
+    }
     /// Pressure zero offsets, kPa.
     pub fn zero_kpa(&self) -> [f32; AXES] {
         self.zero_kpa
@@ -771,12 +820,8 @@ impl Estimator {
     }
     /// Whether the pressure zero is being taken.
     /// Boot: install a model found in flash (or the default), without a `model` event.
-    pub fn install_boot(&mut self, ch: usize, model: PolyModel) {
-        self.chambers[ch] = Chamber {
-            model,
-            hist: ArHistory::new(),
-            online: None,
-        };
+    pub fn install_boot(&mut self, ch: usize, model: Model) {
+        self.chambers[ch] = Chamber::new(model, self.cfg.frame_dt());
     }
 
     /// Whether the pressure zero is being taken.
@@ -864,7 +909,13 @@ impl Estimator {
         Some(offset)
     }
 
-    /// P̂, residual, k, c for one chamber; the RLS update and drift check when online.
+    /// P̂, residual, k, c for one chamber from its effect chain (`model_core::chain`; the bare
+    /// polynomial when the chain is empty); the RLS update and drift check when online.
+    ///
+    /// RLS and the drift check work on the polynomial part: its regressors are taken at the
+    /// inputs the polynomial saw (v′, v̇′, after the chain's input transforms) and its target is
+    /// the measured pressure less what the effects add on top of the polynomial,
+    /// `P − (P̂ − P̂_poly)`. Without effects that is exactly `P` at `(v, v̇)`, as before.
     fn estimate(
         &mut self,
         ch: usize,
@@ -875,18 +926,22 @@ impl Estimator {
         let range = Flags::channel(Flags::MODEL_RANGE, ch);
         let cfg = self.cfg;
         let chamber = &mut self.chambers[ch];
-        let eval = if chamber.model.shape().p == 0 {
-            chamber.model.eval(c.v, c.vdot)
-        } else {
-            chamber.model.eval_ar(c.v, c.vdot, &chamber.hist)
+        let inp = ChainInput {
+            v: c.v,
+            vdot: c.vdot,
+            p: c.p,
+            dt: cfg.frame_dt(),
         };
-        let result = match eval {
+        let eval = chamber
+            .chain
+            .eval(&chamber.model, &chamber.hist, &mut chamber.state, inp);
+        let (poly_in, result) = match eval {
             Ok(e) => {
                 c.p_hat = e.p;
                 c.residual = c.p - e.p;
                 c.k = e.k;
                 c.c = e.c;
-                Ok(())
+                ((e.v_in, e.vdot_in, c.p - (e.p - e.p_poly)), Ok(()))
             }
             Err(_) => {
                 // Outside the model's range (or history still filling): report NaN, not a guess.
@@ -894,14 +949,13 @@ impl Estimator {
                 c.residual = f32::NAN;
                 c.k = f32::NAN;
                 c.c = f32::NAN;
-                Err(range)
+                ((c.v, c.vdot, c.p), Err(range))
             }
         };
-        let drift = chamber
-            .online
-            .as_mut()
-            .and_then(|online| online_update(online, &mut chamber.model, &chamber.hist, c, &cfg));
-        chamber.hist.push(c.v, c.vdot);
+        let drift = chamber.online.as_mut().and_then(|online| {
+            online_update(online, &mut chamber.model, &chamber.hist, poly_in, &cfg)
+        });
+        chamber.hist.push(poly_in.0, poly_in.1);
         if let Some((k_mean, c_mean, k_base, c_base)) = drift {
             self.warnings |= Flags::channel(Flags::DRIFT, ch);
             push_event(
@@ -939,6 +993,18 @@ impl Estimator {
             }
             ReadPart::Coef { start } => (model.scaled(), start as usize),
             ReadPart::Ar { start } => (model.ar().as_flattened(), start as usize),
+            ReadPart::Effect { index } => {
+                let chain = &self.chambers[ch].chain;
+                let e = chain
+                    .effects()
+                    .get(index as usize)
+                    .ok_or(CommandError::OutOfRangeArg { index: 4 })?;
+                let _ = write!(out, " {}", e.kind().name());
+                for &x in e.params() {
+                    let _ = crate::telemetry::num(out, x);
+                }
+                return Ok(());
+            }
             // The CRC lives with the store on the motion side: `Shared::execute` answers it.
             ReadPart::Crc => return Ok(()),
         };
@@ -973,6 +1039,7 @@ impl Estimator {
                     coef: [0.0; MAX_TERMS],
                     ar: [0.0; 2 * MAX_AR],
                     got: 0,
+                    chain: Chain::new(),
                 });
             }
             ModelCmd::Coef { start, values } | ModelCmd::Ar { start, values } => {
@@ -1018,23 +1085,34 @@ impl Estimator {
                     st.scaling,
                 )
                 .map_err(CommandError::Model)?;
+                let model = Model {
+                    poly: model,
+                    chain: st.chain,
+                };
                 self.install(ch as usize, model, now_us, events);
                 self.staged = None;
             }
-            ModelCmd::Default => {
-                self.install(ch as usize, model_core::poly::sba1(), now_us, events)
-            }
+            ModelCmd::Default => self.install(ch as usize, Model::default_model(), now_us, events),
             ModelCmd::Read(part) => self.read_model(ch as usize, *part, out)?,
         }
         Ok(())
     }
 
-    fn install(&mut self, ch: usize, model: PolyModel, now_us: u64, events: &mut EventBuf) {
-        self.chambers[ch] = Chamber {
-            model,
-            hist: ArHistory::new(),
-            online: None,
-        };
+    /// `model <ch> effect …`: one more effect in the staged model's chain.
+    fn model_effect(
+        &mut self,
+        ch: u8,
+        kind: EffectKind,
+        params: &[f32],
+    ) -> Result<(), CommandError> {
+        let st = self.staged.as_mut().filter(|s| s.ch == ch);
+        let st = st.ok_or(CommandError::NoStagedModel)?;
+        let e = Effect::new(kind, params).map_err(CommandError::Model)?;
+        st.chain.push(e).map_err(CommandError::Model)
+    }
+
+    fn install(&mut self, ch: usize, model: Model, now_us: u64, events: &mut EventBuf) {
+        self.chambers[ch] = Chamber::new(model, self.cfg.frame_dt());
         self.warnings &=
             !(Flags::channel(Flags::RLS_ACTIVE, ch) | Flags::channel(Flags::DRIFT, ch));
         push_event(events, now_us, EventKind::ModelLoaded { ch: ch as u8 });
@@ -1083,8 +1161,9 @@ fn low_bits(n: usize) -> u128 {
 /// mean stiffness and damping are compared with the first such check. Returns
 /// `(k̄, c̄, k̄₀, c̄₀)` when either moved by more than `drift_frac` (relative).
 ///
-/// The RLS regressor is the model's own scaled row φ = [x^i y^j …] and the measurement is the
-/// zeroed pressure P, so θ converges to the scaled coefficients of the plant (paper Sec. IV-A
+/// The RLS regressor is the model's own scaled row φ = [x^i y^j …] at `(v, v̇)` and the
+/// measurement is `p`: the zeroed pressure P (less the effect chain's part, [`Estimator`]'s
+/// `estimate`), so θ converges to the scaled coefficients of the plant (paper Sec. IV-A
 /// identifies the same 12 coefficients offline). k̄ and c̄ are averaged over a fixed grid of
 /// operating points (the scaling's box, 5 volumes × 3 flows) rather than along the
 /// trajectory, so they change only when the model does, not with where the chamber happens
@@ -1093,15 +1172,15 @@ fn online_update(
     online: &mut Online,
     model: &mut PolyModel,
     hist: &ArHistory,
-    c: &ChamberFrame,
+    (v, vdot, p): (f32, f32, f32),
     cfg: &Config,
 ) -> Option<(f32, f32, f32, f32)> {
-    if libm::fabsf(c.vdot) <= cfg.rls_min_flow || !c.p.is_finite() {
+    if libm::fabsf(vdot) <= cfg.rls_min_flow || !p.is_finite() {
         return None;
     }
     let mut phi = [0.0f32; RLS_PARAMS];
-    model.regressors_ar(c.v, c.vdot, hist, &mut phi).ok()?;
-    online.rls.update(&phi, c.p).ok()?;
+    model.regressors_ar(v, vdot, hist, &mut phi).ok()?;
+    online.rls.update(&phi, p).ok()?;
     if let Ok(m) = PolyModel::from_params(model.shape(), online.rls.coeffs(), model.scaling()) {
         *model = m;
     }
@@ -1324,11 +1403,11 @@ impl Shared {
 
     /// Boot: install the models found in flash (or the default, `how` saying why) and report
     /// each channel on a `store` event (its CRC computed outside the lock).
-    pub async fn restore_models(&self, models: &[(PolyModel, Loaded); AXES], now_us: u64) {
+    pub async fn restore_models(&self, models: &[(Model, Loaded); AXES], now_us: u64) {
         let mut est = self.est.lock().await;
         for (ch, (model, how)) in models.iter().enumerate() {
             est.install_boot(ch, *model);
-            let crc = crate::store::model_crc(model);
+            let crc = crate::store::crc(model);
             self.with_control(|c| {
                 let what = c.store.booted(ch, model, *how, crc);
                 let ch = ch as u8;
@@ -1342,13 +1421,13 @@ impl Shared {
 
     /// One pass of the persist task's bookkeeping around a flash write: the model to write,
     /// if any ([`Control::persist_begin`], one short lock).
-    pub fn persist_begin(&self, now_us: u64) -> Option<(u8, PolyModel)> {
+    pub fn persist_begin(&self, now_us: u64) -> Option<(u8, Model)> {
         self.with_control(|c| c.persist_begin(now_us))
     }
 
     /// The write of `model` on `ch` ended ([`Control::persist_end`]; CRC outside the lock).
-    pub fn persist_end(&self, ch: usize, model: &PolyModel, ok: bool, now_us: u64) {
-        let crc = crate::store::model_crc(model);
+    pub fn persist_end(&self, ch: usize, model: &Model, ok: bool, now_us: u64) {
+        let crc = crate::store::crc(model);
         self.with_control(|c| c.persist_end(ch, crc, ok, now_us));
     }
 
@@ -1554,6 +1633,7 @@ impl Shared {
                 self.with_control(|c| c.set_origin(*axes, steps))?;
                 for a in axes.iter() {
                     est.chambers[a].hist.clear();
+                    est.chambers[a].reset_chain(cfg.frame_dt());
                 }
             }
             Command::Model {
@@ -1571,13 +1651,14 @@ impl Shared {
                     // The committed model waits for rest to be written to flash; its CRC is
                     // computed here, outside the lock.
                     let ch = *ch as usize;
-                    let model = *est.model(ch);
-                    let crc = crate::store::model_crc(&model);
+                    let model = est.full_model(ch);
+                    let crc = crate::store::crc(&model);
                     self.with_control(|c| c.store.committed(ch, &model, crc));
                 }
                 self.post(events);
                 r?;
             }
+            Command::ModelEffect { ch, kind, params } => est.model_effect(*ch, *kind, params)?,
             Command::Rls { ch, lambda } => est.rls(*ch as usize, *lambda)?,
             Command::Checksum { require } => match require {
                 Some(r) => self.link.lock(|l| {

@@ -753,3 +753,152 @@ fn checksum_mode_is_set_by_command_and_applies_to_every_line() {
     assert_eq!(reply(&checked("checksum optional")), "ok");
     assert_eq!(reply("stop"), "ok");
 }
+
+/// SBA1 with an effect chain on chamber `ch`, as upload lines.
+fn chain_lines(ch: u8, effects: &[&str]) -> Vec<String> {
+    let d = model_core::poly::sba1();
+    let sc = d.scaling();
+    let mut lines = model_lines(
+        ch,
+        [3, 2, 0],
+        [sc.v_offset, sc.v_scale, sc.f_offset, sc.f_scale],
+        d.scaled(),
+        &[],
+    );
+    let commit = lines.pop().unwrap();
+    lines.extend(effects.iter().map(|e| format!("model {ch} effect {e}")));
+    lines.push(commit);
+    lines
+}
+
+#[test]
+fn a_chain_is_uploaded_read_back_and_covered_by_the_crc() {
+    let (mut s, t) = zeroed(0.0);
+    assert_eq!(
+        cmd(&mut s, "model 1 effect sensor_lag 0.2", t),
+        Err(CommandError::NoStagedModel)
+    );
+    let lines = chain_lines(1, &["sensor_lag 0.2", "hysteresis 4 0.5 -0.25"]);
+    let (commit, staging) = lines.split_last().unwrap();
+    load(&s.shared, staging);
+    // Refused effects leave the staged chain as it was: a second sensor lag, a negative leak.
+    let bad = CommandError::Model(ModelError::BadParameter);
+    assert_eq!(cmd(&mut s, "model 1 effect sensor_lag 0.3", t), Err(bad));
+    assert_eq!(cmd(&mut s, "model 1 effect leak -1", t), Err(bad));
+    cmd(&mut s, "model 1 effect leak 0.01", t).unwrap();
+    cmd(&mut s, "model 1 effect backlash 0.5", t).unwrap();
+    assert_eq!(
+        cmd(&mut s, "model 1 effect inertance 0", t),
+        Err(CommandError::Model(ModelError::BadLength)),
+        "a fifth effect"
+    );
+    load(&s.shared, std::slice::from_ref(commit));
+    // Read back in evaluation order, each value parsing back to the same f32.
+    let read = |s: &mut S, i: usize| cmd(s, &format!("model 1 read effect {i}"), t);
+    assert_eq!(read(&mut s, 0).unwrap(), " backlash 0.5");
+    assert_eq!(read(&mut s, 1).unwrap(), " leak 0.01");
+    assert_eq!(read(&mut s, 2).unwrap(), " hysteresis 4 0.5 -0.25");
+    assert_eq!(read(&mut s, 3).unwrap(), " sensor_lag 0.2");
+    // The CRC is that of the version-2 bytes, computed here bit by bit from the same values.
+    let mut chain = model_core::chain::Chain::new();
+    for (k, p) in [
+        (EffectKind::SensorLag, &[0.2f32][..]),
+        (EffectKind::Hysteresis, &[4.0, 0.5, -0.25][..]),
+        (EffectKind::Leak, &[0.01][..]),
+        (EffectKind::Backlash, &[0.5][..]),
+    ] {
+        chain.push(Effect::new(k, p).unwrap()).unwrap();
+    }
+    let m = Model {
+        poly: model_core::poly::sba1(),
+        chain,
+    };
+    let mut b = [0u8; crate::store::MODEL_BYTES];
+    let n = crate::store::encode(&m, &mut b);
+    let want = crate::reset::tests::crc32_bitwise(&b[..n]);
+    let out = cmd(&mut s, "model 1 read crc", t).unwrap();
+    assert_eq!(out, format!(" {want:#010x} pending"));
+    assert_ne!(want, crate::store::model_crc(&model_core::poly::sba1()));
+    // `default` drops the chain.
+    cmd(&mut s, "model 1 default", t).unwrap();
+    assert_eq!(
+        read(&mut s, 0),
+        Err(CommandError::OutOfRangeArg { index: 4 })
+    );
+}
+
+/// Frames of a move of chamber 0 from 100 to `to` mm³ at 40 mm³/s, measured pressure from
+/// SBA1 plus 0.3 kPa (so the residual and the force are not zero).
+fn move_frames(s: &mut S, t: u64, to: f32, frames: usize) -> (Vec<Frame>, u64) {
+    cmd(s, &format!("move 0 {to} 40 400"), t).unwrap();
+    let mut out = Vec::new();
+    let mut now = t;
+    while out.len() < frames {
+        now += DT;
+        step_until(s, now);
+        let v = s.motion().position(0) as f32 * Config::default().motion.mm3_per_step;
+        let p = table_iv(v as f64, 0.0) as f32 + 0.3;
+        if let Some(f) = s.on_oversample([code(p), code(0.0), code(0.0)], now) {
+            out.push(f);
+        }
+    }
+    (out, now)
+}
+
+#[test]
+fn the_estimator_runs_the_chain_bit_for_bit_and_resets_it_at_origin() {
+    let (mut s, t) = zeroed(0.0);
+    let effects = [
+        "hysteresis 6 0.8 0.1",
+        "sensor_lag 0.15",
+        "delivery_lag 0.05",
+    ];
+    load(&s.shared, &chain_lines(0, &effects));
+    cmd(&mut s, "origin 0 100", t).unwrap();
+    let (frames, now) = move_frames(&mut s, t, 160.0, 60);
+    // The same frames through model-core's chain, evaluated here from a fresh state.
+    let mut chain = model_core::chain::Chain::new();
+    for (k, p) in [
+        (EffectKind::Hysteresis, &[6.0f32, 0.8, 0.1][..]),
+        (EffectKind::SensorLag, &[0.15][..]),
+        (EffectKind::DeliveryLag, &[0.05][..]),
+    ] {
+        chain.push(Effect::new(k, p).unwrap()).unwrap();
+    }
+    let model = model_core::poly::sba1();
+    let mut st = ChainState::new();
+    let hist = ArHistory::new();
+    let mut moved = 0.0f32;
+    for f in &frames {
+        let c = &f.chambers[0];
+        let inp = ChainInput {
+            v: c.v,
+            vdot: c.vdot,
+            p: c.p,
+            dt: 0.04,
+        };
+        let e = chain.eval(&model, &hist, &mut st, inp).unwrap();
+        assert_eq!(c.p_hat.to_bits(), e.p.to_bits(), "seq {}", f.seq);
+        assert_eq!(
+            (c.k.to_bits(), c.c.to_bits()),
+            (e.k.to_bits(), e.c.to_bits())
+        );
+        assert_eq!(c.residual.to_bits(), (c.p - e.p).to_bits());
+        moved = moved.max(libm::fabsf(e.p - e.p_poly));
+    }
+    assert!(moved > 0.3, "the chain changes P̂ by up to {moved} kPa");
+    // `origin` at rest resets the state: the next frame is the first of a fresh chain (h = 0,
+    // lags at rest), i.e. the bare polynomial.
+    let mut now = now;
+    step_until(&mut s, now + 3_000_000);
+    now += 3_000_000;
+    cmd(&mut s, "origin 0 200", now).unwrap();
+    let mut f = None;
+    while f.is_none() {
+        now += DT;
+        f = s.on_oversample([code(3.0), code(0.0), code(0.0)], now);
+    }
+    let c = f.unwrap().chambers[0];
+    assert_eq!(c.v, 200.0);
+    assert_eq!(c.p_hat, model.eval(200.0, 0.0).unwrap().p);
+}

@@ -22,6 +22,8 @@
 //! | `model <ch> default` | reinstall the paper's SBA1 model |
 //! | `model <ch> read` | `ok <n> <m> <p> <v_off> <v_scale> <f_off> <f_scale>` of the installed model |
 //! | `model <ch> read coef <index>` / `model <ch> read ar <index>` | `ok` and up to 8 installed (scaled, flattened AR) coefficients from `index` |
+//! | `model <ch> effect <name> <param>…` | add an effect to the staged model's chain (`model_core::chain`; at most 4, one per kind): `hysteresis <w> <H0> <H1>`, `sensor_lag <tau>`, `delivery_lag <tau>`, `transport_delay <d>`, `backlash <b>`, `inertance <L>`, `pump_ripple <period> <a> <b>`, `air_compliance <V_a>`, `leak <lambda>` (mm³, kPa, s) |
+//! | `model <ch> read effect <index>` | `ok <name> <param>…` of the installed chain's effect `index` (in evaluation order); `err out-of-range 4` past the last |
 //! | `rls <ch> on [<lambda>]` / `rls <ch> off` | online RLS identification (chamber force-free!) |
 //! | `checksum require` / `checksum optional` / `checksum` | require a checksum on every line, or not; alone: `ok require` or `ok optional` |
 //!
@@ -50,6 +52,7 @@
 
 use core::fmt;
 use core::str::FromStr;
+use model_core::chain::{EffectKind, MAX_EFFECTS, MAX_EFFECT_PARAMS};
 
 use heapless::Vec;
 
@@ -147,6 +150,11 @@ pub enum ReadPart {
         /// Index of the first value.
         start: u8,
     },
+    /// The installed chain's effect `index`: `<name> <param>…`.
+    Effect {
+        /// Index in the chain's evaluation order.
+        index: u8,
+    },
     /// The committed model's CRC-32 and where it stands against flash
     /// ([`crate::store`]): `<crc hex> flash|pending|failed|default`.
     Crc,
@@ -198,6 +206,17 @@ pub enum Command {
         ch: u8,
         /// What to do.
         cmd: ModelCmd,
+    },
+    /// `model <ch> effect …`: add an effect to the staged model's chain. A command of its own
+    /// rather than a [`ModelCmd`], so that host code matching every `ModelCmd` of a bare upload
+    /// keeps compiling.
+    ModelEffect {
+        /// Channel.
+        ch: u8,
+        /// Which effect.
+        kind: EffectKind,
+        /// Its parameters (exactly `kind.params()`).
+        params: Vec<f32, MAX_EFFECT_PARAMS>,
     },
     /// Online RLS on or off.
     Rls {
@@ -475,6 +494,24 @@ pub fn parse(line: &[u8]) -> Result<Command, ParseError> {
                     start: w.int(0u8, 2 * model_core::poly::MAX_AR as u8 - 1)?,
                     values: w.floats()?,
                 },
+                "effect" => {
+                    let (j, name) = w.word()?;
+                    let kind =
+                        EffectKind::from_name(name).ok_or(ParseError::Invalid { index: j })?;
+                    let params: Vec<f32, MAX_EFFECT_PARAMS> = w.floats()?;
+                    if params.len() < kind.params() {
+                        return Err(ParseError::Missing {
+                            index: j + 1 + params.len() as u8,
+                        });
+                    }
+                    if params.len() > kind.params() {
+                        return Err(ParseError::TooMany {
+                            index: j + 1 + kind.params() as u8,
+                        });
+                    }
+                    w.end()?;
+                    return Ok(Command::ModelEffect { ch, kind, params });
+                }
                 "commit" => ModelCmd::Commit,
                 "default" => ModelCmd::Default,
                 "read" => ModelCmd::Read(match w.next_word() {
@@ -486,6 +523,9 @@ pub fn parse(line: &[u8]) -> Result<Command, ParseError> {
                         start: w.int(0u8, 2 * model_core::poly::MAX_AR as u8 - 1)?,
                     },
                     Some((_, "crc")) => ReadPart::Crc,
+                    Some((_, "effect")) => ReadPart::Effect {
+                        index: w.int(0u8, MAX_EFFECTS as u8 - 1)?,
+                    },
                     Some((j, _)) => return Err(ParseError::Invalid { index: j }),
                 }),
                 _ => return Err(ParseError::Invalid { index: i }),
@@ -853,6 +893,46 @@ mod tests {
             Err(ParseError::OutOfRange { index: 7 })
         );
         assert_eq!(p("model 0 frob"), Err(ParseError::Invalid { index: 2 }));
+        match p("model 2 effect hysteresis 8 0.4 -1e-2").unwrap() {
+            Command::ModelEffect {
+                ch: 2,
+                kind,
+                params,
+            } => {
+                assert_eq!(kind, EffectKind::Hysteresis);
+                assert_eq!(params.as_slice(), &[8.0, 0.4, -1e-2]);
+            }
+            other => panic!("{other:?}"),
+        }
+        assert_eq!(
+            p("model 0 read effect 3"),
+            Ok(Command::Model {
+                ch: 0,
+                cmd: ModelCmd::Read(ReadPart::Effect { index: 3 })
+            })
+        );
+        // Unknown (or clock-tied) name, too few and too many parameters, a non-finite one.
+        assert_eq!(
+            p("model 0 effect ripple 1"),
+            Err(ParseError::Invalid { index: 3 })
+        );
+        assert_eq!(
+            p("model 0 effect hysteresis 8 0.4"),
+            Err(ParseError::Missing { index: 6 })
+        );
+        assert_eq!(
+            p("model 0 effect sensor_lag 0.1 0.2"),
+            Err(ParseError::TooMany { index: 5 })
+        );
+        assert_eq!(
+            p("model 0 effect sensor_lag"),
+            Err(ParseError::Missing { index: 4 })
+        );
+        assert!(p("model 0 effect leak nan").is_err());
+        assert_eq!(
+            p("model 0 read effect 4"),
+            Err(ParseError::OutOfRange { index: 4 })
+        );
         assert_eq!(
             p("model 0 read coef 64"),
             Err(ParseError::OutOfRange { index: 4 })
@@ -1163,6 +1243,35 @@ mod tests {
             let _ = parse(line.as_bytes());
         }
 
+        /// `model <ch> effect …` with random names and numbers: never panics; an accepted line
+        /// names a known effect with exactly its number of finite parameters.
+        #[test]
+        fn never_panics_on_effect_lines(
+            name in prop_oneof![
+                Just("hysteresis".to_string()), Just("sensor_lag".to_string()),
+                Just("pump_ripple".to_string()), Just("ripple".to_string()), "[a-z_]{0,12}",
+            ],
+            nums in proptest::collection::vec(
+                prop_oneof!["-?[0-9]{1,4}", "[0-9]{1,3}\\.[0-9]e-?[0-9]", Just("nan".to_string()),
+                    Just("inf".to_string()), "\\PC{1,3}"],
+                0..5),
+        ) {
+            let line = format!("model 1 effect {name} {}", nums.join(" "));
+            match parse(line.as_bytes()) {
+                Ok(Command::ModelEffect { ch: 1, kind, params }) => {
+                    prop_assert_eq!(kind.name(), name.as_str());
+                    prop_assert_eq!(params.len(), kind.params());
+                    prop_assert!(params.iter().all(|x| x.is_finite()));
+                }
+                Ok(other) => prop_assert!(false, "{line:?} parsed as {other:?}"),
+                Err(ParseError::Missing { index } | ParseError::Invalid { index }
+                    | ParseError::OutOfRange { index } | ParseError::TooMany { index }) => {
+                    prop_assert!((3..=8).contains(&index), "{line:?}: word {index}")
+                }
+                Err(e) => prop_assert_eq!(e, ParseError::NotAscii, "{:?}", line),
+            }
+        }
+
         /// `model <ch> read …` with random tails: never panics; an accepted line is a read of
         /// an index in range, anything else is an `err` naming a word of the line.
         #[test]
@@ -1171,7 +1280,7 @@ mod tests {
             tail in proptest::collection::vec(
                 prop_oneof![
                     Just("coef".to_string()), Just("ar".to_string()), Just("read".to_string()),
-                    "-?[0-9]{1,4}", "[0-9]{1,3}\\.[0-9]", "[a-z]{1,4}", "\\PC{1,3}",
+                    Just("effect".to_string()), "-?[0-9]{1,4}", "[0-9]{1,3}\\.[0-9]", "[a-z]{1,4}", "\\PC{1,3}",
                 ],
                 0..4),
         ) {
@@ -1187,6 +1296,7 @@ mod tests {
                         ReadPart::Ar { start } => {
                             prop_assert!((start as usize) < 2 * model_core::poly::MAX_AR)
                         }
+                        ReadPart::Effect { index } => prop_assert!((index as usize) < MAX_EFFECTS),
                     }
                 }
                 Ok(other) => prop_assert!(false, "{line:?} parsed as {other:?}"),

@@ -8,17 +8,19 @@
 //! cut an update at every byte). A channel whose key is missing or unreadable boots on the
 //! built-in default, [`model_core::poly::sba1`], and says so on a `store` event.
 //!
-//! # Serialised model (version 1)
+//! # Serialised model (version 1 without effects, 2 with)
 //! | bytes | content |
 //! | --- | --- |
-//! | 0 | [`MODEL_VERSION`] |
+//! | 0 | [`MODEL_VERSION`] (1), or [`CHAIN_VERSION`] (2) when the model has an effect chain |
 //! | 1, 2, 3 | n, m, p |
 //! | 4..20 | v_offset, v_scale, f_offset, f_scale (`f32` little-endian) |
 //! | then | the (n+1)(m+1) scaled coefficients b_ij, index i·(m+1)+j (`f32` LE) |
 //! | then | the 2p flattened AR coefficients b₁₁ b₁₂ b₂₁ … (`f32` LE) |
+//! | version 2 only | the number of effects e (1..=4), then per effect, in the chain's evaluation order (`model_core::chain::EffectKind::ALL`): its code (the index in that list, one byte) and its parameters (`f32` LE, as many as the kind takes) |
 //!
-//! The model's CRC ([`model_crc`]) is the CRC-32/ISO-HDLC (zlib's CRC-32) of exactly these
-//! bytes: `status` and `model <ch> read crc` report it, so a host tool that serialises the model
+//! A model without effects serialises exactly as before the chain existed, so its CRC is
+//! unchanged. The model's CRC ([`model_crc`], [`crc`]) is the CRC-32/ISO-HDLC (zlib's CRC-32) of
+//! exactly these bytes: `status` and `model <ch> read crc` report it, so a host tool that serialises the model
 //! it sent the same way can check, bit for bit, what the board committed.
 //!
 //! # When the board writes
@@ -35,6 +37,7 @@
 use core::ops::Range;
 
 use embedded_storage_async::nor_flash::NorFlash;
+use model_core::chain::{Chain, Effect, EffectKind, MAX_EFFECTS, MAX_EFFECT_PARAMS};
 use model_core::poly::{PolyModel, Scaling, Shape, MAX_AR, MAX_TERMS};
 use sequential_storage::cache::{Cache, Uncached};
 use sequential_storage::map::{MapConfig, MapStorage, SerializationError, Value};
@@ -43,17 +46,83 @@ use crate::hal::AXES;
 use crate::reset::CRC32;
 use crate::telemetry::Flags;
 
-/// Version byte of the serialised model.
+/// Version byte of the serialised model without effects.
 pub const MODEL_VERSION: u8 = 1;
+/// Version byte of the serialised model with an effect chain.
+pub const CHAIN_VERSION: u8 = 2;
 /// Header bytes: version, n, m, p, four scaling floats.
 const HEADER: usize = 4 + 16;
-/// Longest serialised model, bytes.
-pub const MODEL_BYTES: usize = HEADER + 4 * (MAX_TERMS + 2 * MAX_AR);
+/// Longest serialised polynomial, bytes.
+const POLY_BYTES: usize = HEADER + 4 * (MAX_TERMS + 2 * MAX_AR);
+/// Longest serialised model (polynomial and a full chain), bytes.
+pub const MODEL_BYTES: usize = POLY_BYTES + 1 + MAX_EFFECTS * (1 + 4 * MAX_EFFECT_PARAMS);
+
+/// A committed model: the polynomial and its effect chain.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Model {
+    /// The polynomial (poly-AR) model.
+    pub poly: PolyModel,
+    /// The effects evaluated around it (empty: the bare polynomial).
+    pub chain: Chain,
+}
+
+impl From<PolyModel> for Model {
+    fn from(poly: PolyModel) -> Self {
+        Model {
+            poly,
+            chain: Chain::new(),
+        }
+    }
+}
+
+impl From<&PolyModel> for Model {
+    fn from(poly: &PolyModel) -> Self {
+        Model::from(*poly)
+    }
+}
+
+impl From<&Model> for Model {
+    fn from(m: &Model) -> Self {
+        *m
+    }
+}
+
+impl Model {
+    /// The built-in default: the paper's SBA1 model without effects.
+    pub fn default_model() -> Self {
+        Model::from(model_core::poly::sba1())
+    }
+}
+
+/// Serialise `model` with its chain into `out` (see the module docs); returns the length.
+pub fn encode(model: &Model, out: &mut [u8; MODEL_BYTES]) -> usize {
+    let mut at = encode_poly(&model.poly, out);
+    let effects = model.chain.effects();
+    if effects.is_empty() {
+        return at;
+    }
+    out[0] = CHAIN_VERSION;
+    out[at] = effects.len() as u8;
+    at += 1;
+    for e in effects {
+        out[at] = e.kind().rank();
+        at += 1;
+        for x in e.params() {
+            out[at..at + 4].copy_from_slice(&x.to_le_bytes());
+            at += 4;
+        }
+    }
+    at
+}
+
+/// Serialise a model without effects (version 1) into `out`; returns the length.
+pub fn encode_model(model: &PolyModel, out: &mut [u8; MODEL_BYTES]) -> usize {
+    encode_poly(model, out)
+}
 /// A command less than this long ago (µs) defers a pending write.
 pub const QUIET_US: u64 = 300_000;
 
-/// Serialise `model` into `out` (see the module docs); returns the length.
-pub fn encode_model(model: &PolyModel, out: &mut [u8; MODEL_BYTES]) -> usize {
+fn encode_poly(model: &PolyModel, out: &mut [u8; MODEL_BYTES]) -> usize {
     let sh = model.shape();
     let sc = model.scaling();
     out[..4].copy_from_slice(&[MODEL_VERSION, sh.n, sh.m, sh.p]);
@@ -81,19 +150,30 @@ pub enum DecodeError {
     Model,
 }
 
-/// Parse what [`encode_model`] wrote.
+/// Parse what [`encode_model`] or [`encode`] wrote, keeping only the polynomial.
 pub fn decode_model(b: &[u8]) -> Result<PolyModel, DecodeError> {
+    decode(b).map(|m| m.poly)
+}
+
+/// Parse what [`encode`] wrote.
+pub fn decode(b: &[u8]) -> Result<Model, DecodeError> {
     let (&version, rest) = b.split_first().ok_or(DecodeError::Length)?;
-    if version != MODEL_VERSION {
+    if version != MODEL_VERSION && version != CHAIN_VERSION {
         return Err(DecodeError::Version(version));
     }
     let [n, m, p] = *rest.first_chunk::<3>().ok_or(DecodeError::Length)?;
     let shape = Shape::new(n, m, p).map_err(|_| DecodeError::Length)?;
     let (terms, ar_len) = (shape.poly_terms(), 2 * p as usize);
-    if b.len() != HEADER + 4 * (terms + ar_len) {
+    let poly_len = HEADER + 4 * (terms + ar_len);
+    let ok_len = if version == MODEL_VERSION {
+        b.len() == poly_len
+    } else {
+        b.len() > poly_len
+    };
+    if !ok_len {
         return Err(DecodeError::Length);
     }
-    let mut floats = b[4..]
+    let mut floats = b[4..poly_len]
         .chunks_exact(4)
         .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]));
     let mut next = || floats.next().unwrap_or(f32::NAN);
@@ -104,24 +184,62 @@ pub fn decode_model(b: &[u8]) -> Result<PolyModel, DecodeError> {
     ar[..p as usize]
         .iter_mut()
         .for_each(|a| *a = [next(), next()]);
-    PolyModel::from_scaled(shape, &coef[..terms], &ar[..p as usize], scaling)
-        .map_err(|_| DecodeError::Model)
+    let poly = PolyModel::from_scaled(shape, &coef[..terms], &ar[..p as usize], scaling)
+        .map_err(|_| DecodeError::Model)?;
+    let chain = if version == CHAIN_VERSION {
+        decode_chain(&b[poly_len..])?
+    } else {
+        Chain::new()
+    };
+    Ok(Model { poly, chain })
 }
 
-/// CRC-32/ISO-HDLC of the serialised model.
+/// The chain part of a version-2 model: count, then code and parameters per effect, exactly.
+fn decode_chain(b: &[u8]) -> Result<Chain, DecodeError> {
+    let (&count, mut rest) = b.split_first().ok_or(DecodeError::Length)?;
+    if count == 0 || count as usize > MAX_EFFECTS {
+        return Err(DecodeError::Length);
+    }
+    let mut chain = Chain::new();
+    for _ in 0..count {
+        let (&code, tail) = rest.split_first().ok_or(DecodeError::Length)?;
+        let kind = EffectKind::from_rank(code).ok_or(DecodeError::Model)?;
+        let n = kind.params();
+        let bytes = tail.get(..4 * n).ok_or(DecodeError::Length)?;
+        let mut params = [0.0f32; MAX_EFFECT_PARAMS];
+        for (x, c) in params.iter_mut().zip(bytes.chunks_exact(4)) {
+            *x = f32::from_le_bytes([c[0], c[1], c[2], c[3]]);
+        }
+        let e = Effect::new(kind, &params[..n]).map_err(|_| DecodeError::Model)?;
+        chain.push(e).map_err(|_| DecodeError::Model)?;
+        rest = &tail[4 * n..];
+    }
+    if !rest.is_empty() {
+        return Err(DecodeError::Length);
+    }
+    Ok(chain)
+}
+
+/// CRC-32/ISO-HDLC of the serialised model without effects (what a host that sends a bare
+/// polynomial checks against).
 pub fn model_crc(model: &PolyModel) -> u32 {
+    crc(&Model::from(model))
+}
+
+/// CRC-32/ISO-HDLC of the serialised model with its chain.
+pub fn crc(model: &Model) -> u32 {
     let mut buf = [0u8; MODEL_BYTES];
-    let n = encode_model(model, &mut buf);
+    let n = encode(model, &mut buf);
     CRC32.checksum(&buf[..n])
 }
 
 /// A model as a map value.
-struct Stored(PolyModel);
+struct Stored(Model);
 
 impl<'a> Value<'a> for Stored {
     fn serialize_into(&self, buffer: &mut [u8]) -> Result<usize, SerializationError> {
         let mut b = [0u8; MODEL_BYTES];
-        let n = encode_model(&self.0, &mut b);
+        let n = encode(&self.0, &mut b);
         buffer
             .get_mut(..n)
             .ok_or(SerializationError::BufferTooSmall)?
@@ -130,7 +248,7 @@ impl<'a> Value<'a> for Stored {
     }
 
     fn deserialize_from(buffer: &'a [u8]) -> Result<(Self, usize), SerializationError> {
-        let m = decode_model(buffer).map_err(|_| SerializationError::InvalidFormat)?;
+        let m = decode(buffer).map_err(|_| SerializationError::InvalidFormat)?;
         Ok((Stored(m), buffer.len()))
     }
 }
@@ -155,9 +273,12 @@ pub enum StoreError {
     Flash,
 }
 
+/// Bytes of the store's item buffer: key, longest value, rounded up to whole words.
+const BUF_BYTES: usize = (1 + MODEL_BYTES + 3) & !3;
+
 /// A word-aligned buffer, as flash drivers want.
 #[repr(C, align(4))]
-struct Buf([u8; 1 + MODEL_BYTES + 3]);
+struct Buf([u8; BUF_BYTES]);
 
 /// The committed models in a flash range, one key per channel.
 pub struct ModelStore<F: NorFlash> {
@@ -172,12 +293,12 @@ impl<F: NorFlash> ModelStore<F> {
         let cfg = MapConfig::try_new(range).map_err(|_| StoreError::Range)?;
         Ok(Self {
             map: MapStorage::new(flash, cfg, Cache::new_uncached()),
-            buf: Buf([0; 1 + MODEL_BYTES + 3]),
+            buf: Buf([0; BUF_BYTES]),
         })
     }
 
     /// The stored model of channel `ch`, if any and valid.
-    pub async fn load(&mut self, ch: u8) -> Result<PolyModel, Loaded> {
+    pub async fn load(&mut self, ch: u8) -> Result<Model, Loaded> {
         match self.map.fetch_item::<Stored>(&mut self.buf.0, &ch).await {
             Ok(Some(Stored(m))) => Ok(m),
             Ok(None) => Err(Loaded::Empty),
@@ -186,21 +307,21 @@ impl<F: NorFlash> ModelStore<F> {
     }
 
     /// Every channel's model for boot: the stored one, or the built-in default with the reason.
-    pub async fn load_all(&mut self) -> [(PolyModel, Loaded); AXES] {
-        let mut out = [(model_core::poly::sba1(), Loaded::Empty); AXES];
+    pub async fn load_all(&mut self) -> [(Model, Loaded); AXES] {
+        let mut out = [(Model::default_model(), Loaded::Empty); AXES];
         for (ch, o) in out.iter_mut().enumerate() {
             *o = match self.load(ch as u8).await {
                 Ok(m) => (m, Loaded::Stored),
-                Err(why) => (model_core::poly::sba1(), why),
+                Err(why) => (Model::default_model(), why),
             };
         }
         out
     }
 
-    /// Store `model` as channel `ch`'s.
-    pub async fn save(&mut self, ch: u8, model: &PolyModel) -> Result<(), StoreError> {
+    /// Store `model` (a [`Model`], or a bare polynomial) as channel `ch`'s.
+    pub async fn save(&mut self, ch: u8, model: impl Into<Model>) -> Result<(), StoreError> {
         self.map
-            .store_item(&mut self.buf.0, &ch, &Stored(*model))
+            .store_item(&mut self.buf.0, &ch, &Stored(model.into()))
             .await
             .map_err(|_| StoreError::Flash)
     }
@@ -280,7 +401,7 @@ impl StoreEvent {
 /// it is in flash. Part of [`State`](crate::app::State).
 #[derive(Clone, Debug)]
 pub struct Persist {
-    committed: [PolyModel; AXES],
+    committed: [Model; AXES],
     crc: [u32; AXES],
     saved: [Saved; AXES],
     /// Commits per channel, so that a write knows whether its model is still the latest.
@@ -299,10 +420,10 @@ impl Default for Persist {
 impl Persist {
     /// Boot state before the store is read: the default model, not from flash.
     pub fn new() -> Self {
-        let m = model_core::poly::sba1();
+        let m = Model::default_model();
         Self {
             committed: [m; AXES],
-            crc: [model_crc(&m); AXES],
+            crc: [crc(&m); AXES],
             saved: [Saved::Default; AXES],
             generation: [0; AXES],
             writing: None,
@@ -310,9 +431,9 @@ impl Persist {
         }
     }
 
-    /// Channel `ch` booted on `model` (CRC-32 `crc`, [`model_crc`]), found as `how`; returns
+    /// Channel `ch` booted on `model` (CRC-32 `crc`, [`crc`](fn@crc)), found as `how`; returns
     /// the event to report.
-    pub fn booted(&mut self, ch: usize, model: &PolyModel, how: Loaded, crc: u32) -> StoreEvent {
+    pub fn booted(&mut self, ch: usize, model: &Model, how: Loaded, crc: u32) -> StoreEvent {
         self.committed[ch] = *model;
         self.crc[ch] = crc;
         let (saved, ev) = match how {
@@ -324,9 +445,9 @@ impl Persist {
         ev
     }
 
-    /// A model was committed on `ch` (CRC-32 `crc`, [`model_crc`], computed by the caller
+    /// A model was committed on `ch` (CRC-32 `crc`, [`crc`](fn@crc), computed by the caller
     /// outside any critical section): it waits for rest to be written.
-    pub fn committed(&mut self, ch: usize, model: &PolyModel, crc: u32) {
+    pub fn committed(&mut self, ch: usize, model: &Model, crc: u32) {
         self.committed[ch] = *model;
         self.crc[ch] = crc;
         self.saved[ch] = Saved::Pending;
@@ -373,7 +494,7 @@ impl Persist {
     /// Start writing a pending model if the board is `at_rest` and the command port has been
     /// quiet for [`QUIET_US`]: returns the channel and the model to write, and refuses motion
     /// until [`end`](Self::end).
-    pub fn begin(&mut self, at_rest: bool, now_us: u64) -> Option<(u8, PolyModel)> {
+    pub fn begin(&mut self, at_rest: bool, now_us: u64) -> Option<(u8, Model)> {
         let quiet = self
             .last_command_us
             .is_none_or(|t| now_us.saturating_sub(t) >= QUIET_US);
@@ -431,7 +552,7 @@ pub async fn persist_once<F: NorFlash, G: FlashGuard>(
         return false;
     };
     guard.before();
-    let r = store.save(ch, &model).await;
+    let r = store.save(ch, model).await;
     guard.after();
     let now = embassy_time::Instant::now().as_micros();
     shared.persist_end(ch as usize, &model, r.is_ok(), now);

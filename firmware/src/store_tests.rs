@@ -25,15 +25,28 @@ fn store(f: Flash) -> ModelStore<Flash> {
     ModelStore::new(f, RANGE).expect("range of whole pages")
 }
 
-/// A model distinguishable by `k`: the default's coefficients scaled by (1 + k/64).
-fn variant(k: u32) -> PolyModel {
+/// A model distinguishable by `k`: the default's coefficients scaled by (1 + k/64); odd `k`
+/// also carry an effect chain (hysteresis of width 4 + k/8 mm³ and a sensor lag), so the
+/// store's tests write items of both versions.
+fn variant(k: u32) -> Model {
     let d = model_core::poly::sba1();
     let coef: Vec<f32> = d
         .scaled()
         .iter()
         .map(|c| c * (1.0 + k as f32 / 64.0))
         .collect();
-    PolyModel::from_scaled(d.shape(), &coef, d.ar(), d.scaling()).unwrap()
+    let poly = PolyModel::from_scaled(d.shape(), &coef, d.ar(), d.scaling()).unwrap();
+    let mut chain = Chain::new();
+    if k % 2 == 1 {
+        let hyst = [4.0 + k as f32 / 8.0, 0.3, -0.05];
+        chain
+            .push(Effect::new(EffectKind::Hysteresis, &hyst).unwrap())
+            .unwrap();
+        chain
+            .push(Effect::new(EffectKind::SensorLag, &[0.1]).unwrap())
+            .unwrap();
+    }
+    Model { poly, chain }
 }
 
 /// A poly-AR model with every field in use (n = 2, m = 1, p = 2).
@@ -66,16 +79,108 @@ fn serialised_model_by_hand() {
     assert_eq!(n, 20 + 4 * 12);
     assert_eq!(decode_model(&b[..n]), Ok(d));
     assert_eq!(model_crc(&d), crc32_bitwise(&b[..n]));
-    assert_ne!(model_crc(&d), model_crc(&variant(1)));
+    assert_ne!(model_crc(&d), crc(&variant(2)));
+    assert_ne!(crc(&variant(2)), crc(&variant(1)));
+}
+
+#[test]
+fn serialised_chain_by_hand() {
+    // The default polynomial with a sensor lag and a hysteresis added in that order: stored in
+    // evaluation order (hysteresis, code 5, before sensor lag, code 8).
+    let d = model_core::poly::sba1();
+    let mut chain = Chain::new();
+    chain
+        .push(Effect::new(EffectKind::SensorLag, &[0.25]).unwrap())
+        .unwrap();
+    chain
+        .push(Effect::new(EffectKind::Hysteresis, &[6.0, 0.5, -0.125]).unwrap())
+        .unwrap();
+    let m = Model { poly: d, chain };
+    let mut b = [0u8; MODEL_BYTES];
+    let n = encode(&m, &mut b);
+    let poly = 20 + 4 * 12;
+    assert_eq!(n, poly + 1 + (1 + 12) + (1 + 4));
+    assert_eq!(b[0], CHAIN_VERSION);
+    let mut bare = [0u8; MODEL_BYTES];
+    assert_eq!(encode_model(&d, &mut bare), poly);
+    assert_eq!(
+        &b[1..poly],
+        &bare[1..poly],
+        "the polynomial's bytes are unchanged"
+    );
+    assert_eq!(b[poly], 2);
+    assert_eq!(b[poly + 1], 5);
+    assert_eq!(&b[poly + 2..poly + 6], &6.0f32.to_le_bytes());
+    assert_eq!(&b[poly + 10..poly + 14], &(-0.125f32).to_le_bytes());
+    assert_eq!(b[poly + 14], 8);
+    assert_eq!(&b[poly + 15..poly + 19], &0.25f32.to_le_bytes());
+    assert_eq!(decode(&b[..n]), Ok(m));
+    assert_eq!(crc(&m), crc32_bitwise(&b[..n]));
+    assert_ne!(crc(&m), model_crc(&d));
+    // Without effects: version 1, the CRC a host computes for a bare polynomial.
+    assert_eq!(crc(&Model::from(d)), model_crc(&d));
+    // Truncated, trailing bytes, no effects, an unknown code, a bad parameter, a duplicate.
+    assert_eq!(decode(&b[..n - 1]), Err(DecodeError::Length));
+    let mut long = b;
+    long[n] = 0;
+    assert_eq!(decode(&long[..n + 1]), Err(DecodeError::Length));
+    let mut zero = b;
+    zero[poly] = 0;
+    assert_eq!(decode(&zero[..n]), Err(DecodeError::Length));
+    let mut code = b;
+    code[poly + 14] = 9;
+    assert_eq!(decode(&code[..n]), Err(DecodeError::Model));
+    let mut neg = b;
+    neg[poly + 15..poly + 19].copy_from_slice(&(-1.0f32).to_le_bytes());
+    assert_eq!(decode(&neg[..n]), Err(DecodeError::Model));
+    let mut dup = b;
+    dup[poly] = 2;
+    dup[poly + 1] = 8;
+    dup[poly + 2..poly + 6].copy_from_slice(&0.5f32.to_le_bytes());
+    dup[poly + 6] = 8;
+    dup[poly + 7..poly + 11].copy_from_slice(&0.25f32.to_le_bytes());
+    assert_eq!(decode(&dup[..poly + 11]), Err(DecodeError::Model));
+}
+
+#[test]
+fn the_longest_model_fits_the_buffer_and_a_small_page() {
+    // n = m = 7, p = 5 and four effects, two of them with three parameters: exactly
+    // MODEL_BYTES short of the two one-parameter effects' 8 bytes; stored and read back on
+    // 512-byte pages.
+    let shape = Shape::new(7, 7, 5).unwrap();
+    let coef: Vec<f32> = (0..64).map(|i| 1.0 / (1.0 + i as f32)).collect();
+    let poly = PolyModel::from_scaled(shape, &coef, &[[0.1, -0.1]; 5], Scaling::SBA1).unwrap();
+    let mut chain = Chain::new();
+    for (k, p) in [
+        (EffectKind::Hysteresis, &[5.0, 0.1, 0.2][..]),
+        (EffectKind::PumpRipple, &[8.0, 0.1, -0.1][..]),
+        (EffectKind::SensorLag, &[0.1][..]),
+        (EffectKind::Leak, &[0.01][..]),
+    ] {
+        chain.push(Effect::new(k, p).unwrap()).unwrap();
+    }
+    let m = Model { poly, chain };
+    let mut b = [0u8; MODEL_BYTES];
+    assert_eq!(encode(&m, &mut b), MODEL_BYTES - 2 * 8);
+    let mut st = small(SmallFlash::new(WriteCountCheck::OnceOnly, None, true));
+    for _ in 0..5 {
+        block_on(st.save(0, &m)).unwrap();
+    }
+    let mut st = small(st.into_flash());
+    assert_eq!(block_on(st.load(0)), Ok(m));
 }
 
 #[test]
 fn bad_bytes_are_refused() {
     let mut b = [0u8; MODEL_BYTES];
     let n = encode_model(&ar_model(), &mut b);
+    let mut v3 = b;
+    v3[0] = 3;
+    assert_eq!(decode_model(&v3[..n]), Err(DecodeError::Version(3)));
+    // Version 2 promises a chain after the polynomial.
     let mut v2 = b;
     v2[0] = 2;
-    assert_eq!(decode_model(&v2[..n]), Err(DecodeError::Version(2)));
+    assert_eq!(decode_model(&v2[..n]), Err(DecodeError::Length));
     assert_eq!(decode_model(&b[..n - 4]), Err(DecodeError::Length));
     assert_eq!(decode_model(&b[..n + 4]), Err(DecodeError::Length));
     assert_eq!(decode_model(&[]), Err(DecodeError::Length));
@@ -102,15 +207,15 @@ fn empty_store_boots_on_the_default_and_a_save_survives_a_reboot() {
     let mut st = store(flash());
     let boot = block_on(st.load_all());
     for (m, how) in boot {
-        assert_eq!((m, how), (model_core::poly::sba1(), Loaded::Empty));
+        assert_eq!((m, how), (Model::default_model(), Loaded::Empty));
     }
     block_on(st.save(1, &ar_model())).unwrap();
     block_on(st.save(2, &variant(3))).unwrap();
     // Reboot: a new store over the same flash.
     let mut st = store(st.into_flash());
     let boot = block_on(st.load_all());
-    assert_eq!(boot[0], (model_core::poly::sba1(), Loaded::Empty));
-    assert_eq!(boot[1], (ar_model(), Loaded::Stored));
+    assert_eq!(boot[0], (Model::default_model(), Loaded::Empty));
+    assert_eq!(boot[1], (Model::from(ar_model()), Loaded::Stored));
     assert_eq!(boot[2], (variant(3), Loaded::Stored));
 }
 
@@ -148,7 +253,7 @@ fn small(f: SmallFlash) -> ModelStore<SmallFlash> {
 /// that erases and migrates.
 #[test]
 fn a_power_cut_at_any_byte_leaves_the_old_or_the_new_model() {
-    let others = [ar_model(), variant(99)];
+    let others = [Model::from(ar_model()), variant(99)];
     let mut checked = 0u32;
     let mut longest = 0u32;
     let mut saw_old = false;
@@ -228,7 +333,7 @@ fn a_corrupt_or_foreign_store_boots_on_the_default() {
     }
     let mut st = store(f);
     for (m, how) in block_on(st.load_all()) {
-        assert_eq!(m, model_core::poly::sba1());
+        assert_eq!(m, Model::default_model());
         assert_ne!(how, Loaded::Stored);
     }
 
@@ -251,9 +356,9 @@ fn a_corrupt_or_foreign_store_boots_on_the_default() {
     block_on(st.map.store_item(&mut buf, &0u8, &Raw(&b[..n]))).unwrap();
     block_on(st.save(1, &ar_model())).unwrap();
     let boot = block_on(st.load_all());
-    assert_eq!(boot[0], (model_core::poly::sba1(), Loaded::Invalid));
-    assert_eq!(boot[1], (ar_model(), Loaded::Stored));
-    assert_eq!(boot[2], (model_core::poly::sba1(), Loaded::Empty));
+    assert_eq!(boot[0], (Model::default_model(), Loaded::Invalid));
+    assert_eq!(boot[1], (Model::from(ar_model()), Loaded::Stored));
+    assert_eq!(boot[2], (Model::default_model(), Loaded::Empty));
 }
 
 #[test]
@@ -305,7 +410,7 @@ impl App {
             sampler: Sampler::new(&cfg),
         }
     }
-    fn restore_models(&mut self, models: &[(PolyModel, Loaded); AXES], now: u64) {
+    fn restore_models(&mut self, models: &[(Model, Loaded); AXES], now: u64) {
         block_on(self.shared.restore_models(models, now));
     }
     fn pop_event(&mut self) -> Option<crate::telemetry::Event> {
@@ -327,10 +432,10 @@ impl App {
     fn flags(&self) -> Flags {
         self.shared.lock(|s| s.flags())
     }
-    fn persist_begin(&self, now: u64) -> Option<(u8, PolyModel)> {
+    fn persist_begin(&self, now: u64) -> Option<(u8, Model)> {
         self.shared.persist_begin(now)
     }
-    fn persist_end(&self, ch: usize, model: &PolyModel, ok: bool, now: u64) {
+    fn persist_end(&self, ch: usize, model: &Model, ok: bool, now: u64) {
         self.shared.persist_end(ch, model, ok, now);
     }
 }
@@ -374,9 +479,9 @@ fn boot_announces_what_each_channel_loaded() {
     let d = model_core::poly::sba1();
     s.restore_models(
         &[
-            (ar_model(), Loaded::Stored),
-            (d, Loaded::Empty),
-            (d, Loaded::Invalid),
+            (Model::from(ar_model()), Loaded::Stored),
+            (Model::from(d), Loaded::Empty),
+            (Model::from(d), Loaded::Invalid),
         ],
         7,
     );
@@ -423,7 +528,7 @@ fn a_commit_is_written_only_at_rest_and_after_the_port_is_quiet() {
     cmd(&mut s, "stop", t + 2).unwrap();
     let now = t + 2 + QUIET_US;
     let (ch, model) = s.persist_begin(now).expect("at rest and quiet");
-    assert_eq!((ch, model), (1, model_core::poly::sba1()));
+    assert_eq!((ch, model), (1, Model::default_model()));
     // While it writes, motion is refused and no second write starts.
     assert_eq!(cmd(&mut s, "move 0 10", now), Err(CommandError::Busy));
     assert_eq!(s.persist_begin(now + QUIET_US), None);
@@ -469,6 +574,6 @@ fn the_persist_task_writes_the_committed_model_to_flash() {
     assert!(block_on(persist_once(&app.shared, &mut st, &mut ())));
     assert_eq!(app.saved(2), Saved::Flash);
     let mut st = store(st.into_flash());
-    assert_eq!(block_on(st.load(2)), Ok(model_core::poly::sba1()));
+    assert_eq!(block_on(st.load(2)), Ok(Model::default_model()));
     assert_eq!(block_on(st.load(0)), Err(Loaded::Empty));
 }

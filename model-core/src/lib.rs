@@ -6,6 +6,8 @@
 //!
 //! - [`poly`]: polynomial / poly-AR model P̂(v, v̇), stiffness k = ∂P/∂v, damping c = ∂P/∂v̇, the
 //!   C·v̇ + K split, regressors, and the paper's SBA1 model.
+//! - [`chain`]: the effect chain (hysteresis, lags, delay, backlash, inertance, pump ripple, air,
+//!   leak) evaluated around the polynomial once per frame.
 //! - [`exp`]: the physics-inspired exponential model.
 //! - [`rls`]: online identification (U-D factored recursive least squares with forgetting).
 //! - [`force`]: external force from pressure residuals.
@@ -48,6 +50,7 @@
 // Index loops mirror the subscripts of the documented equations.
 #![allow(clippy::needless_range_loop)]
 
+pub mod chain;
 mod error;
 pub mod exp;
 pub mod force;

@@ -442,7 +442,18 @@ impl LogData {
         chamber: Option<u8>,
         cfg: &DatasetConfig,
     ) -> Result<LogData, LoadError> {
-        let log = crate::log::read_log(path)?;
+        Self::read_with(path, chamber, cfg, &crate::log::ReadOptions::default())
+    }
+
+    /// [`read`](Self::read) for a file with its own column names, units or chamber numbering
+    /// ([`crate::columns`]): the mapping happens in the reader, so what follows is the same path.
+    pub fn read_with(
+        path: &Path,
+        chamber: Option<u8>,
+        cfg: &DatasetConfig,
+        opts: &crate::log::ReadOptions,
+    ) -> Result<LogData, LoadError> {
+        let log = crate::log::read_log_with(path, opts)?;
         Self::from_log(path, log, chamber, cfg)
     }
 

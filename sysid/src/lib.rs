@@ -9,8 +9,11 @@
 //! (RMSE, R²adj, AICc, BIC, joint cost) → [`identify`] (the paper's §II–III in one call) →
 //! [`export`] (coefficients for the device) → [`deploy`] (the firmware's command protocol over any
 //! `Read + Write`). [`residual`] traces a model's residual to physical effects; [`diag`] holds the
-//! paper's §IV analyses; [`record`] turns the firmware's telemetry into a log.
+//! paper's §IV analyses; [`record`] turns the firmware's telemetry into a log, [`capture`] reads it
+//! one line at a time.
 
+pub mod capture;
+pub mod columns;
 pub mod cycles;
 pub mod dataset;
 pub mod deploy;

@@ -24,6 +24,9 @@ use std::fmt;
 use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
 
+pub use crate::columns::ReadOptions;
+use crate::columns::{Mapping, Quantity};
+
 /// Number of actuation channels a log may address (`chamber` is `0..MAX_CHAMBERS`).
 pub const MAX_CHAMBERS: u8 = 3;
 
@@ -143,17 +146,19 @@ pub enum LogError {
         /// "no header row" or "no data rows".
         what: &'static str,
     },
-    /// A required column is absent from the header.
-    #[error("{file}:{line}: missing required column `{column}` (header has: {header})")]
+    /// A required column (or one `--columns` names) is absent from the header.
+    #[error("{file}:{line}: missing column `{column}` (header has: {header}); {hint}")]
     MissingColumn {
         /// File name as given.
         file: String,
         /// Line of the header row.
         line: u64,
         /// The missing column's name.
-        column: &'static str,
+        column: String,
         /// The header as found.
         header: String,
+        /// How to map it (`--columns`).
+        hint: String,
     },
     /// A column name appears twice in the header.
     #[error("{file}:{line}: column `{column}` appears twice in the header")]
@@ -172,22 +177,28 @@ pub enum LogError {
         file: String,
         /// 1-based line number.
         line: u64,
-        /// Column name.
-        column: &'static str,
+        /// Column name (the file's header).
+        column: String,
         /// The cell as found.
         value: String,
         /// "cannot parse as a number", "not finite:", ...
         problem: &'static str,
     },
-    /// `chamber` is not one of 0, 1, 2.
-    #[error("{file}:{line}: column `chamber`: {value:?} is not a chamber index 0..=2")]
+    /// `chamber` is not one of 0, 1, 2 (1, 2, 3 with `--chamber-base 1`).
+    #[error("{file}:{line}: column `{column}`: {value:?} is not a chamber number {first}..={last}{}", if *first == 0 { " (for numbers from 1 use --chamber-base 1)" } else { "" })]
     BadChamber {
         /// File name as given.
         file: String,
         /// 1-based line number.
         line: u64,
+        /// The chamber column's header.
+        column: String,
         /// The cell as found.
         value: String,
+        /// The first chamber's number in the file.
+        first: u8,
+        /// The last chamber's number in the file.
+        last: u8,
     },
     /// `time_s` does not increase within a chamber.
     #[error(
@@ -209,37 +220,52 @@ pub enum LogError {
 
 /// Reads a log file. See the module docs for the rules.
 pub fn read_log(path: impl AsRef<Path>) -> Result<Log, LogError> {
+    read_log_with(path, &ReadOptions::default())
+}
+
+/// Reads a log file whose columns are named or scaled differently, or whose chambers count from
+/// 1 ([`ReadOptions`], `--columns` and `--chamber-base` on the command line).
+pub fn read_log_with(path: impl AsRef<Path>, opts: &ReadOptions) -> Result<Log, LogError> {
     let path = path.as_ref();
     let file = path.display().to_string();
     let f = std::fs::File::open(path).map_err(|source| LogError::Io {
         file: file.clone(),
         source,
     })?;
-    parse_log(std::io::BufReader::new(f), &file)
+    parse_log_with(std::io::BufReader::new(f), &file, opts)
 }
 
-/// Index of each known column in the header.
+/// One known column found in the header: where, as which header, and its unit's factor.
+#[derive(Clone)]
+struct Col {
+    index: usize,
+    name: String,
+    factor: f64,
+}
+
+/// The known columns found in the header.
 struct Columns {
-    time: usize,
-    chamber: Option<usize>,
-    volume: usize,
-    flow: Option<usize>,
-    pressure: usize,
-    force: Option<usize>,
+    time: Col,
+    chamber: Option<Col>,
+    volume: Col,
+    flow: Option<Col>,
+    pressure: Col,
+    force: Option<Col>,
     extra: Vec<usize>,
+    chamber_base: u8,
 }
-
-const KNOWN: [&str; 6] = [
-    "time_s",
-    "chamber",
-    "volume_mm3",
-    "flow_mm3_s",
-    "pressure_kpa",
-    "force_n",
-];
 
 /// Parses a log from any reader; `file` names it in errors.
-pub fn parse_log(mut reader: impl Read, file: &str) -> Result<Log, LogError> {
+pub fn parse_log(reader: impl Read, file: &str) -> Result<Log, LogError> {
+    parse_log_with(reader, file, &ReadOptions::default())
+}
+
+/// [`parse_log`] with a column map and chamber numbering.
+pub fn parse_log_with(
+    mut reader: impl Read,
+    file: &str,
+    opts: &ReadOptions,
+) -> Result<Log, LogError> {
     let mut bytes = Vec::new();
     reader
         .read_to_end(&mut bytes)
@@ -247,183 +273,43 @@ pub fn parse_log(mut reader: impl Read, file: &str) -> Result<Log, LogError> {
             file: file.into(),
             source,
         })?;
-    let text = std::str::from_utf8(&bytes).map_err(|e| {
-        let line = 1 + bytes[..e.valid_up_to()]
-            .iter()
-            .filter(|&&b| b == b'\n')
-            .count() as u64;
-        LogError::Malformed {
-            file: file.into(),
-            line,
-            message: "invalid UTF-8".into(),
-        }
-    })?;
-    let mut log = Log::default();
-    for l in text.lines() {
-        if let Some(c) = l.trim_start().strip_prefix('#') {
-            log.comments.push(
-                c.strip_prefix(' ')
-                    .unwrap_or(c)
-                    .trim_end_matches('\r')
-                    .to_string(),
-            );
-        }
-    }
-
+    let text = utf8(&bytes, file)?;
+    let text = text.strip_prefix('\u{feff}').unwrap_or(text);
+    let mut log = Log {
+        comments: comment_lines(text),
+        ..Log::default()
+    };
     let mut rdr = csv::ReaderBuilder::new()
         .has_headers(false)
+        .delimiter(detect_delimiter(text))
         .comment(Some(b'#'))
         .trim(csv::Trim::All)
         .flexible(false)
         .from_reader(text.as_bytes());
-    let malformed = |e: csv::Error| {
-        let line = e.position().map_or(0, |p| p.line());
-        let message = match e.kind() {
-            csv::ErrorKind::UnequalLengths {
-                expected_len, len, ..
-            } => {
-                format!("row has {len} fields but the header has {expected_len}")
-            }
-            _ => e.to_string(),
-        };
-        LogError::Malformed {
-            file: file.into(),
-            line,
-            message,
-        }
-    };
-
     let mut records = rdr.records();
-    let header = loop {
-        match records.next() {
-            None => {
-                return Err(LogError::Empty {
-                    file: file.into(),
-                    what: "no header row",
-                })
-            }
-            Some(r) => {
-                let r = r.map_err(malformed)?;
-                // Blank lines are skipped by the reader; a header of one empty field is not a header.
-                if r.iter().any(|f| !f.is_empty()) {
-                    break r;
-                }
-            }
-        }
-    };
-    let header_line = header.position().map_or(1, |p| p.line());
-    let names: Vec<String> = header.iter().map(str::to_string).collect();
-    for (i, n) in names.iter().enumerate() {
-        if names[..i].contains(n) {
-            return Err(LogError::DuplicateColumn {
-                file: file.into(),
-                line: header_line,
-                column: n.clone(),
-            });
-        }
-    }
-    let find = |name: &str| names.iter().position(|n| n == name);
-    let required = |name: &'static str| {
-        find(name).ok_or_else(|| LogError::MissingColumn {
-            file: file.into(),
-            line: header_line,
-            column: name,
-            header: names.join(","),
-        })
-    };
-    let cols = Columns {
-        time: required("time_s")?,
-        chamber: find("chamber"),
-        volume: required("volume_mm3")?,
-        flow: find("flow_mm3_s"),
-        pressure: required("pressure_kpa")?,
-        force: find("force_n"),
-        extra: (0..names.len())
-            .filter(|&i| !KNOWN.contains(&names[i].as_str()))
-            .collect(),
-    };
+    let (names, header_line) = header(&mut records, file)?;
+    let cols = Columns::find(&names, header_line, file, opts)?;
     log.extra_columns = cols.extra.iter().map(|&i| names[i].clone()).collect();
-
     let mut last_time = [f64::NEG_INFINITY; MAX_CHAMBERS as usize];
     for rec in records {
-        let rec = rec.map_err(malformed)?;
-        let line = rec.position().map_or(0, |p| p.line());
-        let cell = |i: usize| rec.get(i).unwrap_or("");
-        let number = |i: usize, column: &'static str| -> Result<Option<f64>, LogError> {
-            let s = cell(i);
-            if s.is_empty() {
-                return Ok(None);
-            }
-            let bad = |problem| LogError::BadValue {
-                file: file.into(),
-                line,
-                column,
-                value: s.into(),
-                problem,
-            };
-            let x: f64 = s.parse().map_err(|_| bad("cannot parse as a number:"))?;
-            if x.is_finite() {
-                Ok(Some(x))
-            } else {
-                Err(bad("not a finite number:"))
-            }
-        };
-        let need = |i: usize, column: &'static str| -> Result<f64, LogError> {
-            number(i, column)?.ok_or_else(|| LogError::BadValue {
-                file: file.into(),
-                line,
-                column,
-                value: String::new(),
-                problem: "required value is empty:",
-            })
-        };
-        let chamber = match cols.chamber {
-            None => 0,
-            Some(i) => {
-                let s = cell(i);
-                match s.parse::<u8>() {
-                    Ok(c) if c < MAX_CHAMBERS => c,
-                    _ => {
-                        return Err(LogError::BadChamber {
-                            file: file.into(),
-                            line,
-                            value: s.into(),
-                        })
-                    }
-                }
-            }
-        };
-        let time_s = need(cols.time, "time_s")?;
-        let previous = last_time[chamber as usize];
-        if time_s <= previous {
+        let rec = rec.map_err(|e| malformed(e, file))?;
+        let sample = cols.sample(&rec, file)?;
+        let c = sample.chamber as usize;
+        if sample.time_s <= last_time[c] {
             return Err(LogError::TimeNotIncreasing {
                 file: file.into(),
-                line,
-                chamber,
-                time: time_s,
-                previous,
+                line: line_of(&rec),
+                chamber: sample.chamber,
+                time: sample.time_s,
+                previous: last_time[c],
             });
         }
-        last_time[chamber as usize] = time_s;
-        log.samples.push(Sample {
-            time_s,
-            chamber,
-            volume_mm3: need(cols.volume, "volume_mm3")?,
-            flow_mm3_s: cols
-                .flow
-                .map(|i| number(i, "flow_mm3_s"))
-                .transpose()?
-                .flatten(),
-            pressure_kpa: need(cols.pressure, "pressure_kpa")?,
-            force_n: cols
-                .force
-                .map(|i| number(i, "force_n"))
-                .transpose()?
-                .flatten(),
-        });
+        last_time[c] = sample.time_s;
+        log.samples.push(sample);
         if !cols.extra.is_empty() {
+            let cell = |i: usize| rec.get(i).unwrap_or("").to_string();
             log.extra
-                .push(cols.extra.iter().map(|&i| cell(i).to_string()).collect());
+                .push(cols.extra.iter().map(|&i| cell(i)).collect());
         }
     }
     if log.samples.is_empty() {
@@ -433,6 +319,242 @@ pub fn parse_log(mut reader: impl Read, file: &str) -> Result<Log, LogError> {
         });
     }
     Ok(log)
+}
+
+fn utf8<'a>(bytes: &'a [u8], file: &str) -> Result<&'a str, LogError> {
+    std::str::from_utf8(bytes).map_err(|e| {
+        let line = 1 + bytes[..e.valid_up_to()]
+            .iter()
+            .filter(|&&b| b == b'\n')
+            .count() as u64;
+        LogError::Malformed {
+            file: file.into(),
+            line,
+            message: "invalid UTF-8".into(),
+        }
+    })
+}
+
+/// The comment lines without `#` (and one following space).
+fn comment_lines(text: &str) -> Vec<String> {
+    text.lines()
+        .filter_map(|l| l.trim_start().strip_prefix('#'))
+        .map(|c| {
+            c.strip_prefix(' ')
+                .unwrap_or(c)
+                .trim_end_matches('\r')
+                .to_string()
+        })
+        .collect()
+}
+
+/// The field delimiter: whichever of `,` `;` and tab occurs most often (outside quotes) in the
+/// header row, the first line that is neither blank nor a comment; `,` when none does.
+pub fn detect_delimiter(text: &str) -> u8 {
+    let Some(header) = text
+        .lines()
+        .find(|l| !l.trim().is_empty() && !l.trim_start().starts_with('#'))
+    else {
+        return b',';
+    };
+    let mut counts = [0usize; 3];
+    let mut quoted = false;
+    for b in header.bytes() {
+        match b {
+            b'"' => quoted = !quoted,
+            b',' if !quoted => counts[0] += 1,
+            b';' if !quoted => counts[1] += 1,
+            b'\t' if !quoted => counts[2] += 1,
+            _ => {}
+        }
+    }
+    let best = (0..3).max_by_key(|&i| (counts[i], std::cmp::Reverse(i)));
+    match best {
+        Some(1) if counts[1] > 0 => b';',
+        Some(2) if counts[2] > 0 => b'\t',
+        _ => b',',
+    }
+}
+
+fn line_of(rec: &csv::StringRecord) -> u64 {
+    rec.position().map_or(0, |p| p.line())
+}
+
+fn malformed(e: csv::Error, file: &str) -> LogError {
+    let line = e.position().map_or(0, |p| p.line());
+    let message = match e.kind() {
+        csv::ErrorKind::UnequalLengths {
+            expected_len, len, ..
+        } => {
+            format!("row has {len} fields but the header has {expected_len}")
+        }
+        _ => e.to_string(),
+    };
+    LogError::Malformed {
+        file: file.into(),
+        line,
+        message,
+    }
+}
+
+/// The header row's names and line; an error when there is none or a name repeats.
+fn header(
+    records: &mut csv::StringRecordsIter<&[u8]>,
+    file: &str,
+) -> Result<(Vec<String>, u64), LogError> {
+    let header = loop {
+        let Some(r) = records.next() else {
+            return Err(LogError::Empty {
+                file: file.into(),
+                what: "no header row",
+            });
+        };
+        let r = r.map_err(|e| malformed(e, file))?;
+        // Blank lines are skipped by the reader; a header of one empty field is not a header.
+        if r.iter().any(|f| !f.is_empty()) {
+            break r;
+        }
+    };
+    let line = header.position().map_or(1, |p| p.line());
+    let names: Vec<String> = header.iter().map(str::to_string).collect();
+    for (i, n) in names.iter().enumerate() {
+        if names[..i].contains(n) {
+            return Err(LogError::DuplicateColumn {
+                file: file.into(),
+                line,
+                column: n.clone(),
+            });
+        }
+    }
+    Ok((names, line))
+}
+
+impl Columns {
+    fn find(
+        names: &[String],
+        line: u64,
+        file: &str,
+        opts: &ReadOptions,
+    ) -> Result<Columns, LogError> {
+        let find = |q: Quantity| {
+            let m = opts.columns.get(q);
+            let index = names.iter().position(|n| *n == m.header)?;
+            Some(Col {
+                index,
+                name: m.header,
+                factor: m.factor,
+            })
+        };
+        let required = |q: Quantity| {
+            find(q).ok_or_else(|| {
+                let m = opts.columns.get(q);
+                LogError::MissingColumn {
+                    file: file.into(),
+                    line,
+                    column: m.header.clone(),
+                    header: names.join(","),
+                    hint: missing_hint(q, &m),
+                }
+            })
+        };
+        // An optional column is optional only under its own name: one `--columns` names must be there.
+        let optional = |q: Quantity| match find(q) {
+            None if opts.columns.get(q).given => required(q).map(Some),
+            found => Ok(found),
+        };
+        let known: Vec<Option<Col>> = Quantity::ALL.iter().map(|&q| find(q)).collect();
+        let extra = (0..names.len())
+            .filter(|&i| !known.iter().flatten().any(|c| c.index == i))
+            .collect();
+        Ok(Columns {
+            time: required(Quantity::Time)?,
+            chamber: optional(Quantity::Chamber)?,
+            volume: required(Quantity::Volume)?,
+            flow: optional(Quantity::Flow)?,
+            pressure: required(Quantity::Pressure)?,
+            force: optional(Quantity::Force)?,
+            extra,
+            chamber_base: opts.chamber_base,
+        })
+    }
+
+    /// One row as a sample (units converted, chamber renumbered), time order not yet checked.
+    fn sample(&self, rec: &csv::StringRecord, file: &str) -> Result<Sample, LogError> {
+        let line = line_of(rec);
+        let number = |c: &Col| -> Result<Option<f64>, LogError> {
+            let s = rec.get(c.index).unwrap_or("");
+            if s.is_empty() {
+                return Ok(None);
+            }
+            let bad = |problem| LogError::BadValue {
+                file: file.into(),
+                line,
+                column: c.name.clone(),
+                value: s.into(),
+                problem,
+            };
+            let x: f64 = s.parse().map_err(|_| bad("cannot parse as a number:"))?;
+            if x.is_finite() {
+                Ok(Some(x * c.factor))
+            } else {
+                Err(bad("not a finite number:"))
+            }
+        };
+        let need = |c: &Col| -> Result<f64, LogError> {
+            number(c)?.ok_or_else(|| LogError::BadValue {
+                file: file.into(),
+                line,
+                column: c.name.clone(),
+                value: String::new(),
+                problem: "required value is empty:",
+            })
+        };
+        let opt = |c: &Option<Col>| c.as_ref().map(number).transpose().map(Option::flatten);
+        Ok(Sample {
+            time_s: need(&self.time)?,
+            chamber: self.chamber(rec, file)?,
+            volume_mm3: need(&self.volume)?,
+            flow_mm3_s: opt(&self.flow)?,
+            pressure_kpa: need(&self.pressure)?,
+            force_n: opt(&self.force)?,
+        })
+    }
+
+    fn chamber(&self, rec: &csv::StringRecord, file: &str) -> Result<u8, LogError> {
+        let Some(c) = &self.chamber else {
+            return Ok(0);
+        };
+        let s = rec.get(c.index).unwrap_or("");
+        let base = self.chamber_base;
+        match s.parse::<u8>() {
+            Ok(n) if n >= base && n - base < MAX_CHAMBERS => Ok(n - base),
+            _ => Err(LogError::BadChamber {
+                file: file.into(),
+                line: line_of(rec),
+                column: c.name.clone(),
+                value: s.into(),
+                first: base,
+                last: base + MAX_CHAMBERS - 1,
+            }),
+        }
+    }
+}
+
+/// What to do about a missing column: name it with `--columns` (or fix the name given there).
+fn missing_hint(q: Quantity, m: &Mapping) -> String {
+    if m.given {
+        format!(
+            "--columns maps `{}` to `{}`, which the header does not have",
+            q.key(),
+            m.header
+        )
+    } else {
+        format!(
+            "if the file names it differently, map it with --columns {}=NAME[:UNIT] \
+             (see docs/log-format.md)",
+            q.key()
+        )
+    }
 }
 
 /// Writes a log file (comments, then header, then rows). `flow_mm3_s` and `force_n` columns are
@@ -456,42 +578,64 @@ pub fn write_log_to(w: &mut impl Write, log: &Log) -> std::io::Result<()> {
     for c in &log.comments {
         writeln!(w, "# {c}")?;
     }
-    let has_flow = log.samples.iter().any(|s| s.flow_mm3_s.is_some());
-    let has_force = log.samples.iter().any(|s| s.force_n.is_some());
+    let layout = RowLayout {
+        flow: log.samples.iter().any(|s| s.flow_mm3_s.is_some()),
+        force: log.samples.iter().any(|s| s.force_n.is_some()),
+    };
     let mut csvw = csv::WriterBuilder::new().has_headers(false).from_writer(w);
-    let mut header = vec!["time_s", "chamber", "volume_mm3"];
-    if has_flow {
-        header.push("flow_mm3_s");
-    }
-    header.push("pressure_kpa");
-    if has_force {
-        header.push("force_n");
-    }
-    header.extend(log.extra_columns.iter().map(String::as_str));
-    csvw.write_record(&header)?;
-    let opt = |x: Option<f64>| x.map(|x| x.to_string()).unwrap_or_default();
-    let mut row: Vec<String> = Vec::with_capacity(header.len());
+    csvw.write_record(layout.header(&log.extra_columns))?;
+    let mut row: Vec<String> = Vec::new();
+    let none = vec![String::new(); log.extra_columns.len()];
     for (i, s) in log.samples.iter().enumerate() {
-        row.clear();
-        row.push(s.time_s.to_string());
-        row.push(s.chamber.to_string());
-        row.push(s.volume_mm3.to_string());
-        if has_flow {
-            row.push(opt(s.flow_mm3_s));
-        }
-        row.push(s.pressure_kpa.to_string());
-        if has_force {
-            row.push(opt(s.force_n));
-        }
-        if let Some(extra) = log.extra.get(i) {
-            row.extend(extra.iter().cloned());
-        } else {
-            row.extend(std::iter::repeat_n(String::new(), log.extra_columns.len()));
-        }
+        layout.row(s, log.extra.get(i).unwrap_or(&none), &mut row);
         csvw.write_record(&row)?;
     }
     csvw.flush()?;
     Ok(())
+}
+
+/// Which optional known columns a written log carries: the one definition of the written header
+/// and rows ([`write_log_to`], and `vfp record`'s streaming writer).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct RowLayout {
+    /// Whether `flow_mm3_s` is written.
+    pub flow: bool,
+    /// Whether `force_n` is written.
+    pub force: bool,
+}
+
+impl RowLayout {
+    /// The header fields: the known columns in the format's order, then `extra`.
+    pub fn header<'a>(&self, extra: &'a [String]) -> Vec<&'a str> {
+        let mut h = vec!["time_s", "chamber", "volume_mm3"];
+        if self.flow {
+            h.push("flow_mm3_s");
+        }
+        h.push("pressure_kpa");
+        if self.force {
+            h.push("force_n");
+        }
+        h.extend(extra.iter().map(String::as_str));
+        h
+    }
+
+    /// One row's fields into `row` (cleared first): numbers in shortest round-trip form, an
+    /// unrecorded optional value empty, then the extra cells verbatim.
+    pub fn row(&self, s: &Sample, extra: &[String], row: &mut Vec<String>) {
+        let opt = |x: Option<f64>| x.map(|x| x.to_string()).unwrap_or_default();
+        row.clear();
+        row.push(s.time_s.to_string());
+        row.push(s.chamber.to_string());
+        row.push(s.volume_mm3.to_string());
+        if self.flow {
+            row.push(opt(s.flow_mm3_s));
+        }
+        row.push(s.pressure_kpa.to_string());
+        if self.force {
+            row.push(opt(s.force_n));
+        }
+        row.extend(extra.iter().cloned());
+    }
 }
 
 impl fmt::Display for Sample {

@@ -11,6 +11,11 @@
 //! columns `seq, flags, p_hat_kpa, residual_kpa, k_kpa_per_mm3, c_kpa_s_per_mm3, force_est_n`.
 //! Event lines (zero offsets, faults, model loads) become `# event …` comments.
 //!
+//! [`convert`] converts a whole capture in memory; [`Recorder`] does the same conversion as a
+//! stream (what `vfp record` uses): rows are written as their frames arrive, comments where their
+//! line was read, the totals (`# sample_rate_hz=…`, `# frames=…`, …) at the end, and nothing
+//! grows with the capture.
+//!
 //! # Nothing is lost silently
 //! - A jump in the frame sequence number is a **gap**: the missing range is reported with the
 //!   capture line where it was noticed, and written into the log's comments.
@@ -29,13 +34,16 @@
 //! shortest decimal that reads back to the same `f32` — the digits printed on the telemetry line —
 //! so the log shows what the device sent, digit for digit.
 
+use std::collections::BTreeMap;
 use std::fmt::Write as _;
-use std::io::BufRead;
+use std::io::{BufRead, Write};
 use std::path::Path;
 
-use firmware::telemetry::{self, EventKind, Frame, Line};
+use firmware::telemetry::{EventKind, Frame};
 
-use crate::log::{Log, Sample};
+use crate::capture::{classify, CaptureLine};
+
+use crate::log::{Log, RowLayout, Sample};
 
 /// Names of the extra columns, in order.
 pub const EXTRA_COLUMNS: [&str; 7] = [
@@ -112,17 +120,39 @@ pub struct Recording {
     pub other_lines: usize,
     /// Sequence number of the first frame (a capture may start mid-run).
     pub first_seq: Option<u32>,
+    /// Totals. [`convert`] keeps every gap, bad line and restart in the lists above; the
+    /// streaming [`Recorder`] keeps the first few (the log has them all as comments) and counts
+    /// the rest here, so its memory does not grow with the capture.
+    pub counts: Counts,
+}
+
+/// Totals of a capture.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize)]
+pub struct Counts {
+    /// Log rows written (one per chamber per frame).
+    pub rows: usize,
+    /// Sequence gaps.
+    pub gaps: usize,
+    /// Frames missing in all gaps.
+    pub missing_frames: u64,
+    /// Lines with a telemetry marker that did not decode.
+    pub corrupted: usize,
+    /// Frames that decoded but could not become log rows.
+    pub rejected: usize,
+    /// Reboots.
+    pub restarts: usize,
 }
 
 impl Recording {
     /// Frames missing in all gaps.
     pub fn missing_frames(&self) -> u64 {
-        self.gaps.iter().map(Gap::frames).sum()
+        self.counts.missing_frames
     }
 
     /// Whether every frame between the first and the last arrived and every line was usable.
     pub fn is_complete(&self) -> bool {
-        self.gaps.is_empty() && self.corrupted.is_empty() && self.rejected.is_empty()
+        let n = &self.counts;
+        n.gaps == 0 && n.corrupted == 0 && n.rejected == 0
     }
 
     /// A human summary: counts, then the first gaps and bad lines by line number.
@@ -131,11 +161,7 @@ impl Recording {
         let _ = writeln!(
             s,
             "{source}: {} lines, {} frames ({} log rows), {} events, {} other lines",
-            self.lines,
-            self.frames,
-            self.log.samples.len(),
-            self.events,
-            self.other_lines
+            self.lines, self.frames, self.counts.rows, self.events, self.other_lines
         );
         if let Some(q) = self.first_seq.filter(|&q| q != 0) {
             let _ = writeln!(
@@ -147,7 +173,7 @@ impl Recording {
             s,
             "  missing frames: {} in {} gap(s)",
             self.missing_frames(),
-            self.gaps.len()
+            self.counts.gaps
         );
         for g in self.gaps.iter().take(LIST_LIMIT) {
             let _ = writeln!(
@@ -159,18 +185,18 @@ impl Recording {
                 g.line
             );
         }
-        more(&mut s, self.gaps.len());
-        for (what, list) in [
-            ("corrupted lines", &self.corrupted),
-            ("rejected frames", &self.rejected),
+        more(&mut s, self.counts.gaps);
+        for (what, list, n) in [
+            ("corrupted lines", &self.corrupted, self.counts.corrupted),
+            ("rejected frames", &self.rejected, self.counts.rejected),
         ] {
-            let _ = writeln!(s, "  {what}: {}", list.len());
+            let _ = writeln!(s, "  {what}: {n}");
             for b in list.iter().take(LIST_LIMIT) {
                 let _ = writeln!(s, "    line {}: {}", b.line, b.reason);
             }
-            more(&mut s, list.len());
+            more(&mut s, n);
         }
-        for r in &self.restarts {
+        for r in self.restarts.iter().take(LIST_LIMIT) {
             let _ = writeln!(
                 s,
                 "  board restarted before line {} (seq {}); time continues (+{:.3} s)",
@@ -179,6 +205,7 @@ impl Recording {
                 r.time_offset_us as f64 * 1e-6
             );
         }
+        more(&mut s, self.counts.restarts);
         s
     }
 }
@@ -213,89 +240,271 @@ pub enum RecordError {
     },
 }
 
-/// Removes ANSI escape sequences (`ESC [ … final`), which `probe-rs` adds on a terminal.
-fn strip_ansi(s: &str) -> std::borrow::Cow<'_, str> {
-    if !s.contains('\x1b') {
-        return s.into();
-    }
-    let mut out = String::with_capacity(s.len());
-    let mut it = s.chars().peekable();
-    while let Some(c) = it.next() {
-        if c != '\x1b' {
-            out.push(c);
-            continue;
-        }
-        if it.peek() == Some(&'[') {
-            it.next();
-            // Parameters and intermediates up to the final byte in '@'..='~'.
-            for d in it.by_ref() {
-                if ('@'..='~').contains(&d) {
-                    break;
-                }
-            }
-        }
-    }
-    out.into()
-}
-
-/// The telemetry part of a printed line: from the `$` marker, with a location suffix that some
-/// printer formats put on the same line (`… (src/x.rs:12)`, `… @ src/x.rs:12`) removed.
-fn telemetry_part(text: &str) -> Option<&str> {
-    let start = [telemetry::FRAME_TAG, telemetry::EVENT_TAG]
-        .iter()
-        .filter_map(|t| text.find(t))
-        .min()?;
-    let rest = text[start..].trim_end();
-    for sep in [" └─", " @ ", " ("] {
-        if let Some(i) = rest.find(sep) {
-            return Some(rest[..i].trim_end());
-        }
-    }
-    Some(rest)
-}
-
 /// The shortest decimal of an `f32`, as the device printed it, read as `f64`.
 fn decimal(x: f32) -> f64 {
     // Display prints the shortest round-trip digits; parsing them as f64 keeps those digits.
     format!("{x}").parse().unwrap_or(f64::NAN)
 }
 
-/// State of the conversion between lines.
+/// A comment the conversion of one line produced.
+enum Note {
+    /// An event line (`# event at …`).
+    Event(String),
+    /// A gap, a bad line or a restart (the same text as in the end-of-capture lists).
+    Problem(String),
+}
+
+/// State of the conversion between lines. Each [`line`](Converter::line) leaves its output (log
+/// rows and comments) in `rows` and `notes` for the caller to take.
 struct Converter {
     rec: Recording,
+    /// Keep every gap, bad line and restart in the lists (else the first [`LIST_LIMIT`]).
+    keep_all: bool,
     last: Option<(u32, u64)>,
     boot_seen: bool,
     offset_us: u64,
     /// Largest time written so far (with offset), µs.
     last_time_us: Option<u64>,
-    periods: Vec<u64>,
+    /// Frame periods seen, µs → how often (a handful of distinct values on a healthy link).
+    periods: BTreeMap<u64, u64>,
+    rows: Vec<(Sample, Vec<String>)>,
+    notes: Vec<Note>,
 }
 
-/// Converts a capture. Never fails on bad lines (they are reported in the [`Recording`]); fails
-/// only when the input cannot be read or holds no frame at all.
-pub fn convert(mut reader: impl BufRead, source: &str) -> Result<Recording, RecordError> {
-    let mut c = Converter {
-        rec: Recording {
-            log: Log {
-                extra_columns: EXTRA_COLUMNS.iter().map(|s| s.to_string()).collect(),
-                ..Log::default()
+impl Converter {
+    fn new(keep_all: bool) -> Self {
+        Converter {
+            rec: Recording {
+                log: Log {
+                    extra_columns: EXTRA_COLUMNS.iter().map(|s| s.to_string()).collect(),
+                    ..Log::default()
+                },
+                frames: 0,
+                events: 0,
+                gaps: Vec::new(),
+                corrupted: Vec::new(),
+                rejected: Vec::new(),
+                restarts: Vec::new(),
+                lines: 0,
+                other_lines: 0,
+                first_seq: None,
+                counts: Counts::default(),
             },
-            frames: 0,
-            events: 0,
-            gaps: Vec::new(),
-            corrupted: Vec::new(),
-            rejected: Vec::new(),
-            restarts: Vec::new(),
-            lines: 0,
-            other_lines: 0,
-            first_seq: None,
-        },
-        last: None,
-        boot_seen: false,
-        offset_us: 0,
-        last_time_us: None,
-        periods: Vec::new(),
-    };
+            keep_all,
+            last: None,
+            boot_seen: false,
+            offset_us: 0,
+            last_time_us: None,
+            periods: BTreeMap::new(),
+            rows: Vec::new(),
+            notes: Vec::new(),
+        }
+    }
+
+    /// Converts one capture line (with or without its line terminator), classified by
+    /// [`capture::classify`](crate::capture::classify), the one reading of a captured line.
+    fn line(&mut self, bytes: &[u8]) {
+        self.rec.lines += 1;
+        let no = self.rec.lines;
+        match classify(bytes) {
+            CaptureLine::Other(_) => self.rec.other_lines += 1,
+            CaptureLine::Corrupted(why) => self.corrupted(no, why),
+            CaptureLine::Event(ev, part) => {
+                self.rec.events += 1;
+                if matches!(ev.kind, EventKind::Boot { .. }) {
+                    self.boot_seen = true;
+                }
+                self.notes.push(Note::Event(format!(
+                    "event at {:.6} s (capture line {no}): {part}",
+                    (ev.t_us + self.offset_us) as f64 * 1e-6
+                )));
+            }
+            CaptureLine::Frame(f) => self.frame(&f, no),
+        }
+    }
+
+    /// Median frame period so far, µs.
+    fn median_period(&self) -> Option<u64> {
+        let n: u64 = self.periods.values().sum();
+        let mut seen = 0;
+        self.periods.iter().find_map(|(&p, &k)| {
+            seen += k;
+            (seen > n / 2).then_some(p)
+        })
+    }
+
+    /// The frame rate from the median period, Hz (0 when unknown), rounded to 1 mHz.
+    fn rate_hz(&self) -> f64 {
+        self.median_period()
+            .map_or(0.0, |p| (1e6 / p as f64 * 1000.0).round() / 1000.0)
+    }
+
+    fn corrupted(&mut self, line: usize, reason: String) {
+        let b = BadLine { line, reason };
+        self.notes.push(Note::Problem(corrupted_comment(&b)));
+        self.rec.counts.corrupted += 1;
+        if self.keep(self.rec.corrupted.len()) {
+            self.rec.corrupted.push(b);
+        }
+    }
+
+    fn rejected(&mut self, line: usize, reason: String) {
+        let b = BadLine { line, reason };
+        self.notes.push(Note::Problem(rejected_comment(&b)));
+        self.rec.counts.rejected += 1;
+        if self.keep(self.rec.rejected.len()) {
+            self.rec.rejected.push(b);
+        }
+    }
+
+    fn gap(&mut self, g: Gap) {
+        self.notes.push(Note::Problem(gap_comment(&g)));
+        self.rec.counts.gaps += 1;
+        self.rec.counts.missing_frames += g.frames();
+        if self.keep(self.rec.gaps.len()) {
+            self.rec.gaps.push(g);
+        }
+    }
+
+    fn restart(&mut self, r: Restart) {
+        self.notes.push(Note::Problem(restart_comment(&r)));
+        self.rec.counts.restarts += 1;
+        if self.keep(self.rec.restarts.len()) {
+            self.rec.restarts.push(r);
+        }
+    }
+
+    fn keep(&self, len: usize) -> bool {
+        self.keep_all || len < LIST_LIMIT
+    }
+
+    /// Checks a frame's place in the sequence; `false` when it was rejected.
+    fn sequence(&mut self, f: &Frame, line: usize) -> bool {
+        let Some((seq, t_us)) = self.last else {
+            return true;
+        };
+        let restarted = f.seq <= seq && (self.boot_seen || f.seq == 0);
+        if restarted {
+            // Continue time one median period after the last frame written.
+            let period = self.median_period().unwrap_or(40_000);
+            let end = self.last_time_us.unwrap_or(0) + period;
+            self.offset_us = end.saturating_sub(f.t_us);
+            self.restart(Restart {
+                line,
+                seq: f.seq,
+                time_offset_us: self.offset_us,
+            });
+        } else if f.seq <= seq {
+            let why = format!(
+                "seq {} does not follow seq {seq} (duplicate or out of order)",
+                f.seq
+            );
+            self.rejected(line, why);
+            return false;
+        } else if f.t_us <= t_us {
+            let why = format!("seq {}: time {} us is not after {t_us} us", f.seq, f.t_us);
+            self.rejected(line, why);
+            return false;
+        } else {
+            if f.seq > seq + 1 {
+                self.gap(Gap {
+                    line,
+                    first: seq + 1,
+                    last: f.seq - 1,
+                });
+            }
+            let period = (f.t_us - t_us) / u64::from(f.seq - seq);
+            *self.periods.entry(period).or_default() += 1;
+        }
+        true
+    }
+
+    fn frame(&mut self, f: &Frame, line: usize) {
+        if !self.sequence(f, line) {
+            return;
+        }
+        self.boot_seen = false;
+        self.last = Some((f.seq, f.t_us));
+        if let Some(i) = f
+            .chambers
+            .iter()
+            .position(|c| !(c.v.is_finite() && c.p.is_finite() && c.vdot.is_finite()))
+        {
+            let why = format!(
+                "seq {}: chamber {i} has a non-finite volume, flow or pressure",
+                f.seq
+            );
+            return self.rejected(line, why);
+        }
+        self.rec.first_seq.get_or_insert(f.seq);
+        let t = f.t_us + self.offset_us;
+        self.last_time_us = Some(t);
+        let time_s = t as f64 / 1e6;
+        for (ch, c) in f.chambers.iter().enumerate() {
+            let mut s = Sample::new(time_s, ch as u8, decimal(c.v), decimal(c.p));
+            s.flow_mm3_s = Some(decimal(c.vdot));
+            let extra = vec![
+                f.seq.to_string(),
+                f.flags.0.to_string(),
+                c.p_hat.to_string(),
+                c.residual.to_string(),
+                c.k.to_string(),
+                c.c.to_string(),
+                f.force_n.to_string(),
+            ];
+            self.rows.push((s, extra));
+        }
+        self.rec.counts.rows += f.chambers.len();
+        self.rec.frames += 1;
+    }
+
+    /// The `# key=value` totals every recorded log carries.
+    fn totals_comments(&self) -> Vec<String> {
+        let n = &self.rec.counts;
+        vec![
+            format!("sample_rate_hz={}", self.rate_hz()),
+            format!("frames={}", self.rec.frames),
+            format!("missing_frames={}", n.missing_frames),
+            format!("corrupted_lines={}", n.corrupted),
+            format!("rejected_frames={}", n.rejected),
+        ]
+    }
+}
+
+const COLUMNS_COMMENT: &str = "columns seq..force_est_n are the device's own: frame sequence \
+     number, flag bits, model prediction (kPa), residual (kPa), stiffness (kPa/mm3), damping \
+     (kPa s/mm3), force estimate (N)";
+
+fn gap_comment(g: &Gap) -> String {
+    format!(
+        "gap: frames seq {}..={} missing ({} frames) before capture line {}",
+        g.first,
+        g.last,
+        g.frames(),
+        g.line
+    )
+}
+
+fn corrupted_comment(b: &BadLine) -> String {
+    format!("corrupted capture line {}: {}", b.line, b.reason)
+}
+
+fn rejected_comment(b: &BadLine) -> String {
+    format!("rejected frame at capture line {}: {}", b.line, b.reason)
+}
+
+fn restart_comment(r: &Restart) -> String {
+    format!(
+        "restart: board rebooted before capture line {} (seq {}), time offset {} us",
+        r.line, r.seq, r.time_offset_us
+    )
+}
+
+/// Converts a capture in memory. Never fails on bad lines (they are reported in the
+/// [`Recording`]); fails only when the input cannot be read or holds no frame at all.
+/// [`Recorder`] does the same conversion as a stream, straight into a file.
+pub fn convert(mut reader: impl BufRead, source: &str) -> Result<Recording, RecordError> {
+    let mut c = Converter::new(true);
     let mut buf = Vec::new();
     let mut event_comments = Vec::new();
     loop {
@@ -309,43 +518,15 @@ pub fn convert(mut reader: impl BufRead, source: &str) -> Result<Recording, Reco
         if n == 0 {
             break;
         }
-        c.rec.lines += 1;
-        let no = c.rec.lines;
-        let Ok(text) = std::str::from_utf8(&buf) else {
-            // Only a line that claims to be telemetry matters; judge it on its readable part.
-            if String::from_utf8_lossy(&buf).contains('$') {
-                c.rec.corrupted.push(BadLine {
-                    line: no,
-                    reason: "not valid UTF-8".into(),
-                });
-            } else {
-                c.rec.other_lines += 1;
-            }
-            continue;
-        };
-        let text = strip_ansi(text.trim_end_matches(['\n', '\r']));
-        let Some(part) = telemetry_part(&text) else {
-            c.rec.other_lines += 1;
-            continue;
-        };
-        match telemetry::parse_line(part) {
-            None => c.rec.other_lines += 1,
-            Some(Err(e)) => c.rec.corrupted.push(BadLine {
-                line: no,
-                reason: format!("{e}: {}", clip(part)),
-            }),
-            Some(Ok(Line::Event(ev))) => {
-                c.rec.events += 1;
-                if matches!(ev.kind, EventKind::Boot { .. }) {
-                    c.boot_seen = true;
-                }
-                event_comments.push(format!(
-                    "event at {:.6} s (capture line {no}): {part}",
-                    (ev.t_us + c.offset_us) as f64 * 1e-6
-                ));
-            }
-            Some(Ok(Line::Frame(f))) => c.frame(&f, no),
+        c.line(&buf);
+        for (s, extra) in c.rows.drain(..) {
+            c.rec.log.samples.push(s);
+            c.rec.log.extra.push(extra);
         }
+        event_comments.extend(c.notes.drain(..).filter_map(|n| match n {
+            Note::Event(e) => Some(e),
+            Note::Problem(_) => None,
+        }));
     }
     if c.rec.frames == 0 {
         return Err(RecordError::NoFrames {
@@ -353,142 +534,94 @@ pub fn convert(mut reader: impl BufRead, source: &str) -> Result<Recording, Reco
             lines: c.rec.lines,
         });
     }
-    let rate = {
-        c.periods.sort_unstable();
-        c.periods
-            .get(c.periods.len() / 2)
-            .map_or(0.0, |&p| (1e6 / p as f64 * 1000.0).round() / 1000.0)
-    };
-    let mut comments = vec![
-        format!("source=vfp record {source}"),
-        format!("sample_rate_hz={rate}"),
-        format!("frames={}", c.rec.frames),
-        format!("missing_frames={}", c.rec.missing_frames()),
-        format!("corrupted_lines={}", c.rec.corrupted.len()),
-        format!("rejected_frames={}", c.rec.rejected.len()),
-        "columns seq..force_est_n are the device's own: frame sequence number, flag bits, model \
-         prediction (kPa), residual (kPa), stiffness (kPa/mm3), damping (kPa s/mm3), force estimate (N)"
-            .to_string(),
-    ];
-    comments.extend(c.rec.gaps.iter().map(|g| {
-        format!(
-            "gap: frames seq {}..={} missing ({} frames) before capture line {}",
-            g.first,
-            g.last,
-            g.frames(),
-            g.line
-        )
-    }));
-    comments.extend(
-        c.rec
-            .corrupted
-            .iter()
-            .map(|b| format!("corrupted capture line {}: {}", b.line, b.reason)),
-    );
-    comments.extend(
-        c.rec
-            .rejected
-            .iter()
-            .map(|b| format!("rejected frame at capture line {}: {}", b.line, b.reason)),
-    );
-    comments.extend(c.rec.restarts.iter().map(|r| {
-        format!(
-            "restart: board rebooted before capture line {} (seq {}), time offset {} us",
-            r.line, r.seq, r.time_offset_us
-        )
-    }));
+    let mut comments = vec![format!("source=vfp record {source}")];
+    comments.extend(c.totals_comments());
+    comments.push(COLUMNS_COMMENT.to_string());
+    let r = &c.rec;
+    comments.extend(r.gaps.iter().map(gap_comment));
+    comments.extend(r.corrupted.iter().map(corrupted_comment));
+    comments.extend(r.rejected.iter().map(rejected_comment));
+    comments.extend(r.restarts.iter().map(restart_comment));
     comments.extend(event_comments);
     c.rec.log.comments = comments;
     Ok(c.rec)
 }
 
-fn clip(s: &str) -> String {
-    const MAX: usize = 60;
-    match s.char_indices().nth(MAX) {
-        Some((i, _)) => format!("{}…", &s[..i]),
-        None => s.to_string(),
-    }
+/// The conversion as a stream: each capture line given to [`line`](Recorder::line) is converted
+/// and its rows written at once, events, gaps and bad lines as `#` comments where they happened;
+/// [`finish`](Recorder::finish) appends the totals. The file is a valid log after every
+/// [`flush`](Recorder::flush) (whole rows only), so whatever stops the capture, what was
+/// received is kept. Memory stays constant: rows are not held, and only the first few problems
+/// are listed in the returned [`Recording`] (its `log` holds no rows).
+pub struct Recorder<W: Write> {
+    conv: Converter,
+    out: std::io::BufWriter<W>,
+    row: Vec<String>,
 }
 
-impl Converter {
-    fn frame(&mut self, f: &Frame, line: usize) {
-        let reject =
-            |rec: &mut Recording, reason: String| rec.rejected.push(BadLine { line, reason });
-        if let Some((seq, t_us)) = self.last {
-            let restarted = f.seq <= seq && (self.boot_seen || f.seq == 0);
-            if restarted {
-                // Continue time one median period after the last frame written.
-                let period = self
-                    .periods
-                    .get(self.periods.len() / 2)
-                    .copied()
-                    .unwrap_or(40_000);
-                let end = self.last_time_us.unwrap_or(0) + period;
-                self.offset_us = end.saturating_sub(f.t_us);
-                self.rec.restarts.push(Restart {
-                    line,
-                    seq: f.seq,
-                    time_offset_us: self.offset_us,
-                });
-            } else if f.seq <= seq {
-                return reject(
-                    &mut self.rec,
-                    format!(
-                        "seq {} does not follow seq {seq} (duplicate or out of order)",
-                        f.seq
-                    ),
-                );
-            } else if f.t_us <= t_us {
-                return reject(
-                    &mut self.rec,
-                    format!("seq {}: time {} us is not after {t_us} us", f.seq, f.t_us),
-                );
-            } else {
-                if f.seq > seq + 1 {
-                    self.rec.gaps.push(Gap {
-                        line,
-                        first: seq + 1,
-                        last: f.seq - 1,
-                    });
-                }
-                self.periods.push((f.t_us - t_us) / u64::from(f.seq - seq));
-            }
+/// The known columns every recorded log carries.
+const RECORDED: RowLayout = RowLayout {
+    flow: true,
+    force: false,
+};
+
+impl<W: Write> Recorder<W> {
+    /// Starts a log on `out`: the leading comments and the header. `source` names the capture.
+    pub fn new(out: W, source: &str) -> std::io::Result<Self> {
+        let conv = Converter::new(false);
+        let mut out = std::io::BufWriter::new(out);
+        writeln!(out, "# source=vfp record {source}\n# {COLUMNS_COMMENT}")?;
+        // Every recorded field is a number or a known name: nothing to quote.
+        writeln!(
+            out,
+            "{}",
+            RECORDED.header(&conv.rec.log.extra_columns).join(",")
+        )?;
+        Ok(Recorder {
+            conv,
+            out,
+            row: Vec::new(),
+        })
+    }
+
+    /// Converts one capture line and writes what it gives (buffered; see [`flush`](Self::flush)).
+    pub fn line(&mut self, line: &[u8]) -> std::io::Result<()> {
+        self.conv.line(line);
+        for (s, extra) in self.conv.rows.drain(..) {
+            RECORDED.row(&s, &extra, &mut self.row);
+            writeln!(self.out, "{}", self.row.join(","))?;
         }
-        self.boot_seen = false;
-        if let Some(i) = f
-            .chambers
-            .iter()
-            .position(|c| !(c.v.is_finite() && c.p.is_finite() && c.vdot.is_finite()))
-        {
-            self.last = Some((f.seq, f.t_us));
-            return reject(
-                &mut self.rec,
-                format!(
-                    "seq {}: chamber {i} has a non-finite volume, flow or pressure",
-                    f.seq
-                ),
-            );
+        for n in self.conv.notes.drain(..) {
+            let (Note::Event(n) | Note::Problem(n)) = n;
+            writeln!(self.out, "# {n}")?;
         }
-        self.last = Some((f.seq, f.t_us));
-        self.rec.first_seq.get_or_insert(f.seq);
-        let t = f.t_us + self.offset_us;
-        self.last_time_us = Some(t);
-        let time_s = t as f64 / 1e6;
-        for (ch, c) in f.chambers.iter().enumerate() {
-            let mut s = Sample::new(time_s, ch as u8, decimal(c.v), decimal(c.p));
-            s.flow_mm3_s = Some(decimal(c.vdot));
-            self.rec.log.samples.push(s);
-            self.rec.log.extra.push(vec![
-                f.seq.to_string(),
-                f.flags.0.to_string(),
-                c.p_hat.to_string(),
-                c.residual.to_string(),
-                c.k.to_string(),
-                c.c.to_string(),
-                f.force_n.to_string(),
-            ]);
+        Ok(())
+    }
+
+    /// Writes everything converted so far to the underlying writer (whole lines only).
+    pub fn flush(&mut self) -> std::io::Result<()> {
+        self.out.flush()
+    }
+
+    /// Frames written so far.
+    pub fn frames(&self) -> usize {
+        self.conv.rec.frames
+    }
+
+    /// Ends the log: the totals as `# key=value` comments, with `# stopped=<why>` (e.g. "end of
+    /// input", "SIGINT"), then a flush; gives back the summary and the writer. The summary comes
+    /// back even when no frame arrived (`frames == 0`: [`RecordError::NoFrames`] is the
+    /// caller's to raise).
+    pub fn finish(mut self, stopped: &str) -> std::io::Result<(Recording, W)> {
+        let mut tail = self.conv.totals_comments();
+        tail.push(format!("stopped={stopped}"));
+        for c in &tail {
+            writeln!(self.out, "# {c}")?;
         }
-        self.rec.frames += 1;
+        let out = self.out.into_inner().map_err(|e| e.into_error())?;
+        let mut rec = self.conv.rec;
+        rec.log.comments = tail;
+        Ok((rec, out))
     }
 }
 
@@ -508,20 +641,6 @@ pub fn convert_file(path: &Path) -> Result<Recording, RecordError> {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn strips_colour_and_location() {
-        let t = strip_ansi("\x1b[2m0.280012\x1b[0m \x1b[32mINFO\x1b[0m $F 1 2");
-        assert_eq!(t, "0.280012 INFO $F 1 2");
-        assert_eq!(
-            telemetry_part("0.1 $E 5 cleared (src/bin/vfp-fw.rs:56)"),
-            Some("$E 5 cleared")
-        );
-        assert_eq!(
-            telemetry_part("└─ vfp_fw::task @ src/bin/vfp-fw.rs:56"),
-            None
-        );
-    }
 
     fn frame_line(seq: u32, t_us: u64) -> String {
         let f = Frame {

@@ -38,9 +38,9 @@ fn errors_name_file_line_and_column() {
             e,
             LogError::BadValue {
                 line: 4,
-                column: "volume_mm3",
+                ref column,
                 ..
-            }
+            } if column == "volume_mm3"
         ),
         "{e:?}"
     );
@@ -54,9 +54,9 @@ fn errors_name_file_line_and_column() {
             e,
             LogError::BadValue {
                 line: 3,
-                column: "pressure_kpa",
+                ref column,
                 ..
-            }
+            } if column == "pressure_kpa"
         ),
         "{e:?}"
     );
@@ -72,10 +72,10 @@ fn errors_name_file_line_and_column() {
         matches!(
             e,
             LogError::MissingColumn {
-                column: "volume_mm3",
+                ref column,
                 line: 1,
                 ..
-            }
+            } if column == "volume_mm3"
         ),
         "{e:?}"
     );

@@ -65,5 +65,18 @@ fn the_demo_chain_runs_and_finds_what_was_planted() {
     ] {
         assert!(out.join(file).exists(), "{file}");
     }
+    // Every figure written is linked from the report.
+    let md = std::fs::read_to_string(out.join("report.md")).expect("report");
+    for entry in std::fs::read_dir(out.join("figures")).expect("figures") {
+        let name = entry
+            .expect("entry")
+            .file_name()
+            .to_string_lossy()
+            .into_owned();
+        assert!(
+            md.contains(&format!("](figures/{name})")),
+            "{name} is not linked"
+        );
+    }
     let _ = std::fs::remove_dir_all(&out);
 }

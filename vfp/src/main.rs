@@ -35,6 +35,8 @@ enum Command {
     Diagnose(cmd::diagnose::Args),
     /// Convert the firmware's telemetry (probe-rs output) into an actuation log.
     Record(cmd::record::Args),
+    /// Live terminal view of the board's telemetry (probe-rs output on stdin or a file), recording it.
+    Monitor(cmd::monitor::Args),
     /// Send a model to a board over its serial port and read it back.
     Deploy(cmd::deploy::Args),
 }
@@ -52,6 +54,7 @@ fn main() -> ExitCode {
         Command::Force(a) => cmd::force::run(a),
         Command::Diagnose(a) => cmd::diagnose::run(a),
         Command::Record(a) => cmd::record::run(a),
+        Command::Monitor(a) => cmd::monitor::run(a),
         Command::Deploy(a) => cmd::deploy::run(a),
     };
     match result {

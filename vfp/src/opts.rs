@@ -1,9 +1,11 @@
 //! Options shared by the subcommands, declared once and flattened into each command's arguments,
 //! and the small helpers every command's rendering uses.
 
+use crate::figure::PlotFormat;
 use crate::Error;
 use clap::builder::{PossibleValue, PossibleValuesParser, TypedValueParser};
 use std::path::{Path, PathBuf};
+use sysid::columns::{ColumnMap, ReadOptions};
 use sysid::dataset::{DatasetConfig, LogData};
 
 /// How a log becomes datasets (every command that reads logs flattens this).
@@ -22,6 +24,20 @@ pub struct DataOpts {
     /// between rest (default: 5 % of the 95th percentile of |v̇|, per chamber).
     #[arg(long, value_name = "MM3_S")]
     pub deadband: Option<f64>,
+    /// The file's own column names and units, e.g.
+    /// `time=t,volume=V_ml:mL,flow=Q_ml_s:mL/s,pressure=P_cmH2O:cmH2O` (quantities time, chamber,
+    /// volume, flow, pressure, force; units in docs/log-format.md). Comma, semicolon and tab
+    /// delimiters are detected.
+    #[arg(long, value_name = "SPEC", value_parser = parse_columns)]
+    pub columns: Option<ColumnMap>,
+    /// The number the file gives its first chamber: 1 for files that count chambers 1..=3
+    /// (read as 0..=2; --chamber and the reports count from 0).
+    #[arg(long, value_name = "N", default_value_t = 0, value_parser = clap::value_parser!(u8).range(0..=1))]
+    pub chamber_base: u8,
+}
+
+fn parse_columns(s: &str) -> Result<ColumnMap, String> {
+    s.parse::<ColumnMap>().map_err(|e| e.to_string())
 }
 
 impl Default for DataOpts {
@@ -32,6 +48,8 @@ impl Default for DataOpts {
             derive_flow: d.derive_flow,
             diff_half_width: d.diff_half_width,
             deadband: d.deadband,
+            columns: None,
+            chamber_base: 0,
         }
     }
 }
@@ -51,7 +69,20 @@ impl DataOpts {
     /// Reads `path` and builds the datasets of `chamber` (every chamber when `None`): the one
     /// library path from a log file to datasets ([`LogData::read`]).
     pub fn load(&self, path: &Path, chamber: Option<u8>) -> Result<LogData, Error> {
-        Ok(LogData::read(path, chamber, &self.config())?)
+        Ok(LogData::read_with(
+            path,
+            chamber,
+            &self.config(),
+            &self.read_options(),
+        )?)
+    }
+
+    /// How the reader maps the file's columns and chambers.
+    pub fn read_options(&self) -> ReadOptions {
+        ReadOptions {
+            columns: self.columns.clone().unwrap_or_default(),
+            chamber_base: self.chamber_base,
+        }
     }
 }
 
@@ -97,22 +128,26 @@ pub struct OutputOpts {
     /// Print one JSON document instead of the human report.
     #[arg(long)]
     pub json: bool,
-    /// Write SVG figures into this directory (created if needed).
+    /// Write the figures into this directory (created if needed).
     #[arg(long, value_name = "DIR")]
     pub plots: Option<PathBuf>,
+    /// The figures' file format.
+    #[arg(long, value_name = "FORMAT", value_enum, default_value_t = PlotFormat::Svg)]
+    pub plot_format: PlotFormat,
 }
 
 impl OutputOpts {
-    /// Writes the figure when `--plots DIR` asks for it (`plot` gets the directory and returns the
-    /// file it wrote), then the report: pretty JSON with `--json`, else `human(report)`.
+    /// Writes the figure when `--plots DIR` asks for it (`plot` gets the directory and the format
+    /// and returns the file it wrote), then the report: pretty JSON with `--json`, else
+    /// `human(report)`.
     pub fn emit<T: serde::Serialize>(
         &self,
         report: &T,
         human: impl Fn(&T) -> String,
-        plot: impl FnOnce(&Path) -> Result<PathBuf, Error>,
+        plot: impl FnOnce(&Path, PlotFormat) -> Result<PathBuf, Error>,
     ) -> Result<(), Error> {
         if let Some(dir) = &self.plots {
-            let path = plot(dir)?;
+            let path = plot(dir, self.plot_format)?;
             if !self.json {
                 println!("figure: {}", path.display());
             }
@@ -157,11 +192,9 @@ pub fn family_parser() -> impl TypedValueParser<Value = sysid::identify::Family>
     enum_parser(&sysid::identify::Family::ALL, |f| f.name().to_string())
 }
 
-/// `--effect` values: [`sysid::residual::EffectKind`] by its name with `-` for `_`.
+/// `--effect` values: the effects of [`sysid::residual::REGISTRY`] by name with `-` for `_`.
 pub fn effect_parser() -> impl TypedValueParser<Value = sysid::residual::EffectKind> {
-    enum_parser(&sysid::residual::EffectKind::ALL, |e| {
-        e.name().replace('_', "-")
-    })
+    enum_parser(sysid::residual::REGISTRY, |e| e.name().replace('_', "-"))
 }
 
 /// `--method` values: [`sysid::diag::chow::Method`] by its name.

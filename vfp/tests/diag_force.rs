@@ -154,6 +154,7 @@ fn command_runs_and_rejects_bad_options() {
     a.out = OutputOpts {
         json: true,
         plots: Some(dir.join("plots")),
+        ..OutputOpts::default()
     };
     vfp::cmd::force::run(&a).unwrap();
     let svg = std::fs::read_to_string(dir.join("plots/diag-force.svg")).unwrap();

@@ -193,6 +193,7 @@ fn readme_runs() {
     let plots = OutputOpts {
         json: false,
         plots: Some(img.clone()),
+        ..OutputOpts::default()
     };
     let proto = Protocol {
         cycles: 2,

@@ -91,6 +91,7 @@ fn command_writes_figure_and_succeeds() {
         out: OutputOpts {
             json: true,
             plots: Some(dir.join("plots")),
+            ..OutputOpts::default()
         },
     };
     vfp::cmd::stiffness::run(&args).unwrap();

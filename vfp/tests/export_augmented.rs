@@ -13,6 +13,7 @@ use model_core::poly::{ArHistory, PolyModel, SBA1_RAW};
 use sysid::dataset::{Dataset, DatasetConfig};
 use sysid::deploy::{deploy, parse_lines, FirmwarePort, Readback};
 use sysid::export::command_lines;
+use sysid::residual::effects::{Hysteresis, Inertance, OffsetDrift};
 use sysid::residual::export::{augmented_export, device_model, DeviceModel};
 use sysid::residual::series_from_dataset;
 use sysid::residual::{Config, EffectKind, Series};
@@ -141,9 +142,9 @@ fn inertance_runs_on_the_device_and_drift_is_named_as_not() {
         n: 3,
         m: 2,
         candidates: vec![
-            EffectKind::Inertance,
-            EffectKind::OffsetDrift,
-            EffectKind::Hysteresis,
+            EffectKind(&Inertance),
+            EffectKind(&OffsetDrift),
+            EffectKind(&Hysteresis),
         ],
         ..Config::default()
     };
@@ -166,7 +167,7 @@ fn inertance_runs_on_the_device_and_drift_is_named_as_not() {
     assert_eq!(x.dropped[0].name, "offset_drift");
     assert_eq!(
         x.dropped[0].reason,
-        EffectKind::OffsetDrift.device_support().1
+        EffectKind(&OffsetDrift).device_support().reason
     );
     assert!(!x.nothing_carried());
 
@@ -202,7 +203,7 @@ fn device_form_recovers_the_known_plant() {
     // No drift: the device model is the whole plant, so it must predict the noise-free pressure.
     let s = synthetic(1.5e-3, 0.0, 22);
     let series = series_of(&s);
-    let dm = device_model(&series, 3, 2, &[EffectKind::Inertance]).expect("fit");
+    let dm = device_model(&series, 3, 2, &[EffectKind(&Inertance)]).expect("fit");
     assert_algebra(&dm, &series);
     // L within 4 standard errors of the plant's (the refit's own σ̂²(XᵀX)⁻¹, inertance column
     // last), and that error is small enough for the check to mean something.
@@ -225,7 +226,7 @@ fn device_form_recovers_the_known_plant() {
     // 13 parameters from 9 000 samples of σ = 0.05 kPa: the error is a small fraction of σ.
     assert!(rms < 0.2 * SIGMA, "device model vs plant: {rms:.4} kPa");
     // Only AR-capable effects can be folded.
-    assert!(device_model(&series, 3, 2, &[EffectKind::Hysteresis]).is_err());
+    assert!(device_model(&series, 3, 2, &[EffectKind(&Hysteresis)]).is_err());
 }
 
 /// One short host-sim run of the paper's protocol on SBA1 with `effects`, as a parsed log.
@@ -256,7 +257,7 @@ fn exported_lines_run_on_the_firmware_as_in_sysid() {
     let log = host_sim_log(effects.clone(), 5);
     let ds = Dataset::from_log(&log, 0, &DatasetConfig::default()).expect("dataset");
     let series = series_from_dataset(&ds).expect("series");
-    let dm = device_model(&series, 3, 2, &[EffectKind::Inertance]).expect("fit");
+    let dm = device_model(&series, 3, 2, &[EffectKind(&Inertance)]).expect("fit");
     assert_eq!(dm.model.shape().p, 1);
     assert_algebra(&dm, &series);
     let lines = command_lines(0, &dm.model);
@@ -343,7 +344,7 @@ fn nothing_runnable_exports_the_refitted_baseline_and_says_so() {
     let cfg = Config {
         n: 3,
         m: 2,
-        candidates: vec![EffectKind::Hysteresis],
+        candidates: vec![EffectKind(&Hysteresis)],
         ..Config::default()
     };
     let x = augmented_export(series.clone(), &cfg).expect("export");

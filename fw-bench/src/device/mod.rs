@@ -57,6 +57,7 @@ pub(crate) mod marks {
         fwb_begin_frame,
         fwb_begin_frame_rls,
         fwb_retag_frame_rls_drift,
+        fwb_begin_frame_chain,
         fwb_begin_telemetry_line,
         // command task
         fwb_begin_cmd_status,
@@ -65,6 +66,7 @@ pub(crate) mod marks {
         fwb_begin_cmd_model_begin,
         fwb_begin_cmd_model_coef,
         fwb_begin_cmd_model_commit,
+        fwb_begin_cmd_model_effect,
         fwb_begin_cmd_model_read,
         fwb_begin_cmd_model_read_coef,
         fwb_begin_cmd_limit,

@@ -20,11 +20,15 @@
 //!    axis, `step_accel`) and at cruise (steps 70–74, `step_cruise`; the trapezoid accelerates
 //!    over the first 62); every conversion (`oversample`) and every frame (`frame`, bare
 //!    polynomial) and its telemetry line measured;
-//! 4. `rls <ch> on` on the three chambers, then `move all 116 20 500` (10 mm³ at 20 mm³/s): the
+//! 4. the read-back model loaded into every chamber with a three-effect chain (hysteresis,
+//!    sensor lag, delivery lag; `model <ch> effect …` measured as `cmd_model_effect`), then
+//!    `move all 112 50 500` and back to 106: every frame measured as `frame_chain`; then the
+//!    same model without effects loaded into each (the bare polynomial again);
+//! 5. `rls <ch> on` on the three chambers, then `move all 116 20 500` (10 mm³ at 20 mm³/s): the
 //!    three axes step at the same instants, one wake-up per batch of three (steps 20–24 and
 //!    70–74: `step_batch3`); every frame measured as `frame_rls`; those on which the drift check
 //!    runs (every `DRIFT_WINDOW` RLS updates) are retagged `frame_rls_drift`;
-//! 5. `run` with 8 flows, 30 ms of its first leg, `stop`, `clear`, `rls 0 off`, `status`,
+//! 6. `run` with 8 flows, 30 ms of its first leg, `stop`, `clear`, `rls 0 off`, `status`,
 //!    `zero`, and one more frame.
 //!
 //! The sensors read a synthetic pressure that follows the syringe volume (0.064 kPa/mm³ above
@@ -69,6 +73,8 @@ enum Measure {
     Bare,
     /// `oversample`, `frame_rls` (or `frame_rls_drift`), `telemetry_line`.
     Rls,
+    /// `oversample`, `frame_chain`, `telemetry_line`.
+    Chain,
 }
 
 /// What the run did (printed by the program at the end).
@@ -229,6 +235,7 @@ impl Rig {
             (_, false) => Some(fwb_begin_oversample as extern "C" fn()),
             (Measure::Bare, true) => Some(fwb_begin_frame as extern "C" fn()),
             (Measure::Rls, true) => Some(fwb_begin_frame_rls as extern "C" fn()),
+            (Measure::Chain, true) => Some(fwb_begin_frame_chain as extern "C" fn()),
         };
         let frame = match region {
             Some(r) => measure(r, op),
@@ -320,6 +327,43 @@ impl Rig {
     }
 }
 
+/// The effects of the `frame_chain` phase: the three-effect chain.
+const CHAIN: [&str; 3] = [
+    "hysteresis 6 0.8 0.1",
+    "sensor_lag 0.15",
+    "delivery_lag 0.05",
+];
+
+/// The model read back from chamber 0 (`model 0 read`, `read coef 0`, `read coef 8`) loaded
+/// into chamber `ch` with `effects` (`begin`, `coef 0 …`, `coef 8 …`, an `effect` line each,
+/// `commit`).
+fn chain_upload(r: &mut Rig, ch: usize, effects: &[&str]) {
+    let header = r.command(fwb_begin_cmd_model_read, "model 0 read");
+    let c0 = r.command(fwb_begin_cmd_model_read_coef, "model 0 read coef 0");
+    let c8 = r.command(fwb_begin_cmd_model_read_coef, "model 0 read coef 8");
+    let fields = |reply: &Line| -> Line {
+        let mut s = Line::new();
+        let _ = s.push_str(reply.trim_end().trim_start_matches("ok").trim());
+        s
+    };
+    let mut line = Line::new();
+    let _ = write!(line, "model {ch} begin {}", fields(&header));
+    r.command(fwb_begin_cmd_model_begin, &line);
+    for (start, c) in [(0, &c0), (8, &c8)] {
+        line.clear();
+        let _ = write!(line, "model {ch} coef {start} {}", fields(c));
+        r.command(fwb_begin_cmd_model_coef, &line);
+    }
+    for e in effects {
+        line.clear();
+        let _ = write!(line, "model {ch} effect {e}");
+        r.command(fwb_begin_cmd_model_effect, &line);
+    }
+    line.clear();
+    let _ = write!(line, "model {ch} commit");
+    r.command(fwb_begin_cmd_model_commit, &line);
+}
+
 /// The model read-back (`model 0 read`, `read coef 0`, `read coef 8`) loaded back into
 /// chamber 0 (`begin`, `coef 0 …`, `coef 8 …`, `commit`).
 fn model_round_trip(r: &mut Rig) {
@@ -378,6 +422,24 @@ pub fn run(telemetry: UpChannel) -> Summary {
         r.command(fwb_begin_cmd_move, line);
     }
     r.finish_move(1_000_000);
+
+    // 3b. The same model with a three-effect chain on every chamber, a move out and back:
+    //     frames with the chain (`frame_chain`); then the bare model back on every chamber.
+    r.measure_steps = false;
+    r.measure_conv = Measure::Off;
+    for ch in 0..CHANNELS {
+        chain_upload(&mut r, ch, &CHAIN);
+    }
+    r.measure_conv = Measure::Chain;
+    r.command(fwb_begin_cmd_move, "move all 112 50 500");
+    r.finish_move(1_000_000);
+    r.command(fwb_begin_cmd_move, "move all 106 50 500");
+    r.finish_move(1_000_000);
+    r.measure_conv = Measure::Off;
+    for ch in 0..CHANNELS {
+        chain_upload(&mut r, ch, &[]);
+    }
+    r.measure_steps = true;
 
     // 4. RLS on every chamber, a slower move: frames with RLS, drift checks.
     r.measure_conv = Measure::Off;

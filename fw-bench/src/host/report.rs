@@ -8,12 +8,13 @@ use serde::Serialize;
 use super::trace::{Counts, Layout};
 
 /// The reported keys, in order.
-pub const KEYS: [&str; 8] = [
+pub const KEYS: [&str; 9] = [
     "step",
     "oversample",
     "frame",
     "frame_rls",
     "frame_rls_drift",
+    "frame_chain",
     "telemetry_line",
     "command_max",
     "max_irq_off",
@@ -27,6 +28,7 @@ fn sources(key: &str) -> &'static [&'static str] {
         "frame" => &["frame"],
         "frame_rls" => &["frame_rls"],
         "frame_rls_drift" => &["frame_rls_drift"],
+        "frame_chain" => &["frame_chain"],
         "telemetry_line" => &["telemetry_line"],
         _ => &[],
     }
@@ -55,6 +57,8 @@ pub struct Figures {
     pub frame: u64,
     pub frame_rls: u64,
     pub frame_rls_drift: u64,
+    /// A frame with a three-effect chain on every chamber.
+    pub frame_chain: u64,
     pub telemetry_line: u64,
     pub command_max: u64,
     pub max_irq_off: u64,
@@ -69,6 +73,7 @@ impl Figures {
             "frame" => self.frame,
             "frame_rls" => self.frame_rls,
             "frame_rls_drift" => self.frame_rls_drift,
+            "frame_chain" => self.frame_chain,
             "telemetry_line" => self.telemetry_line,
             "command_max" => self.command_max,
             "max_irq_off" => self.max_irq_off,
@@ -184,6 +189,7 @@ pub fn report(layout: &Layout, counts: &Counts) -> Result<Report, String> {
         frame: max_of(sources("frame"))?,
         frame_rls: max_of(sources("frame_rls"))?,
         frame_rls_drift: max_of(sources("frame_rls_drift"))?,
+        frame_chain: max_of(sources("frame_chain"))?,
         telemetry_line: max_of(sources("telemetry_line"))?,
         command_max,
         max_irq_off: w.len,
@@ -317,6 +323,7 @@ mod tests {
             "cmd_status",
             "cmd_model_commit",
             "step_batch3",
+            "frame_chain",
         ] {
             l.name_index(n);
         }
@@ -353,6 +360,7 @@ mod tests {
                 r("cmd_model_commit", 12, 3),
                 r("cmd_status", 13, 3),
                 r("step_batch3", 40, 5),
+                r("frame_chain", 75, 60),
             ],
             total: 1000,
             script_insns: 900,
@@ -379,6 +387,7 @@ mod tests {
                 frame: 70,
                 frame_rls: 80,
                 frame_rls_drift: 90,
+                frame_chain: 75,
                 telemetry_line: 9,
                 command_max: 13,
                 max_irq_off: 85,
@@ -440,6 +449,7 @@ mod tests {
             frame: 6000,
             frame_rls: 1,
             frame_rls_drift: 1,
+            frame_chain: 1,
             telemetry_line: 1,
             command_max: 1,
             max_irq_off: 118_000,

@@ -278,6 +278,33 @@ pub fn analyse(
             }
         })
         .collect();
+    let mut dts: Vec<f64> = sig.t.windows(2).map(|w| w[1] - w[0]).collect();
+    dts.sort_by(f64::total_cmp);
+    let dt = dts.get(dts.len() / 2).copied().unwrap_or(1.0);
+    let whiteness = whiteness(acf, n, lags, dt);
+    let cross = cross_correlations(sig, mask, &c, &rr, c0, n, lags);
+    let direction = direction(sig, resid, mask);
+    let spectrum = spectrum(resid, mask, dt);
+    let points = (0..resid.len())
+        .filter(|&i| mask[i])
+        .map(|i| [sig.t[i], sig.v[i], sig.vdot[i], resid[i]])
+        .collect();
+    ResidualAnalysis {
+        n,
+        rmse,
+        mean,
+        whiteness,
+        cross,
+        direction,
+        spectrum,
+        points,
+    }
+}
+
+/// Whiteness of a residual from its autocorrelation `acf` (lags 0..): the Ljung–Box statistic
+/// `Q = N(N + 2) Σ_{k=1..h} ρ_k²/(N − k)`, h = min(lags, 20), against χ²(h), and the white-noise
+/// band ±1.96/√N.
+fn whiteness(acf: Vec<f64>, n: usize, lags: usize, dt: f64) -> Whiteness {
     let h = lags.min(20);
     let nf = n as f64;
     let q = nf
@@ -288,18 +315,27 @@ pub fn analyse(
     let lb_p_value = ChiSquared::new(h as f64)
         .map(|d| 1.0 - d.cdf(q))
         .unwrap_or(f64::NAN);
-    let mut dts: Vec<f64> = sig.t.windows(2).map(|w| w[1] - w[0]).collect();
-    dts.sort_by(f64::total_cmp);
-    let dt = dts.get(dts.len() / 2).copied().unwrap_or(1.0);
-    let whiteness = Whiteness {
+    Whiteness {
         acf,
         lag_s: dt,
         band: 1.96 / nf.max(1.0).sqrt(),
         lb_lags: h,
         lb_q: q,
         lb_p_value,
-    };
+    }
+}
 
+/// Cross-correlation of the centred residual `c` with v, v̇, v̈ and time at lags ±`lags`, each with
+/// its peak.
+fn cross_correlations(
+    sig: &Signals<'_>,
+    mask: &[bool],
+    c: &[f64],
+    rr: &[(usize, usize)],
+    c0: f64,
+    n: usize,
+    lags: usize,
+) -> Vec<CrossCorr> {
     let mut cross = Vec::new();
     for (name, u) in [
         ("v", sig.v),
@@ -309,7 +345,7 @@ pub fn analyse(
     ] {
         let (um, _) = masked_mean(u, mask);
         let uc: Vec<f64> = u.iter().map(|x| x - um).collect();
-        let u0 = cov_at(&uc, &uc, &rr, 0, n.max(1));
+        let u0 = cov_at(&uc, &uc, rr, 0, n.max(1));
         let norm = (u0 * c0).sqrt();
         let l = lags as i64;
         let lag_list: Vec<i64> = (-l..=l).collect();
@@ -317,7 +353,7 @@ pub fn analyse(
             .iter()
             .map(|&k| {
                 if norm > 0.0 {
-                    cov_at(&c, &uc, &rr, k, n) / norm
+                    cov_at(c, &uc, rr, k, n) / norm
                 } else {
                     0.0
                 }
@@ -341,7 +377,12 @@ pub fn analyse(
             values,
         });
     }
+    cross
+}
 
+/// The residual split by direction of motion (flow beyond 5 % of its largest), binned against
+/// volume and speed, with the mean gap's t statistic (sample sizes corrected for autocorrelation).
+fn direction(sig: &Signals<'_>, resid: &[f64], mask: &[bool]) -> Direction {
     let vmax = sig
         .vdot
         .iter()
@@ -372,7 +413,7 @@ pub fn analyse(
     let (md, vd, nd) = stats(&def);
     let rho = lag1(resid, mask);
     let se = (vi / n_eff(ni, rho).max(1.0) + vd / n_eff(nd, rho).max(1.0)).sqrt();
-    let direction = Direction {
+    Direction {
         inflation_vs_v: binned(sig.v, resid, &inf, vlo, vhi, 12),
         deflation_vs_v: binned(sig.v, resid, &def, vlo, vhi, 12),
         inflation_vs_speed: binned(&speed, resid, &inf, 0.0, vmax * 1.0001, 10),
@@ -384,8 +425,11 @@ pub fn analyse(
         } else {
             0.0
         },
-    };
+    }
+}
 
+/// The residual's Welch spectrum and its strongest peak above the two lowest bins.
+fn spectrum(resid: &[f64], mask: &[bool], dt: f64) -> Spectrum {
     let (freq_hz, psd) = welch(resid, mask, 1.0 / dt, 1024);
     let skip = 2.min(psd.len().saturating_sub(1));
     let (pk, _) =
@@ -406,26 +450,12 @@ pub fn analyse(
     let mut sorted = psd.clone();
     sorted.sort_by(f64::total_cmp);
     let median = sorted[sorted.len() / 2];
-    let spectrum = Spectrum {
+    Spectrum {
         peak_hz: freq_hz.get(pk).copied().unwrap_or(0.0),
         peak_share: if total > 0.0 { band / total } else { 0.0 },
         peak_over_median: if median > 0.0 { psd[pk] / median } else { 0.0 },
         freq_hz,
         psd,
-    };
-    let points = (0..resid.len())
-        .filter(|&i| mask[i])
-        .map(|i| [sig.t[i], sig.v[i], sig.vdot[i], resid[i]])
-        .collect();
-    ResidualAnalysis {
-        n,
-        rmse,
-        mean,
-        whiteness,
-        cross,
-        direction,
-        spectrum,
-        points,
     }
 }
 

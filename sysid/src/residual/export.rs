@@ -12,7 +12,7 @@
 //!
 //! i.e. a polynomial in the present (v, v̇) plus terms *linear* in past inputs, nothing else: no
 //! output feedback, no clock, no hysteron state. Each effect says whether it fits that form
-//! ([`EffectKind::device_support`]); this module carries those it knows how to fold in and lists
+//! ([`super::EffectModel::device_support`]); this module carries those it knows how to fold in and lists
 //! the others by name with the reason.
 //!
 //! # Inertance as an AR(1) term
@@ -38,9 +38,11 @@
 
 use model_core::poly::{ArHistory, PolyModel};
 
-use super::effects::{Effect, Prepared};
+use super::effects::{Effect, Inertance, Prepared};
 use super::select::{fit_stage, Stage};
-use super::{diagnose, Config, DiagnoseError, Diagnosis, EffectKind, PolyBasis, Series};
+use super::{
+    diagnose, Config, DiagnoseError, Diagnosis, EffectKind, EffectModel, PolyBasis, Series,
+};
 
 /// Why an augmented export failed.
 #[derive(Debug, thiserror::Error)]
@@ -57,9 +59,6 @@ pub enum ExportError {
     /// An effect was asked to be folded into the device model that this exporter cannot fold.
     #[error("`{0}` cannot be folded into the device's model")]
     NotFoldable(&'static str),
-    /// The diagnosis names an effect this build does not know.
-    #[error("the diagnosis names an unknown effect `{0}`")]
-    UnknownEffect(String),
 }
 
 /// An effect the exported model carries, in the device's form.
@@ -170,7 +169,7 @@ pub fn median_dt(t: &[f64]) -> f64 {
 
 /// Whether this exporter can fold `kind` into a [`PolyModel`] (see the module docs).
 pub fn foldable(kind: EffectKind) -> bool {
-    kind == EffectKind::Inertance && kind.device_support().0
+    kind == EffectKind(&Inertance) && kind.device_support().runs_on_device
 }
 
 /// Runs the residual loop on `series` and exports what it ends with (see the module docs).
@@ -188,14 +187,11 @@ pub fn from_diagnosis(
     let mut carry = Vec::new();
     let mut dropped = Vec::new();
     for e in &diagnosis.effects {
-        let kind = EffectKind::ALL
-            .into_iter()
-            .find(|k| k.name() == e.name)
-            .ok_or_else(|| ExportError::UnknownEffect(e.name.into()))?;
-        let (runs, reason) = kind.device_support();
+        let kind = e.kind;
+        let reason = kind.device_support().reason;
         if foldable(kind) {
             carry.push(kind);
-        } else if runs {
+        } else if kind.device_support().runs_on_device {
             dropped.push(Dropped {
                 name: kind.name(),
                 reason: format!(
@@ -214,7 +210,7 @@ pub fn from_diagnosis(
         .host
         .inertance
         .map(|l| Carried {
-            name: EffectKind::Inertance.name(),
+            name: Inertance.name(),
             how: format!(
                 "L·v̈ with v̈ = (v̇(t) − v̇(t−1))/Δt, Δt = {:.4} s: an AR(1) flow coefficient plus a change of the v̇ coefficient",
                 device.host.dt
@@ -254,7 +250,7 @@ pub fn device_model(
         return Err(ExportError::NotFoldable(k.name()));
     }
     let dt = median_dt(&series.t);
-    let inertance = carry.contains(&EffectKind::Inertance);
+    let inertance = carry.contains(&EffectKind(&Inertance));
     // With an AR term the first sample has no predecessor: it is left out of the refit, as the
     // firmware reports no estimate before its history holds one frame.
     let first_row = usize::from(inertance);
@@ -294,7 +290,7 @@ pub fn device_model(
     let l = inertance.then(|| {
         let col = (0..refit.design.owner.len())
             .find(|&c| {
-                refit.design.owner[c].is_some_and(|i| effects[i].kind == EffectKind::Inertance)
+                refit.design.owner[c].is_some_and(|i| effects[i].kind == EffectKind(&Inertance))
             })
             .unwrap_or(nb);
         refit.fit.beta[col]

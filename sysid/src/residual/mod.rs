@@ -38,8 +38,8 @@ use crate::dataset::Dataset;
 
 pub use analysis::{ResidualAnalysis, Signature};
 pub use basis::PolyBasis;
-pub use effects::{Effect, EffectKind};
-pub use select::{NestedTest, Param, Stage};
+pub use effects::{Effect, EffectKind, EffectModel, REGISTRY};
+pub use select::{param, NestedTest, Param, Stage};
 
 /// Bad input to the loop; each says what to do.
 #[derive(Debug, thiserror::Error)]
@@ -78,6 +78,9 @@ pub enum DiagnoseError {
         /// Minimum of each.
         needed: usize,
     },
+    /// Two candidates share a name.
+    #[error("two candidate effects are named `{0}`; each candidate needs its own name")]
+    DuplicateEffect(&'static str),
     /// The baseline cannot be fitted (e.g. constant volume or flow).
     #[error("the baseline polynomial cannot be fitted: {0}")]
     Degenerate(String),
@@ -181,7 +184,7 @@ pub struct Config {
     pub min_gain: f64,
     /// Level of the Ljung–Box test that decides whether structure remains.
     pub whiteness_alpha: f64,
-    /// Candidates considered.
+    /// Candidates considered (default: [`REGISTRY`]; names must be unique).
     pub candidates: Vec<EffectKind>,
     /// Most effects added.
     pub max_effects: usize,
@@ -197,7 +200,7 @@ impl Default for Config {
             alpha: 1e-3,
             min_gain: 0.01,
             whiteness_alpha: 0.01,
-            candidates: EffectKind::ALL.to_vec(),
+            candidates: REGISTRY.to_vec(),
             max_effects: 6,
             threads: std::thread::available_parallelism()
                 .map_or(1, |n| n.get())
@@ -224,6 +227,9 @@ pub struct BaselineReport {
 /// One effect the loop added.
 #[derive(Clone, Debug, Serialize)]
 pub struct EffectReport {
+    /// The effect.
+    #[serde(skip)]
+    pub kind: EffectKind,
     /// Machine name.
     pub name: &'static str,
     /// Physical story.
@@ -253,6 +259,24 @@ pub struct DeviceSupport {
     pub runs_on_device: bool,
     /// Why (not).
     pub reason: &'static str,
+}
+
+impl DeviceSupport {
+    /// The device can run the term, because `reason`.
+    pub const fn on_device(reason: &'static str) -> Self {
+        Self {
+            runs_on_device: true,
+            reason,
+        }
+    }
+
+    /// Only the host can run the term, because `reason`.
+    pub const fn host_only(reason: &'static str) -> Self {
+        Self {
+            runs_on_device: false,
+            reason,
+        }
+    }
 }
 
 /// A candidate that was tried in the last round and not kept.
@@ -351,19 +375,7 @@ pub struct Diagnosis {
 /// `model_core::poly::PolyModel` can evaluate it and why (not). The whole augmented model runs on the
 /// device only if every entry is `true`.
 pub fn device_support(kinds: &[EffectKind]) -> Vec<(EffectKind, DeviceSupport)> {
-    kinds
-        .iter()
-        .map(|&k| {
-            let (runs_on_device, reason) = k.device_support();
-            (
-                k,
-                DeviceSupport {
-                    runs_on_device,
-                    reason,
-                },
-            )
-        })
-        .collect()
+    kinds.iter().map(|&k| (k, k.device_support())).collect()
 }
 
 /// One effect the loop kept: the errors before and after its round (RMSE, kPa) and its test.
@@ -376,8 +388,35 @@ struct KeptStep {
     test: NestedTest,
 }
 
+/// What forward selection ends with.
+struct Selection {
+    /// The final model.
+    model: Stage,
+    /// The effects kept, in order.
+    kept: Vec<KeptStep>,
+    /// Candidates tried in the last round and not kept.
+    rejected: Vec<Rejected>,
+    /// Structure a candidate would have absorbed with an unphysical fit.
+    unphysical: Vec<Signature>,
+}
+
+/// One searched candidate of a round, judged against the model it would extend.
+struct Ranked {
+    cand: select::Candidate,
+    test: NestedTest,
+    /// The test rejects at `alpha` and the held-out gain clears `min_gain`.
+    passes: bool,
+    /// Why its best fit is not physical, if it is not.
+    unphysical: Option<String>,
+}
+
 /// Runs the whole loop on one series.
 pub fn diagnose(series: Series, cfg: &Config) -> Result<Diagnosis, DiagnoseError> {
+    for (i, k) in cfg.candidates.iter().enumerate() {
+        if cfg.candidates[..i].contains(k) {
+            return Err(DiagnoseError::DuplicateEffect(k.name()));
+        }
+    }
     let prep = effects::Prepared::new(series, cfg.n, cfg.m);
     let baseline = select::fit_stage(&prep, &[]).ok_or_else(|| {
         DiagnoseError::Degenerate(
@@ -385,124 +424,142 @@ pub fn diagnose(series: Series, cfg: &Config) -> Result<Diagnosis, DiagnoseError
                 .into(),
         )
     })?;
-    let mut cur = baseline.clone();
-    let mut reports: Vec<KeptStep> = Vec::new();
-    let mut rejected = Vec::new();
-    let mut unphysical_left: Vec<Signature> = Vec::new();
+    let selection = select_effects(&prep, &baseline, cfg);
+    Ok(report(&prep, cfg, &baseline, selection))
+}
+
+/// Forward selection (step 4, [`select`]): each round searches every candidate not yet in the
+/// model, keeps the best-ranked one that passes and is physical, and stops when none does.
+fn select_effects(prep: &effects::Prepared, baseline: &Stage, cfg: &Config) -> Selection {
+    let mut sel = Selection {
+        model: baseline.clone(),
+        kept: Vec::new(),
+        rejected: Vec::new(),
+        unphysical: Vec::new(),
+    };
     // Each candidate's search time in the previous round, to schedule the next (`search_all`).
     let mut costs = std::collections::HashMap::new();
-    while cur.effects.len() < cfg.max_effects {
-        let todo: Vec<EffectKind> = cfg
-            .candidates
+    while sel.model.effects.len() < cfg.max_effects {
+        let mut round = rank_round(prep, &sel.model, cfg, &mut costs);
+        match round
             .iter()
-            .copied()
-            .filter(|k| !cur.effects.iter().any(|e| e.kind == *k))
-            .collect();
-        let found = search_all(&prep, &cur, &todo, cfg.threads, &mut costs);
-        let mut ranked: Vec<(select::Candidate, NestedTest)> = found
-            .into_iter()
-            .map(|c| {
-                let t = select::nested_test(&prep, &cur, &c.stage);
-                (c, t)
-            })
-            .collect();
-        ranked.sort_by(|a, b| a.0.stage.rmse_heldout.total_cmp(&b.0.stage.rmse_heldout));
-        let passes = |c: &select::Candidate, t: &NestedTest| {
-            t.p_value < cfg.alpha
-                && (cur.rmse_heldout - c.stage.rmse_heldout) >= cfg.min_gain * cur.rmse_heldout
-        };
-        let verdicts: Vec<Option<(usize, String)>> = ranked
-            .iter()
-            .map(|(c, _)| select::unphysical(&c.stage))
-            .collect();
-        let pick = (0..ranked.len())
-            .position(|i| passes(&ranked[i].0, &ranked[i].1) && verdicts[i].is_none());
-        match pick {
-            Some(i) => {
-                let (cand, test) = ranked.swap_remove(i);
-                let kind = cand
-                    .stage
-                    .effects
-                    .last()
-                    .map(|e| e.kind)
-                    .unwrap_or(EffectKind::Inertance);
-                reports.push(KeptStep {
-                    kind,
-                    heldout_before: cur.rmse_heldout,
-                    heldout_after: cand.stage.rmse_heldout,
-                    train_before: cur.rmse_train,
-                    train_after: cand.stage.rmse_train,
-                    test,
-                });
-                let tuned = select::retune(&prep, &cand.stage);
-                cur = if tuned.fit.sse <= cand.stage.fit.sse && select::unphysical(&tuned).is_none()
-                {
-                    tuned
-                } else {
-                    cand.stage
-                };
-                // Report the model as kept (after re-tuning), so each step's "after" is the next
-                // step's "before".
-                if let Some(last) = reports.last_mut() {
-                    last.heldout_after = cur.rmse_heldout;
-                    last.train_after = cur.rmse_train;
-                }
-            }
+            .position(|r| r.passes && r.unphysical.is_none())
+        {
+            Some(i) => keep(prep, &mut sel, round.swap_remove(i)),
             None => {
-                for (i, (c, t)) in ranked.iter().enumerate() {
-                    let name = c.stage.effects.last().map_or("?", |e| e.kind.name());
-                    let reason = match &verdicts[i] {
-                        Some((_, why)) => format!("unphysical: {why}"),
-                        None => "significance".to_string(),
-                    };
-                    // What an inadmissible candidate would have absorbed is structure the model
-                    // lacks: report it, with the fit it would have needed.
-                    if passes(c, t) {
-                        if let Some((_, why)) = &verdicts[i] {
-                            unphysical_left.push(Signature {
-                                kind: "unphysical_fit",
-                                description: format!(
-                                    "{name} would lower held-out RMSE {:.4} → {:.4} kPa (p = {:.1e}) but its best fit is not physical ({why}); the structure it follows is left unexplained",
-                                    cur.rmse_heldout, c.stage.rmse_heldout, t.p_value
-                                ),
-                            });
-                        }
-                    }
-                    rejected.push(Rejected {
-                        name,
-                        rmse_heldout: c.stage.rmse_heldout,
-                        p_value: t.p_value,
-                        reason,
-                    });
-                }
+                reject_round(&mut sel, &round);
                 break;
             }
         }
     }
-    let effects: Vec<EffectReport> = reports
+    sel
+}
+
+/// Searches and tests every candidate not yet in `cur`, ranked by held-out RMSE.
+fn rank_round(
+    prep: &effects::Prepared,
+    cur: &Stage,
+    cfg: &Config,
+    costs: &mut std::collections::HashMap<EffectKind, f64>,
+) -> Vec<Ranked> {
+    let todo: Vec<EffectKind> = cfg
+        .candidates
         .iter()
-        .enumerate()
-        .map(|(i, step)| {
-            let kind = step.kind;
-            let test = step.test;
-            let (runs_on_device, reason) = kind.device_support();
-            EffectReport {
-                name: kind.name(),
-                story: kind.story(),
-                params: select::effect_params(&prep, &cur, i),
-                rmse_heldout_before: step.heldout_before,
-                rmse_heldout_after: step.heldout_after,
-                rmse_train_before: step.train_before,
-                rmse_train_after: step.train_after,
-                p_value: test.p_value,
+        .copied()
+        .filter(|k| !cur.effects.iter().any(|e| e.kind == *k))
+        .collect();
+    let mut ranked: Vec<Ranked> = search_all(prep, cur, &todo, cfg.threads, costs)
+        .into_iter()
+        .map(|cand| {
+            let test = select::nested_test(prep, cur, &cand.stage);
+            let gain = cur.rmse_heldout - cand.stage.rmse_heldout;
+            Ranked {
+                passes: test.p_value < cfg.alpha && gain >= cfg.min_gain * cur.rmse_heldout,
+                unphysical: select::unphysical(&cand.stage).map(|(_, why)| why),
+                cand,
                 test,
-                device: DeviceSupport {
-                    runs_on_device,
-                    reason,
-                },
             }
         })
         .collect();
+    ranked.sort_by(|a, b| {
+        a.cand
+            .stage
+            .rmse_heldout
+            .total_cmp(&b.cand.stage.rmse_heldout)
+    });
+    ranked
+}
+
+/// Keeps a candidate: re-tunes the model's searched parameters and records the step, its
+/// "after" being the model as kept (so each step's "after" is the next step's "before").
+fn keep(prep: &effects::Prepared, sel: &mut Selection, r: Ranked) {
+    let tuned = select::retune(prep, &r.cand.stage);
+    let model = if tuned.fit.sse <= r.cand.stage.fit.sse && select::unphysical(&tuned).is_none() {
+        tuned
+    } else {
+        r.cand.stage
+    };
+    sel.kept.push(KeptStep {
+        kind: r.cand.kind,
+        heldout_before: sel.model.rmse_heldout,
+        heldout_after: model.rmse_heldout,
+        train_before: sel.model.rmse_train,
+        train_after: model.rmse_train,
+        test: r.test,
+    });
+    sel.model = model;
+}
+
+/// Records the last round's candidates as rejected; what an inadmissible candidate would have
+/// absorbed is structure the model lacks, reported with the fit it would have needed.
+fn reject_round(sel: &mut Selection, round: &[Ranked]) {
+    let cur = &sel.model;
+    for r in round {
+        let name = r.cand.kind.name();
+        if let (true, Some(why)) = (r.passes, &r.unphysical) {
+            sel.unphysical.push(Signature {
+                kind: "unphysical_fit",
+                description: format!(
+                    "{name} would lower held-out RMSE {:.4} → {:.4} kPa (p = {:.1e}) but its best fit is not physical ({why}); the structure it follows is left unexplained",
+                    cur.rmse_heldout, r.cand.stage.rmse_heldout, r.test.p_value
+                ),
+            });
+        }
+        sel.rejected.push(Rejected {
+            name,
+            rmse_heldout: r.cand.stage.rmse_heldout,
+            p_value: r.test.p_value,
+            reason: match &r.unphysical {
+                Some(why) => format!("unphysical: {why}"),
+                None => "significance".to_string(),
+            },
+        });
+    }
+}
+
+/// Each kept effect's report, its parameters from the final model.
+fn effect_reports(prep: &effects::Prepared, sel: &Selection) -> Vec<EffectReport> {
+    sel.kept
+        .iter()
+        .enumerate()
+        .map(|(i, step)| EffectReport {
+            kind: step.kind,
+            name: step.kind.name(),
+            story: step.kind.story(),
+            params: select::effect_params(prep, &sel.model, i),
+            rmse_heldout_before: step.heldout_before,
+            rmse_heldout_after: step.heldout_after,
+            rmse_train_before: step.train_before,
+            rmse_train_after: step.train_after,
+            p_value: step.test.p_value,
+            test: step.test,
+            device: step.kind.device_support(),
+        })
+        .collect()
+}
+
+/// The held-out residual analysis (step 2) of a model's residual.
+fn analyse_heldout(prep: &effects::Prepared, resid: &[f64]) -> ResidualAnalysis {
     let se = &prep.series;
     let sig = analysis::Signals {
         t: &se.t,
@@ -512,11 +569,18 @@ pub fn diagnose(series: Series, cfg: &Config) -> Result<Diagnosis, DiagnoseError
     };
     let held: Vec<bool> = se.train.iter().map(|b| !b).collect();
     let max_lag = (2.0 / prep.scales.dt).round().max(10.0) as usize;
-    let analysis_before = analysis::analyse(&sig, &baseline.resid, &held, max_lag);
-    let analysis_after = analysis::analyse(&sig, &cur.resid, &held, max_lag);
+    analysis::analyse(&sig, resid, &held, max_lag)
+}
+
+/// The diagnosis of a finished selection (step 5: what structure remains).
+fn report(prep: &effects::Prepared, cfg: &Config, baseline: &Stage, sel: Selection) -> Diagnosis {
+    let effects = effect_reports(prep, &sel);
+    let analysis_before = analyse_heldout(prep, &baseline.resid);
+    let analysis_after = analyse_heldout(prep, &sel.model.resid);
     let mut remaining = analysis::signatures(&analysis_after, cfg.whiteness_alpha);
-    remaining.extend(unphysical_left);
-    Ok(Diagnosis {
+    remaining.extend(sel.unphysical);
+    let cur = &sel.model;
+    Diagnosis {
         samples: (prep.train_rows.len(), prep.held_rows.len()),
         significance: format!(
             "kept only if the nested F-test with autocorrelation-corrected effective sample size rejects at alpha = {} AND held-out RMSE falls by at least {:.1} % AND the fit is physical (inertance ≥ 0, hysteresis gap ≥ 0; lags, delays, widths, air, leak > 0 by construction)",
@@ -535,25 +599,22 @@ pub fn diagnose(series: Series, cfg: &Config) -> Result<Diagnosis, DiagnoseError
             nu: cur.n_params(),
             rmse_train: cur.rmse_train,
             rmse_heldout: cur.rmse_heldout,
-            uses_measured_pressure: cur
-                .effects
-                .iter()
-                .any(|e| matches!(e.kind, EffectKind::Leak | EffectKind::AirCompliance)),
+            uses_measured_pressure: cur.effects.iter().any(|e| e.kind.uses_measured_pressure()),
         },
         remaining,
-        rejected_last_round: rejected,
+        rejected_last_round: sel.rejected,
         before: (&analysis_before).into(),
         after: (&analysis_after).into(),
         analysis_before,
         analysis_after,
-    })
+    }
 }
 
 /// Searches every candidate on `threads` workers. Each worker takes the next candidate from a
 /// shared queue, costliest first (longest-processing-time-first scheduling), with each
 /// candidate's cost its search time in the previous round (`costs`, updated here; before the first
 /// round the output filters, which rebuild and filter the whole design at every trial θ, are
-/// guessed costliest). Dealing the candidates out in a fixed order had left one worker with both
+/// guessed costliest, [`EffectModel::cost_guess`]). Dealing the candidates out in a fixed order had left one worker with both
 /// filters while the other idled. Each search is independent of the schedule, so the results are
 /// too.
 fn search_all(
@@ -564,11 +625,7 @@ fn search_all(
     costs: &mut std::collections::HashMap<EffectKind, f64>,
 ) -> Vec<select::Candidate> {
     let threads = threads.max(1).min(todo.len().max(1));
-    let guess = |k: EffectKind| match k {
-        EffectKind::AirCompliance => 1e3,
-        EffectKind::SensorLag => 1e2,
-        _ => 1.0,
-    };
+    let guess = |k: EffectKind| k.cost_guess();
     let mut order: Vec<usize> = (0..todo.len()).collect();
     // Stable sort: ties keep the library's order.
     order.sort_by(|&a, &b| {

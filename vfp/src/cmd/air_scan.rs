@@ -47,8 +47,9 @@ pub fn scan_logs(args: &Args) -> Result<(AirScanReport, Vec<ScanPoints>), Error>
 /// Runs `vfp air-scan`.
 pub fn run(args: &Args) -> Result<(), Error> {
     let (report, points) = scan_logs(args)?;
-    args.out
-        .emit(&report, human, |dir| plot_scan(dir, &report, &points))
+    args.out.emit(&report, human, |dir, format| {
+        plot_scan(dir, format, &report, &points)
+    })
 }
 
 fn opt(x: Option<f64>) -> String {
@@ -100,11 +101,12 @@ pub fn human(r: &AirScanReport) -> String {
 /// Fig. 7c (means against x, per phase) and 7d (distributions per log).
 fn plot_scan(
     dir: &std::path::Path,
+    format: crate::figure::PlotFormat,
     r: &AirScanReport,
     points: &[ScanPoints],
 ) -> Result<PathBuf, Error> {
-    let path = plot::target(dir, "diag-air-scan.svg")?;
-    let root = plot::canvas(&path, (1100, 840));
+    let path = plot::target(dir, &format.file("diag-air-scan"))?;
+    let root = plot::canvas(&path, (1100, 840), format);
     let (top, bottom) = root.split_vertically(420);
     let (tl, tr) = top.split_horizontally(550);
     let (bl, br) = bottom.split_horizontally(550);

@@ -62,8 +62,9 @@ pub fn run(args: &Args) -> Result<(), Error> {
         ar_order: args.ar_order,
     };
     let report = chow_logs(&logs, &o)?;
-    args.out
-        .emit(&report, human, |dir| plot_chow(dir, &logs, &report))
+    args.out.emit(&report, human, |dir, format| {
+        plot_chow(dir, format, &logs, &report)
+    })
 }
 
 fn fmt_p(p: f64) -> String {
@@ -142,9 +143,14 @@ pub fn human(r: &ChowReport) -> String {
 }
 
 /// V–P data of every log and the deciding F of every pair against the critical value.
-fn plot_chow(dir: &std::path::Path, logs: &[LogData], r: &ChowReport) -> Result<PathBuf, Error> {
-    let path = plot::target(dir, "diag-chow.svg")?;
-    let root = plot::canvas(&path, (1100, 440));
+fn plot_chow(
+    dir: &std::path::Path,
+    format: crate::figure::PlotFormat,
+    logs: &[LogData],
+    r: &ChowReport,
+) -> Result<PathBuf, Error> {
+    let path = plot::target(dir, &format.file("diag-chow"))?;
+    let root = plot::canvas(&path, (1100, 440), format);
     let (left, right) = root.split_horizontally(550);
     let vp: Vec<Curve> = logs
         .iter()

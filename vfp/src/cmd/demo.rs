@@ -23,6 +23,7 @@ use std::io::Write as _;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
+use crate::figure::PlotFormat;
 use host_sim::{simulate, Effects, PlantConfig, Protocol, Scenario, SimRun, TimedCommand};
 use indicatif::{ProgressBar, ProgressStyle};
 use plotters::prelude::*;
@@ -47,6 +48,9 @@ pub struct Args {
     /// Seed of the simulated sensor noise.
     #[arg(long, default_value_t = 7)]
     pub seed: u64,
+    /// The figures' file format.
+    #[arg(long, value_name = "FORMAT", value_enum, default_value_t = PlotFormat::Svg)]
+    pub plot_format: PlotFormat,
 }
 
 /// Baseline (n, m) of the residual loop: the paper's polynomial.
@@ -58,6 +62,8 @@ pub const PLANTED_EFFECT: &str = "hysteresis";
 /// Settings derived from `--short`.
 #[derive(Debug, Clone, Serialize)]
 pub struct Plan {
+    /// The figures' file format.
+    pub plot_format: PlotFormat,
     /// Cycles per flow rate.
     pub cycles: u16,
     /// Flow rates, mm³/s.
@@ -82,6 +88,7 @@ impl Plan {
     /// The plan for `--short` or the full demo.
     pub fn new(short: bool) -> Self {
         Self {
+            plot_format: PlotFormat::Svg,
             cycles: if short { 2 } else { 20 },
             flows: Protocol::paper().flows,
             push_s: if short { 5.0 } else { 20.0 },
@@ -309,7 +316,11 @@ fn nn_config(plan: &Plan) -> sysid::nn::SweepConfig {
 
 /// Runs `vfp demo`.
 pub fn run(args: &Args) -> Result<(), Error> {
-    let report = run_plan(Plan::new(args.short), args.seed, &args.out)?;
+    let plan = Plan {
+        plot_format: args.plot_format,
+        ..Plan::new(args.short)
+    };
+    let report = run_plan(plan, args.seed, &args.out)?;
     println!(
         "demo finished in {:.1} s; report: {}",
         report.total_seconds,
@@ -529,53 +540,30 @@ pub fn run_plan(plan: Plan, seed: u64, out: &Path) -> Result<DemoReport, Error> 
     let st = Stage::start(8, "report", "figures, report.md, report.json");
     let fig = out.join("figures");
     let mut figures: Vec<(String, String)> = Vec::new();
+    // Every file written is linked from the report, with a caption by its name.
+    let mut written = Vec::new();
+    let format = plan.plot_format;
     if let (Some(ds), Some(rep)) = (datasets.first(), reports.first()) {
-        crate::plots::identify::write_all(&fig, ds, rep)?;
-        for (f, cap) in [
-            (
-                "ch0-vp.svg",
-                "V–P curves of chamber 0: measured and the selected polynomial",
-            ),
-            (
-                "ch0-poly-rmse-aicc.svg",
-                "Model comparison: polynomial sweep, RMSE (bars) and AICc",
-            ),
-            (
-                "ch0-poly-ar-rmse-aicc.svg",
-                "Model comparison: poly-AR orders",
-            ),
-            (
-                "ch0-exp-rmse-aicc.svg",
-                "Model comparison: exponential terms",
-            ),
-            ("ch0-nn-rmse-aicc.svg", "Model comparison: neural networks"),
-            (
-                "ch0-residual-vs-volume.svg",
-                "Held-out residual of the selected polynomial against volume",
-            ),
-        ] {
-            if fig.join(f).exists() {
-                figures.push((format!("figures/{f}"), cap.into()));
-            }
-        }
+        written.extend(crate::plots::identify::write_all(&fig, format, ds, rep)?);
     }
     if let Some(d) = &diagnosis {
-        super::diagnose::write_plots(&fig, d)?;
-        figures.push((
-            "figures/resid-before.svg".into(),
-            "Residual loop: held-out residual before".into(),
-        ));
-        figures.push((
-            "figures/resid-after.svg".into(),
-            "Residual loop: held-out residual after".into(),
-        ));
+        written.extend(super::diagnose::write_plots(&fig, format, d)?);
     }
-    force_figure(&fig.join("force.svg"), &trace)
-        .map_err(|e| Error::Msg(format!("{}: {e}", fig.join("force.svg").display())))?;
-    figures.push((
-        "figures/force.svg".into(),
-        "Force pushes: the board's estimate against the true force".into(),
-    ));
+    let force_path = fig.join(format.file("force"));
+    force_figure(&force_path, format, &trace)
+        .map_err(|e| Error::Msg(format!("{}: {e}", force_path.display())))?;
+    written.push(force_path);
+    for p in &written {
+        let name = p
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let stem = p
+            .file_stem()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        figures.push((format!("figures/{name}"), caption(&stem)));
+    }
     let mut report = DemoReport {
         plan,
         planted: match plant().effects.hysteresis {
@@ -701,8 +689,33 @@ fn force_stats(
     )
 }
 
-fn force_figure(path: &Path, trace: &Trace) -> Result<(), String> {
-    let root = crate::figure::svg(path, (1000, 420));
+/// The report's caption of a figure, by its file stem.
+fn caption(stem: &str) -> String {
+    let chamber = stem.strip_prefix("ch").and_then(|s| s.split_once('-'));
+    let (c, what) = chamber.unwrap_or(("", stem));
+    let text = match what {
+        "vp" => "V–P curves: measured and the selected polynomial".to_string(),
+        "residual-vs-volume" => {
+            "Held-out residual of the selected polynomial against volume".into()
+        }
+        "error-histogram" => "Held-out error distribution of the selected polynomial".into(),
+        "resid-before" => "Residual loop: held-out residual before".into(),
+        "resid-after" => "Residual loop: held-out residual after".into(),
+        "force" => "Force pushes: the board's estimate against the true force".into(),
+        w => match w.strip_suffix("-rmse-aicc") {
+            Some(fam) => format!("Model comparison, {fam}: RMSE (bars) and AICc"),
+            None => w.to_string(),
+        },
+    };
+    if c.is_empty() {
+        text
+    } else {
+        format!("{text} (chamber {c})")
+    }
+}
+
+fn force_figure(path: &Path, format: PlotFormat, trace: &Trace) -> Result<(), String> {
+    let root = crate::figure::canvas(path, (1000, 420), format);
     root.fill(&WHITE).map_err(|e| e.to_string())?;
     let (x0, x1) = trace
         .first()

@@ -97,7 +97,7 @@ pub fn run(args: &Args) -> Result<(), Error> {
     }
     let d = diagnose(series, &cfg).map_err(wrap)?;
     if let Some(dir) = &args.out.plots {
-        write_plots(dir, &d)?;
+        write_plots(dir, args.out.plot_format, &d)?;
     }
     if args.out.json {
         // The diagnosis itself at top level (baseline, effects, final, remaining, …) plus context.
@@ -206,26 +206,26 @@ pub fn report(path: &Path, chamber: u8, split: &str, d: &Diagnosis) -> String {
     s
 }
 
-/// Writes `resid-before.svg` and `resid-after.svg` into `dir`.
-pub fn write_plots(dir: &Path, d: &Diagnosis) -> Result<Vec<PathBuf>, Error> {
+/// Writes `resid-before.<ext>` and `resid-after.<ext>` into `dir`.
+pub fn write_plots(
+    dir: &Path,
+    format: crate::figure::PlotFormat,
+    d: &Diagnosis,
+) -> Result<Vec<PathBuf>, Error> {
     std::fs::create_dir_all(dir).map_err(|e| Error::output(dir, e))?;
     let mut out = Vec::new();
     for (name, a, title) in [
-        ("resid-before.svg", &d.analysis_before, "baseline"),
-        (
-            "resid-after.svg",
-            &d.analysis_after,
-            "after the residual loop",
-        ),
+        ("resid-before", &d.analysis_before, "baseline"),
+        ("resid-after", &d.analysis_after, "after the residual loop"),
     ] {
-        let path = dir.join(name);
-        figure(&path, a, title).map_err(|msg| Error::output(&path, msg))?;
+        let path = dir.join(format.file(name));
+        figure(&path, format, a, title).map_err(|msg| Error::output(&path, msg))?;
         out.push(path);
     }
     Ok(out)
 }
 
-type Area<'a> = DrawingArea<SVGBackend<'a>, plotters::coord::Shift>;
+type Area<'a> = crate::figure::Canvas<'a>;
 
 /// One curve of a panel: label, points, colour, drawn as points (true) or a line.
 type Curve<'a> = (&'a str, Vec<(f64, f64)>, RGBColor, bool);
@@ -311,8 +311,13 @@ fn panel(
     Ok(())
 }
 
-fn figure(path: &Path, a: &ResidualAnalysis, title: &str) -> Result<(), String> {
-    let root = crate::figure::svg(path, (1500, 900));
+fn figure(
+    path: &Path,
+    format: crate::figure::PlotFormat,
+    a: &ResidualAnalysis,
+    title: &str,
+) -> Result<(), String> {
+    let root = crate::figure::canvas(path, (1500, 900), format);
     root.fill(&WHITE).map_err(|e| e.to_string())?;
     let root = root
         .titled(

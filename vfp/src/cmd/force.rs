@@ -66,8 +66,8 @@ pub fn run(args: &Args) -> Result<(), Error> {
     let ident = args.data.load(&args.ident, None)?;
     let test = args.data.load(&args.test, None)?;
     let (report, trace) = estimate(&ident, &test, &o)?;
-    args.out.emit(&report, human, |dir| {
-        plot_force(dir, &trace, args.plot_window)
+    args.out.emit(&report, human, |dir, format| {
+        plot_force(dir, format, &trace, args.plot_window)
     })
 }
 
@@ -141,9 +141,14 @@ pub fn human(r: &ForceReport) -> String {
 }
 
 /// Fig. 8c (truth and estimate over time) and Fig. 8a (measured vs predicted pressure).
-fn plot_force(dir: &std::path::Path, tr: &ForceTrace, window: f64) -> Result<PathBuf, Error> {
-    let path = plot::target(dir, "diag-force.svg")?;
-    let root = plot::canvas(&path, (1000, 760));
+fn plot_force(
+    dir: &std::path::Path,
+    format: crate::figure::PlotFormat,
+    tr: &ForceTrace,
+    window: f64,
+) -> Result<PathBuf, Error> {
+    let path = plot::target(dir, &format.file("diag-force"))?;
+    let root = plot::canvas(&path, (1000, 760), format);
     let (top, bottom) = root.split_vertically(380);
     // Show the pushes: start 1 s before the reference force first rises (else at the start).
     let first = tr

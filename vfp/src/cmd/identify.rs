@@ -143,7 +143,7 @@ pub fn run(args: &Args) -> Result<(), Error> {
     }
     if let Some(dir) = &args.out.plots {
         for (ds, rep) in datasets.iter().zip(&reports) {
-            crate::plots::identify::write_all(dir, ds, rep)?;
+            crate::plots::identify::write_all(dir, args.out.plot_format, ds, rep)?;
         }
     }
     if args.out.json {

@@ -9,6 +9,7 @@ pub mod diagnose;
 pub mod export;
 pub mod force;
 pub mod identify;
+pub mod monitor;
 pub mod record;
 pub mod simulate;
 pub mod stiffness;

@@ -55,8 +55,8 @@ pub fn run(args: &Args) -> Result<(), Error> {
     let shape = args.shape.shape()?;
     let data = args.input.load()?;
     let (report, res) = stiffness(&data, shape)?;
-    args.out.emit(&report, human, |dir| {
-        plot_distributions(dir, &data.label(), &res)
+    args.out.emit(&report, human, |dir, format| {
+        plot_distributions(dir, format, &data.label(), &res)
     })
 }
 
@@ -110,11 +110,12 @@ pub fn human(r: &StiffnessReport) -> String {
 /// Fig. 7d-style distributions of kᵢ and cᵢ per chamber; returns the file written.
 fn plot_distributions(
     dir: &std::path::Path,
+    format: crate::figure::PlotFormat,
     label: &str,
     res: &[ChamberStiffness],
 ) -> Result<PathBuf, Error> {
-    let path = plot::target(dir, "diag-stiffness.svg")?;
-    let root = plot::canvas(&path, (1100, 420));
+    let path = plot::target(dir, &format.file("diag-stiffness"))?;
+    let root = plot::canvas(&path, (1100, 420), format);
     let (left, right) = root.split_horizontally(550);
     let ks: Vec<&[f64]> = res.iter().map(|r| r.pointwise.k.as_slice()).collect();
     let cs: Vec<&[f64]> = res.iter().map(|r| r.pointwise.c.as_slice()).collect();

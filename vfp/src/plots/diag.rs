@@ -1,8 +1,8 @@
 //! Small SVG plotting helpers shared by the diagnostics commands (plotters, SVG backend, so no
 //! system fonts are needed).
 
+use crate::figure::{Canvas, PlotFormat};
 use crate::Error;
-use plotters::coord::Shift;
 use plotters::prelude::*;
 use std::path::{Path, PathBuf};
 
@@ -64,16 +64,16 @@ pub(crate) fn target(dir: &Path, name: &str) -> Result<PathBuf, Error> {
     Ok(dir.join(name))
 }
 
-/// A new white SVG canvas of the given size.
-pub(crate) fn canvas(path: &Path, size: (u32, u32)) -> DrawingArea<SVGBackend<'_>, Shift> {
-    let root = crate::figure::svg(path, size);
-    // Filling a fresh SVG canvas cannot fail: it only appends to an in-memory buffer.
+/// A new white canvas of the given size and format.
+pub(crate) fn canvas(path: &Path, size: (u32, u32), format: PlotFormat) -> Canvas<'_> {
+    let root = crate::figure::canvas(path, size, format);
+    // Filling a fresh canvas cannot fail: it only writes to an in-memory buffer.
     root.fill(&WHITE).ok();
     root
 }
 
 /// Writes the canvas to disk.
-pub(crate) fn finish(root: DrawingArea<SVGBackend<'_>, Shift>, path: &Path) -> Result<(), Error> {
+pub(crate) fn finish(root: Canvas<'_>, path: &Path) -> Result<(), Error> {
     root.present().map_err(|e| Error::output(path, e))
 }
 
@@ -83,7 +83,7 @@ fn range(vals: impl Iterator<Item = f64>) -> (f64, f64) {
 
 /// Draws curves with axes, labels and a legend into `area`.
 pub(crate) fn panel(
-    area: &DrawingArea<SVGBackend<'_>, Shift>,
+    area: &Canvas<'_>,
     path: &Path,
     title: &str,
     xdesc: &str,
@@ -104,8 +104,8 @@ pub(crate) fn panel(
         .configure_mesh()
         .x_desc(xdesc)
         .y_desc(ydesc)
-        .y_label_formatter(&|y| format_tick(*y))
-        .x_label_formatter(&|x| format_tick(*x))
+        .y_label_formatter(&|y| crate::figure::tick(*y))
+        .x_label_formatter(&|x| crate::figure::tick(*x))
         .light_line_style(WHITE.mix(0.0))
         .draw()
         .map_err(e)?;
@@ -147,22 +147,6 @@ pub(crate) fn panel(
             .map_err(e)?;
     }
     Ok(())
-}
-
-fn format_tick(x: f64) -> String {
-    let a = x.abs();
-    if a == 0.0 {
-        "0".into()
-    } else if !(1e-3..1e4).contains(&a) {
-        format!("{x:.1e}")
-    } else if a < 0.1 {
-        format!("{x:.4}")
-    } else {
-        format!("{x:.3}")
-            .trim_end_matches('0')
-            .trim_end_matches('.')
-            .to_string()
-    }
 }
 
 /// Outline of a probability-density histogram of `values` over `[lo, hi]` with `bins` bins,

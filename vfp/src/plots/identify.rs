@@ -1,13 +1,17 @@
-//! SVG figures of `vfp identify --plots DIR` (plotters' SVG backend: no fonts needed):
+//! Figures of `vfp identify --plots DIR` (SVG or PNG, `--plot-format`):
 //!
-//! - `ch<c>-<family>-rmse-aicc.svg`: RMSE bars and AICc points per model (Figs. 2-4);
-//! - `ch<c>-residual-vs-volume.svg`: held-out residuals of the selected polynomial against v (Fig. 5a);
-//! - `ch<c>-error-histogram.svg`: its error distribution, 0.05 kPa bins (Fig. 5b);
-//! - `ch<c>-vp.svg`: measured and predicted V-P curves (Fig. 1c).
+//! - `ch<c>-<family>-rmse-aicc.<ext>`: RMSE bars and AICc points per model (Figs. 2-4);
+//! - `ch<c>-residual-vs-volume.<ext>`: held-out residuals of the selected polynomial against v (Fig. 5a);
+//! - `ch<c>-error-histogram.<ext>`: its error distribution, 0.05 kPa bins (Fig. 5b);
+//! - `ch<c>-vp.<ext>`: measured and predicted V-P curves (Fig. 1c).
+//!
+//! Scatter plots draw at most [`MAX_POINTS`] points per set, evenly spaced through the data, so
+//! a figure of a long log stays well under 1 MB (a point is some 100 bytes of SVG).
 
+use crate::figure::{Canvas, PlotFormat};
 use crate::Error;
 use plotters::prelude::*;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use sysid::dataset::Dataset;
 use sysid::identify::{ChamberReport, Family};
 
@@ -19,28 +23,41 @@ fn bounds(xs: impl Iterator<Item = f64>) -> (f64, f64) {
     crate::figure::padded_range(xs)
 }
 
-/// Writes every figure for one chamber into `dir` (created if needed).
-pub fn write_all(dir: &Path, ds: &Dataset, rep: &ChamberReport) -> Result<(), Error> {
+/// Points per scatter set at most.
+pub const MAX_POINTS: usize = 4_000;
+
+/// Writes every figure for one chamber into `dir` (created if needed); returns the files in the
+/// order written.
+pub fn write_all(
+    dir: &Path,
+    format: PlotFormat,
+    ds: &Dataset,
+    rep: &ChamberReport,
+) -> Result<Vec<PathBuf>, Error> {
     std::fs::create_dir_all(dir).map_err(|e| err(dir, e))?;
+    let mut written = Vec::new();
+    let file = |stem: String| dir.join(format.file(&stem));
     for fam in Family::ALL {
         let rows: Vec<_> = rep.models.iter().filter(|m| m.family == fam).collect();
         if rows.is_empty() {
             continue;
         }
-        let path = dir.join(format!("ch{}-{}-rmse-aicc.svg", rep.chamber, fam.name()));
+        let path = file(format!("ch{}-{}-rmse-aicc", rep.chamber, fam.name()));
         let labels: Vec<String> = rows.iter().map(|r| r.shape()).collect();
         let rmse: Vec<f64> = rows.iter().map(|r| r.rmse).collect();
         let aicc: Vec<f64> = rows.iter().map(|r| r.aicc).collect();
         bars_and_points(
+            &canvas(&path, (1000, 640), format),
             &path,
             &format!("{}: RMSE (bars) and AICc (red)", fam.name()),
             &labels,
             &rmse,
             &aicc,
         )?;
+        written.push(path);
     }
     let Some(fit) = &rep.poly_fit else {
-        return Ok(());
+        return Ok(written);
     };
     let held = if ds.heldout.iter().any(|&h| h) {
         ds.heldout()
@@ -55,20 +72,26 @@ pub fn write_all(dir: &Path, ds: &Dataset, rep: &ChamberReport) -> Result<(), Er
         .map(|((&v, &q), &p)| (v, p - fit.predict(v, q)))
         .collect();
     let name = format!("poly ({}, {})", fit.n, fit.m);
+    let path = file(format!("ch{}-residual-vs-volume", rep.chamber));
     scatter(
-        &dir.join(format!("ch{}-residual-vs-volume.svg", rep.chamber)),
+        &canvas(&path, (900, 600), format),
+        &path,
         &format!("{name}: held-out residual vs volume"),
         ("volume (mm3)", "P - P_hat (kPa)"),
         &[(resid.clone(), BLUE.mix(0.3))],
     )?;
+    written.push(path);
+    let path = file(format!("ch{}-error-histogram", rep.chamber));
     histogram(
-        &dir.join(format!("ch{}-error-histogram.svg", rep.chamber)),
+        &canvas(&path, (900, 600), format),
+        &path,
         &format!("{name}: held-out error distribution (0.05 kPa bins)"),
         &resid.iter().map(|r| r.1).collect::<Vec<_>>(),
         0.05,
     )?;
+    written.push(path);
     let all = ds.all();
-    let step = (all.len() / 20_000).max(1);
+    let step = all.len().div_ceil(MAX_POINTS).max(1);
     let measured: Vec<(f64, f64)> = all
         .v
         .iter()
@@ -83,27 +106,38 @@ pub fn write_all(dir: &Path, ds: &Dataset, rep: &ChamberReport) -> Result<(), Er
         .step_by(step)
         .map(|(&v, &q)| (v, fit.predict(v, q)))
         .collect();
+    let path = file(format!("ch{}-vp", rep.chamber));
     scatter(
-        &dir.join(format!("ch{}-vp.svg", rep.chamber)),
+        &canvas(&path, (900, 600), format),
+        &path,
         &format!("V-P curves: measured (grey) and {name} (blue)"),
         ("volume (mm3)", "pressure (kPa)"),
         &[
-            (measured, RGBColor(120, 120, 120).mix(0.3)),
-            (predicted, BLUE.mix(0.3)),
+            (predicted, BLUE.mix(0.25)),
+            (measured, RGBColor(60, 60, 60).mix(0.5)),
         ],
-    )
+    )?;
+    written.push(path);
+    Ok(written)
+}
+
+/// A white canvas.
+fn canvas(path: &Path, size: (u32, u32), format: PlotFormat) -> Canvas<'_> {
+    let root = crate::figure::canvas(path, size, format);
+    // Filling a fresh canvas cannot fail: it only writes to an in-memory buffer.
+    root.fill(&WHITE).ok();
+    root
 }
 
 fn bars_and_points(
+    root: &Canvas<'_>,
     path: &Path,
     title: &str,
     labels: &[String],
     bars: &[f64],
     points: &[f64],
 ) -> Result<(), Error> {
-    let root = crate::figure::svg(path, (1000, 640));
-    root.fill(&WHITE).map_err(|e| err(path, e))?;
-    let (top, bottom) = root.split_vertically(340);
+    let (top, bottom) = root.split_vertically(300);
     let n = labels.len();
     let ymax = bars.iter().cloned().fold(0.0, f64::max).max(1e-12) * 1.1;
     let fmt_label = |x: &f64| {
@@ -118,13 +152,14 @@ fn bars_and_points(
         let mut c = ChartBuilder::on(&top)
             .caption(title, ("sans-serif", 18))
             .margin(8)
-            .x_label_area_size(30)
+            .x_label_area_size(8)
             .y_label_area_size(60)
             .build_cartesian_2d(-0.5f64..n as f64 - 0.5, 0.0..ymax)
             .map_err(|e| err(path, e))?;
+        // The shapes are labelled once, under the AICc panel that shares this x axis.
         c.configure_mesh()
-            .x_labels(n.min(50))
-            .x_label_formatter(&fmt_label)
+            .x_labels(0)
+            .y_label_formatter(&|y| crate::figure::tick(*y))
             .y_desc("RMSE (kPa)")
             .draw()
             .map_err(|e| err(path, e))?;
@@ -139,15 +174,20 @@ fn bars_and_points(
     let (lo, hi) = bounds(points.iter().copied());
     let mut c = ChartBuilder::on(&bottom)
         .margin(8)
-        .x_label_area_size(30)
+        .x_label_area_size(90)
         .y_label_area_size(60)
         .build_cartesian_2d(-0.5f64..n as f64 - 0.5, lo..hi)
         .map_err(|e| err(path, e))?;
+    // One label per model, turned upright so long shapes like "(7, 7, 5)" never overlap.
+    let label_font = ("sans-serif", 12)
+        .into_font()
+        .transform(FontTransform::Rotate90);
     c.configure_mesh()
-        .x_labels(n.min(50))
+        .x_labels(n + 1)
         .x_label_formatter(&fmt_label)
+        .x_label_style(label_font)
         .y_desc("AICc")
-        .y_label_formatter(&|y| format!("{y:.3e}"))
+        .y_label_formatter(&|y| crate::figure::tick(*y))
         .draw()
         .map_err(|e| err(path, e))?;
     c.draw_series(
@@ -161,16 +201,15 @@ fn bars_and_points(
 }
 
 fn scatter(
+    root: &Canvas<'_>,
     path: &Path,
     title: &str,
     axes: (&str, &str),
     sets: &[(Vec<(f64, f64)>, RGBAColor)],
 ) -> Result<(), Error> {
-    let root = crate::figure::svg(path, (900, 600));
-    root.fill(&WHITE).map_err(|e| err(path, e))?;
     let (x0, x1) = bounds(sets.iter().flat_map(|s| s.0.iter().map(|p| p.0)));
     let (y0, y1) = bounds(sets.iter().flat_map(|s| s.0.iter().map(|p| p.1)));
-    let mut c = ChartBuilder::on(&root)
+    let mut c = ChartBuilder::on(root)
         .caption(title, ("sans-serif", 18))
         .margin(10)
         .x_label_area_size(40)
@@ -180,23 +219,29 @@ fn scatter(
     c.configure_mesh()
         .x_desc(axes.0)
         .y_desc(axes.1)
+        .x_label_formatter(&|x| crate::figure::tick(*x))
+        .y_label_formatter(&|y| crate::figure::tick(*y))
         .draw()
         .map_err(|e| err(path, e))?;
     for (pts, color) in sets {
-        let step = (pts.len() / 20_000).max(1);
+        let step = pts.len().div_ceil(MAX_POINTS).max(1);
         c.draw_series(
             pts.iter()
                 .step_by(step)
-                .map(|&p| Circle::new(p, 1, color.filled())),
+                .map(|&p| Circle::new(p, 2, color.filled())),
         )
         .map_err(|e| err(path, e))?;
     }
     root.present().map_err(|e| err(path, e))
 }
 
-fn histogram(path: &Path, title: &str, xs: &[f64], bin: f64) -> Result<(), Error> {
-    let root = crate::figure::svg(path, (900, 600));
-    root.fill(&WHITE).map_err(|e| err(path, e))?;
+fn histogram(
+    root: &Canvas<'_>,
+    path: &Path,
+    title: &str,
+    xs: &[f64],
+    bin: f64,
+) -> Result<(), Error> {
     let (lo, hi) = bounds(xs.iter().copied());
     let nb = (((hi - lo) / bin).ceil() as usize).clamp(1, 2000);
     let mut counts = vec![0u32; nb];
@@ -204,7 +249,7 @@ fn histogram(path: &Path, title: &str, xs: &[f64], bin: f64) -> Result<(), Error
         counts[(((x - lo) / bin) as usize).min(nb - 1)] += 1;
     }
     let cmax = counts.iter().copied().max().unwrap_or(1).max(1) as f64;
-    let mut c = ChartBuilder::on(&root)
+    let mut c = ChartBuilder::on(root)
         .caption(title, ("sans-serif", 18))
         .margin(10)
         .x_label_area_size(40)
@@ -214,6 +259,8 @@ fn histogram(path: &Path, title: &str, xs: &[f64], bin: f64) -> Result<(), Error
     c.configure_mesh()
         .x_desc("error (kPa)")
         .y_desc("count")
+        .x_label_formatter(&|x| crate::figure::tick(*x))
+        .y_label_formatter(&|y| crate::figure::tick(*y))
         .draw()
         .map_err(|e| err(path, e))?;
     c.draw_series(counts.iter().enumerate().map(|(i, &k)| {

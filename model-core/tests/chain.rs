@@ -1,0 +1,761 @@
+//! The effect chain against hand-computed values, identities and an independent `f64` reference.
+//!
+//! The reference ([`reference`]) evaluates the module table's equations over whole sequences in
+//! `f64`, written apart from the device code: the polynomial term by term in raw units, each lag
+//! by numerical quadrature of `y(t) = e^{−Δt/τ} y₀ + ∫ e^{−(Δt−s)/τ}/τ · u(s) ds` over the frame
+//! (Simpson, 400 panels) instead of the closed-form weights, the delay by locating the delayed
+//! instant on the time axis.
+
+// Index loops mirror the subscripts of the documented equations.
+#![allow(clippy::needless_range_loop)]
+
+mod common;
+
+use common::{c_raw, k_raw, p_raw};
+use model_core::chain::{
+    Chain, ChainInput, ChainState, Effect, EffectKind, MAX_DELAY_FRAMES, MAX_EFFECTS, P_ATM_KPA,
+};
+use model_core::poly::{sba1, ArHistory, PolyModel, Scaling, Shape, SBA1_RAW};
+use model_core::ModelError;
+use proptest::prelude::*;
+
+const DT: f32 = 0.04;
+
+fn chain(effects: &[(EffectKind, &[f32])]) -> Chain {
+    let mut c = Chain::new();
+    for (k, p) in effects {
+        c.push(Effect::new(*k, p).unwrap()).unwrap();
+    }
+    c
+}
+
+/// Runs a chain over frames, returning P̂ (NaN where a frame failed).
+fn run(c: &Chain, model: &PolyModel, frames: &[ChainInput]) -> Vec<f32> {
+    let mut st = ChainState::new();
+    let hist = ArHistory::new();
+    frames
+        .iter()
+        .map(|&f| c.eval(model, &hist, &mut st, f).map_or(f32::NAN, |e| e.p))
+        .collect()
+}
+
+/// A linear model P = p0 + kv·v + cf·v̇ (raw units), so the lags' answers are hand-computable.
+fn linear(p0: f64, kv: f64, cf: f64) -> PolyModel {
+    let sc = Scaling::for_range(0.0, 1000.0, -200.0, 200.0).unwrap();
+    PolyModel::from_raw(Shape::new(1, 1, 0).unwrap(), &[p0, cf, kv, 0.0], &[], sc).unwrap()
+}
+
+/// Smooth motion: two tones in volume (exact flow), a measured pressure from SBA1 plus a slow sine.
+fn frames(len: usize, a1: f64, w1: f64, a2: f64, w2: f64) -> Vec<ChainInput> {
+    (0..len)
+        .map(|k| {
+            let t = k as f64 * DT as f64;
+            let v = 275.0 + a1 * (w1 * t).sin() + a2 * (w2 * t).sin();
+            let f = a1 * w1 * (w1 * t).cos() + a2 * w2 * (w2 * t).cos();
+            let p = p_raw(Shape::PAPER, &SBA1_RAW, v, f) + 0.3 * (0.7 * t).sin();
+            ChainInput {
+                v: v as f32,
+                vdot: f as f32,
+                p: p as f32,
+                dt: DT,
+            }
+        })
+        .collect()
+}
+
+/// The independent `f64` evaluation of a chain over a sequence (see the file docs).
+mod reference {
+    use super::*;
+
+    /// Frame interval and frame inputs in f64.
+    pub struct Seq {
+        pub dt: f64,
+        pub v: Vec<f64>,
+        pub f: Vec<f64>,
+        pub p: Vec<f64>,
+    }
+
+    impl Seq {
+        pub fn of(frames: &[ChainInput]) -> Self {
+            Seq {
+                dt: DT as f64,
+                v: frames.iter().map(|x| x.v as f64).collect(),
+                f: frames.iter().map(|x| x.vdot as f64).collect(),
+                p: frames.iter().map(|x| x.p as f64).collect(),
+            }
+        }
+    }
+
+    /// `y(Δt)` of `τẏ + y = u(s)` from `y0`, u given on [0, Δt], by Simpson's rule.
+    fn lag_step(dt: f64, tau: f64, y0: f64, u: impl Fn(f64) -> f64) -> f64 {
+        if tau <= 1e-9 * dt {
+            return u(dt);
+        }
+        let n = 400;
+        let h = dt / n as f64;
+        let g = |s: f64| (-(dt - s) / tau).exp() / tau * u(s);
+        let mut sum = g(0.0) + g(dt);
+        for i in 1..n {
+            sum += if i % 2 == 1 { 4.0 } else { 2.0 } * g(i as f64 * h);
+        }
+        (-dt / tau).exp() * y0 + sum * h / 3.0
+    }
+
+    /// Cubic Hermite on [0, h] with end values x0, x1 and slopes m0, m1, at s ∈ [0, h].
+    fn hermite(h: f64, x0: f64, m0: f64, x1: f64, m1: f64, s: f64) -> f64 {
+        let u = s / h;
+        (2.0 * u.powi(3) - 3.0 * u * u + 1.0) * x0
+            + (u.powi(3) - 2.0 * u * u + u) * h * m0
+            + (-2.0 * u.powi(3) + 3.0 * u * u) * x1
+            + (u.powi(3) - u * u) * h * m1
+    }
+
+    /// The lag of x, slopes `m` (None: the straight line between frames), started at rest.
+    pub fn lag(dt: f64, tau: f64, x: &[f64], m: Option<&[f64]>) -> Vec<f64> {
+        let mut y = vec![x[0]];
+        for k in 1..x.len() {
+            let (x0, x1) = (x[k - 1], x[k]);
+            let next = match m {
+                Some(m) => lag_step(dt, tau, y[k - 1], |s| {
+                    hermite(dt, x0, m[k - 1], x1, m[k], s)
+                }),
+                None => lag_step(dt, tau, y[k - 1], |s| x0 + (x1 - x0) * s / dt),
+            };
+            y.push(next);
+        }
+        y
+    }
+
+    /// The lag with a per-frame time constant (air compliance), over the straight line.
+    pub fn lag_varying(dt: f64, tau: &[f64], x: &[f64]) -> Vec<f64> {
+        let mut y = vec![x[0]];
+        for k in 1..x.len() {
+            let t = 0.5 * (tau[k] + tau[k - 1]);
+            let (x0, x1) = (x[k - 1], x[k]);
+            y.push(lag_step(dt, t, y[k - 1], |s| x0 + (x1 - x0) * s / dt));
+        }
+        y
+    }
+
+    /// The whole chain over `seq` for SBA1 (the effects as in the module table).
+    pub fn chain(seq: &Seq, effects: &[(EffectKind, Vec<f64>)]) -> (Vec<f64>, Vec<bool>) {
+        let n = seq.v.len();
+        let dt = seq.dt;
+        let get = |k: EffectKind| effects.iter().find(|e| e.0 == k).map(|e| e.1.clone());
+        let (mut v, mut f) = (seq.v.clone(), seq.f.clone());
+        let mut edge = vec![false; n];
+        if let Some(p) = get(EffectKind::DeliveryLag) {
+            for _ in 0..2 {
+                let nv = lag(dt, p[0], &v, Some(&f));
+                f = lag(dt, p[0], &f, None);
+                v = nv;
+            }
+        }
+        if let Some(p) = get(EffectKind::TransportDelay) {
+            let (v0, f0) = (v.clone(), f.clone());
+            for k in 0..n {
+                let ts = k as f64 * dt - p[0];
+                if ts <= 0.0 {
+                    (v[k], f[k]) = (v0[0], f0[0]);
+                    continue;
+                }
+                let j = ((ts / dt).ceil() as usize).max(1) - 1;
+                let s = ts - j as f64 * dt;
+                v[k] = hermite(dt, v0[j], f0[j], v0[j + 1], f0[j + 1], s);
+                // The cubic's derivative, by a central difference of the exact cubic.
+                let e = 1e-6 * dt;
+                let (a, b) = ((s - e).max(0.0), (s + e).min(dt));
+                f[k] = (hermite(dt, v0[j], f0[j], v0[j + 1], f0[j + 1], b)
+                    - hermite(dt, v0[j], f0[j], v0[j + 1], f0[j + 1], a))
+                    / (b - a);
+            }
+        }
+        if let Some(p) = get(EffectKind::Backlash) {
+            let h = 0.5 * p[0];
+            let mut z = v[0];
+            for k in 0..n {
+                z = z.clamp(v[k] - h, v[k] + h);
+                let gap = v[k] - z;
+                let margin = gap.abs() - h;
+                // The device's tolerance (4 f32 ulps of the volume); frames within 10⁻³ mm³ of
+                // the engagement edge are left out of the comparison.
+                let tol = 4.0 * f32::EPSILON as f64 * (v[k].abs() + h);
+                edge[k] = h > 0.0 && margin.abs() < 1e-3 && gap * f[k] > 0.0;
+                if !(h == 0.0 || (margin >= -tol && gap * f[k] > 0.0)) {
+                    f[k] = 0.0;
+                }
+                v[k] = z;
+            }
+        }
+        if let Some(p) = get(EffectKind::Leak) {
+            let mut i = 0.0;
+            for k in 0..n {
+                if k > 0 {
+                    i += 0.5 * (seq.p[k] + seq.p[k - 1]) * dt;
+                }
+                v[k] -= p[0] * i;
+                f[k] -= p[0] * seq.p[k];
+            }
+        }
+        let pt: Vec<f64> = seq
+            .p
+            .iter()
+            .map(|&p| p.max(-0.9 * P_ATM_KPA as f64))
+            .collect();
+        let air = get(EffectKind::AirCompliance);
+        let atm = P_ATM_KPA as f64;
+        if let Some(p) = &air {
+            for k in 0..n {
+                v[k] -= p[0] * pt[k] / (atm + pt[k]);
+            }
+        }
+        let sh = Shape::PAPER;
+        let mut out: Vec<f64> = (0..n).map(|k| p_raw(sh, &SBA1_RAW, v[k], f[k])).collect();
+        let c_poly: Vec<f64> = (0..n).map(|k| c_raw(sh, &SBA1_RAW, v[k], f[k])).collect();
+        let k_poly: Vec<f64> = (0..n).map(|k| k_raw(sh, &SBA1_RAW, v[k], f[k])).collect();
+        if let Some(p) = get(EffectKind::Hysteresis) {
+            let mut h = 0.0f64;
+            for k in 0..n {
+                let dv = if k == 0 { 0.0 } else { seq.v[k] - seq.v[k - 1] };
+                if dv != 0.0 {
+                    h = dv.signum() + (h - dv.signum()) * (-dv.abs() / p[0]).exp();
+                }
+                let x = (seq.v[k] - 275.0) / 275.0;
+                out[k] += (p[1] + p[2] * x) * h;
+            }
+        }
+        if let Some(p) = get(EffectKind::Inertance) {
+            for k in 1..n {
+                let acc = (-6.0 * (seq.v[k] - seq.v[k - 1])
+                    + 2.0 * dt * seq.f[k - 1]
+                    + 4.0 * dt * seq.f[k])
+                    / (dt * dt);
+                out[k] += p[0] * acc;
+            }
+        }
+        if let Some(p) = get(EffectKind::PumpRipple) {
+            let w = std::f64::consts::TAU / p[0];
+            for k in 0..n {
+                let ph = w * seq.v[k];
+                let delta = p[1] * ph.sin() + p[2] * ph.cos();
+                let rate = w * seq.f[k] * (p[1] * ph.cos() - p[2] * ph.sin());
+                out[k] += k_poly[k] * delta + c_poly[k] * rate;
+            }
+        }
+        if let Some(p) = &air {
+            let tau: Vec<f64> = (0..n)
+                .map(|k| c_poly[k].max(0.0) * p[0] * atm / (atm + pt[k]).powi(2))
+                .collect();
+            out = lag_varying(dt, &tau, &out);
+        }
+        if let Some(p) = get(EffectKind::SensorLag) {
+            out = lag(dt, p[0], &out, None);
+        }
+        (out, edge)
+    }
+}
+
+/// The SBA1 model's pressure range over its box (0..550 mm³, ±100 mm³/s): the scale the
+/// tolerances are stated against.
+fn sba1_range() -> f64 {
+    let (mut lo, mut hi) = (f64::MAX, f64::MIN);
+    for i in 0..=55 {
+        for j in 0..=20 {
+            let p = p_raw(
+                Shape::PAPER,
+                &SBA1_RAW,
+                10.0 * i as f64,
+                -100.0 + 10.0 * j as f64,
+            );
+            lo = lo.min(p);
+            hi = hi.max(p);
+        }
+    }
+    hi - lo
+}
+
+/// Largest |f32 − f64| over the frames not at a backlash edge, relative to the model's range.
+fn worst(effects: &[(EffectKind, Vec<f64>)], frames: &[ChainInput]) -> f64 {
+    let mut c = Chain::new();
+    for (k, p) in effects {
+        let p32: Vec<f32> = p.iter().map(|&x| x as f32).collect();
+        c.push(Effect::new(*k, &p32).unwrap()).unwrap();
+    }
+    let got = run(&c, &sba1(), frames);
+    assert!(
+        got.iter().all(|p| p.is_finite()),
+        "every frame inside the model's range"
+    );
+    let (want, edge) = reference::chain(&reference::Seq::of(frames), effects);
+    let range = sba1_range();
+    got.iter()
+        .zip(&want)
+        .zip(&edge)
+        .filter(|(_, &e)| !e)
+        .map(|((g, w), _)| (*g as f64 - w).abs() / range)
+        .fold(0.0, f64::max)
+}
+
+/// One representative parameter set per effect (the module table's units).
+fn each_effect() -> Vec<(EffectKind, Vec<f64>)> {
+    vec![
+        (EffectKind::Hysteresis, vec![8.0, 0.4, 0.1]),
+        (EffectKind::SensorLag, vec![0.15]),
+        (EffectKind::DeliveryLag, vec![0.05]),
+        (EffectKind::TransportDelay, vec![0.13]),
+        (EffectKind::Backlash, vec![1.5]),
+        (EffectKind::Inertance, vec![2e-4]),
+        (EffectKind::PumpRipple, vec![8.0, 0.2, -0.07]),
+        (EffectKind::AirCompliance, vec![120.0]),
+        (EffectKind::Leak, vec![0.02]),
+    ]
+}
+
+/// Tolerance of the f32 device form against the f64 reference, relative to SBA1's pressure range
+/// (89.2 kPa on its 0..550 mm³ × ±100 mm³/s box): 2·10⁻⁵, i.e. 1.8 Pa; the worst seen is printed
+/// by the test.
+const REL_TOL: f64 = 2e-5;
+
+#[test]
+fn each_effect_matches_the_f64_reference() {
+    let fr = frames(1500, 200.0, 0.31, 40.0, 1.3);
+    let range = sba1_range();
+    assert!(range > 5.0, "{range}");
+    for e in each_effect() {
+        let w = worst(std::slice::from_ref(&e), &fr);
+        println!("{:?}: worst |f32 − f64| = {:.2e} of the range", e.0, w);
+        assert!(w < REL_TOL, "{:?}: {w:e}", e.0);
+    }
+}
+
+#[test]
+fn a_four_effect_chain_matches_the_f64_reference() {
+    let fr = frames(1500, 200.0, 0.31, 40.0, 1.3);
+    let all = each_effect();
+    for pick in [[0, 1, 2, 3], [4, 5, 6, 7], [8, 3, 0, 1], [2, 7, 6, 8]] {
+        let effects: Vec<_> = pick.iter().map(|&i| all[i].clone()).collect();
+        let w = worst(&effects, &fr);
+        println!("{pick:?}: worst {w:.2e}");
+        assert!(w < REL_TOL, "{pick:?}: {w:e}");
+    }
+}
+
+#[test]
+fn zero_size_effects_are_the_bare_polynomial_bit_for_bit() {
+    let fr = frames(300, 200.0, 0.31, 40.0, 1.3);
+    let bare = run(&Chain::new(), &sba1(), &fr);
+    for (i, p) in bare.iter().enumerate() {
+        let e = sba1().eval(fr[i].v, fr[i].vdot).unwrap();
+        assert_eq!(p.to_bits(), e.p.to_bits());
+    }
+    let zero: [(EffectKind, &[f32]); 9] = [
+        (EffectKind::Hysteresis, &[5.0, 0.0, 0.0]),
+        (EffectKind::SensorLag, &[0.0]),
+        (EffectKind::DeliveryLag, &[0.0]),
+        (EffectKind::TransportDelay, &[0.0]),
+        (EffectKind::Backlash, &[0.0]),
+        (EffectKind::Inertance, &[0.0]),
+        (EffectKind::PumpRipple, &[8.0, 0.0, 0.0]),
+        (EffectKind::AirCompliance, &[0.0]),
+        (EffectKind::Leak, &[0.0]),
+    ];
+    for group in zero.chunks(MAX_EFFECTS) {
+        let got = run(&chain(group), &sba1(), &fr);
+        for (g, b) in got.iter().zip(&bare) {
+            // ±0 (a zero-size term adds −0.0 or +0.0): compare values, not bits.
+            assert_eq!(g, b, "{group:?}");
+        }
+    }
+}
+
+#[test]
+fn hysteron_hand_values() {
+    // w = 2 mm³, gap H₀ = 1 kPa: up 6 mm³ in one frame → h = 1 − e⁻³; down 2 → −1 + (h + 1)e⁻¹.
+    let model = linear(0.0, 0.0, 0.0);
+    let c = chain(&[(EffectKind::Hysteresis, &[2.0, 1.0, 0.0])]);
+    let at = |v: f32| ChainInput {
+        v,
+        vdot: 0.0,
+        p: 0.0,
+        dt: DT,
+    };
+    let p = run(&c, &model, &[at(500.0), at(506.0), at(504.0), at(504.0)]);
+    let up = 1.0 - (-3.0f64).exp();
+    let down = -1.0 + (up + 1.0) * (-1.0f64).exp();
+    assert_eq!(p[0], 0.0);
+    assert!((p[1] as f64 - up).abs() < 1e-6, "{}", p[1]);
+    assert!((p[2] as f64 - down).abs() < 1e-6, "{}", p[2]);
+    assert_eq!(p[3], p[2], "no motion, no change");
+    // H₁ scales with x = (v − 500)/500 for this model's scaling: at v = 1000, x = 1.
+    let c = chain(&[(EffectKind::Hysteresis, &[2.0, 0.0, 3.0])]);
+    let p = run(&c, &model, &[at(960.0), at(1000.0)]);
+    let h = 1.0 - (-20.0f64).exp();
+    assert!((p[1] as f64 - 3.0 * h).abs() < 1e-5, "{}", p[1]);
+}
+
+#[test]
+fn backlash_hand_values() {
+    // Play b = 2 on P = v: the plunger trails the nut by 1 once engaged, stands for 2 of nut
+    // travel after the reversal; the flow reaches the model only while engaged.
+    let model = linear(0.0, 1.0, 0.0);
+    let c = chain(&[(EffectKind::Backlash, &[2.0])]);
+    let nut = [500.0, 501.0, 502.0, 503.0, 502.0, 501.0, 500.0];
+    let q = [1.0, 1.0, 1.0, 1.0, -1.0, -1.0, -1.0];
+    let fr: Vec<ChainInput> = nut
+        .iter()
+        .zip(q)
+        .map(|(&v, f)| ChainInput {
+            v,
+            vdot: f,
+            p: 0.0,
+            dt: DT,
+        })
+        .collect();
+    assert_eq!(
+        run(&c, &model, &fr),
+        vec![500.0, 500.0, 501.0, 502.0, 502.0, 502.0, 501.0]
+    );
+    let flows = linear(0.0, 0.0, 1.0);
+    assert_eq!(
+        run(&c, &flows, &fr),
+        vec![0.0, 1.0, 1.0, 1.0, 0.0, -1.0, -1.0]
+    );
+}
+
+#[test]
+fn lags_settle_on_the_polynomial_and_trail_a_ramp_by_tau() {
+    // Constant inputs: every lag's output is its input.
+    let model = sba1();
+    let still = vec![
+        ChainInput {
+            v: 300.0,
+            vdot: 0.0,
+            p: 3.0,
+            dt: DT
+        };
+        50
+    ];
+    let bare = model.eval(300.0, 0.0).unwrap().p;
+    let lags: [(EffectKind, &[f32]); 3] = [
+        (EffectKind::SensorLag, &[0.3]),
+        (EffectKind::DeliveryLag, &[0.2]),
+        (EffectKind::TransportDelay, &[0.5]),
+    ];
+    for p in run(&chain(&lags), &model, &still) {
+        assert!((p - bare).abs() <= 1e-6 * bare.abs(), "{p} vs {bare}");
+    }
+    // P = v, v = 100 + 20 t: a sensor lag of τ trails by 20τ; the delivery lag (two stages of τ)
+    // by 2·20τ; a delay d by 20 d — after the transients have died.
+    let model = linear(0.0, 1.0, 0.0);
+    let ramp: Vec<ChainInput> = (0..600)
+        .map(|k| ChainInput {
+            v: 100.0 + 20.0 * k as f32 * DT,
+            vdot: 20.0,
+            p: 0.0,
+            dt: DT,
+        })
+        .collect();
+    for (e, lag) in [
+        ((EffectKind::SensorLag, &[0.3f32][..]), 20.0 * 0.3),
+        ((EffectKind::DeliveryLag, &[0.3][..]), 2.0 * 20.0 * 0.3),
+        ((EffectKind::TransportDelay, &[0.5][..]), 20.0 * 0.5),
+    ] {
+        let p = run(&chain(&[e]), &model, &ramp);
+        let last = ramp.len() - 1;
+        let trail = ramp[last].v - p[last];
+        assert!((trail - lag).abs() < 2e-3, "{:?}: {trail} vs {lag}", e.0);
+    }
+}
+
+#[test]
+fn leak_and_air_hand_values() {
+    // Leak λ on P = v with constant measured p: I_k = p·kΔt, v′ = v − λ p k Δt.
+    let model = linear(0.0, 1.0, 0.0);
+    let c = chain(&[(EffectKind::Leak, &[0.5])]);
+    let fr = vec![
+        ChainInput {
+            v: 400.0,
+            vdot: 0.0,
+            p: 10.0,
+            dt: DT
+        };
+        26
+    ];
+    let p = run(&c, &model, &fr);
+    assert!(
+        (p[25] - (400.0 - 0.5 * 10.0 * 25.0 * DT)).abs() < 1e-4,
+        "{}",
+        p[25]
+    );
+    // Air on a model without damping (no lag): v′ = v − V_a p/(P_atm + p).
+    let c = chain(&[(EffectKind::AirCompliance, &[200.0])]);
+    let p = run(&c, &model, &fr[..1])[0];
+    let want = 400.0 - 200.0 * 10.0 / (P_ATM_KPA + 10.0);
+    assert!((p - want).abs() < 1e-4, "{p} vs {want}");
+}
+
+#[test]
+fn inertance_is_l_times_the_cubic_end_acceleration() {
+    // v = 100 + 5t² (exact flow 10t): the cubic through two frames with the true slopes is the
+    // parabola itself, so v̈ = 10 exactly; P = L·v̈ on a zero model.
+    let model = linear(0.0, 0.0, 0.0);
+    let c = chain(&[(EffectKind::Inertance, &[0.25])]);
+    let fr: Vec<ChainInput> = (0..20)
+        .map(|k| {
+            let t = k as f32 * DT;
+            ChainInput {
+                v: 1.0 + 5.0 * t * t,
+                vdot: 10.0 * t,
+                p: 0.0,
+                dt: DT,
+            }
+        })
+        .collect();
+    let p = run(&c, &model, &fr);
+    assert_eq!(p[0], 0.0, "first frame: at rest");
+    for &x in &p[1..] {
+        assert!((x - 2.5).abs() < 1e-3, "{x}");
+    }
+}
+
+#[test]
+fn reset_starts_over_and_a_failed_frame_changes_nothing() {
+    let model = sba1();
+    let c = chain(&[
+        (EffectKind::Hysteresis, &[8.0, 0.4, 0.1]),
+        (EffectKind::SensorLag, &[0.15]),
+        (EffectKind::DeliveryLag, &[0.05]),
+        (EffectKind::TransportDelay, &[0.13]),
+    ]);
+    let fr = frames(200, 200.0, 0.31, 40.0, 1.3);
+    let hist = ArHistory::new();
+    let mut st = ChainState::new();
+    let first: Vec<f32> = fr
+        .iter()
+        .map(|&f| c.eval(&model, &hist, &mut st, f).unwrap().p)
+        .collect();
+    st.reset();
+    assert_eq!(st, ChainState::new());
+    // Prepared ahead: the same frames, bit for bit.
+    st.prepare(&c, DT).unwrap();
+    let prepared: Vec<f32> = fr
+        .iter()
+        .map(|&f| c.eval(&model, &hist, &mut st, f).unwrap().p)
+        .collect();
+    assert_eq!(first, prepared);
+    st.reset();
+    let again: Vec<f32> = fr
+        .iter()
+        .map(|&f| c.eval(&model, &hist, &mut st, f).unwrap().p)
+        .collect();
+    assert_eq!(first, again);
+    // Out of range: an error, and the state is exactly as before.
+    let before = st;
+    let far = ChainInput {
+        v: f32::NAN,
+        vdot: 0.0,
+        p: 0.0,
+        dt: DT,
+    };
+    assert_eq!(
+        c.eval(&model, &hist, &mut st, far),
+        Err(ModelError::NonFinite)
+    );
+    assert_eq!(st, before);
+    let bare = Chain::new();
+    let far = ChainInput { v: 1e5, ..fr[0] };
+    assert_eq!(
+        bare.eval(&model, &hist, &mut st, far),
+        Err(ModelError::OutOfRange)
+    );
+    assert_eq!(st, before);
+    let leak = chain(&[(EffectKind::Leak, &[0.1])]);
+    let nan = ChainInput {
+        p: f32::NAN,
+        ..fr[0]
+    };
+    assert_eq!(
+        leak.eval(&model, &hist, &mut st, nan),
+        Err(ModelError::NonFinite)
+    );
+}
+
+#[test]
+fn chain_stiffness_and_damping() {
+    let model = sba1();
+    let hist = ArHistory::new();
+    let at = |v: f32, f: f32| ChainInput {
+        v,
+        vdot: f,
+        p: 4.0,
+        dt: DT,
+    };
+    // Without effects, and through lags at rest: the polynomial's own k and c.
+    let e0 = model.eval(300.0, 20.0).unwrap();
+    for c in [
+        Chain::new(),
+        chain(&[
+            (EffectKind::SensorLag, &[0.2]),
+            (EffectKind::DeliveryLag, &[0.1]),
+        ]),
+    ] {
+        let e = c
+            .eval(&model, &hist, &mut ChainState::new(), at(300.0, 20.0))
+            .unwrap();
+        assert_eq!((e.k, e.c), (e0.k, e0.c));
+    }
+    // Air: the gas spring V_a·P_atm/(P_atm + p)² in series with the chamber.
+    let c = chain(&[(EffectKind::AirCompliance, &[150.0])]);
+    let e = c
+        .eval(&model, &hist, &mut ChainState::new(), at(300.0, 0.0))
+        .unwrap();
+    let ep = model.eval(e.v_in, 0.0).unwrap();
+    let spring = 150.0 * P_ATM_KPA / (P_ATM_KPA + 4.0).powi(2);
+    let want = 1.0 / (1.0 / ep.k + spring);
+    assert!((e.k - want).abs() < 1e-6 * want, "{} vs {want}", e.k);
+    // Hysteresis: k matches the finite difference of P̂ along the motion (same direction).
+    let c = chain(&[(EffectKind::Hysteresis, &[8.0, 0.5, 0.2])]);
+    let mut st = ChainState::new();
+    for k in 0..10 {
+        c.eval(&model, &hist, &mut st, at(280.0 + 2.0 * k as f32, 50.0))
+            .unwrap();
+    }
+    let mut st2 = st;
+    let e1 = c.eval(&model, &hist, &mut st, at(300.0, 50.0)).unwrap();
+    let e2 = c.eval(&model, &hist, &mut st2, at(300.01, 50.0)).unwrap();
+    let fd = (e2.p - e1.p) / 0.01;
+    assert!((fd - e1.k).abs() < 2e-3 * e1.k.abs(), "{fd} vs {}", e1.k);
+    // Backlash's dead band: neither k nor c.
+    let c = chain(&[(EffectKind::Backlash, &[2.0])]);
+    let e = c
+        .eval(&model, &hist, &mut ChainState::new(), at(300.0, 10.0))
+        .unwrap();
+    assert_eq!((e.k, e.c), (0.0, 0.0));
+}
+
+#[test]
+fn bad_effects_are_refused() {
+    use EffectKind::*;
+    assert_eq!(Effect::new(Hysteresis, &[1.0]), Err(ModelError::BadLength));
+    assert_eq!(
+        Effect::new(SensorLag, &[f32::NAN]),
+        Err(ModelError::NonFinite)
+    );
+    assert_eq!(
+        Effect::new(SensorLag, &[-0.1]),
+        Err(ModelError::BadParameter)
+    );
+    assert_eq!(
+        Effect::new(Hysteresis, &[0.0, 1.0, 1.0]),
+        Err(ModelError::BadParameter)
+    );
+    assert_eq!(
+        Effect::new(PumpRipple, &[-8.0, 1.0, 1.0]),
+        Err(ModelError::BadParameter)
+    );
+    assert!(Effect::new(Inertance, &[-1e-4]).is_ok());
+    let mut c = Chain::new();
+    c.push(Effect::new(Leak, &[0.1]).unwrap()).unwrap();
+    assert_eq!(
+        c.push(Effect::new(Leak, &[0.2]).unwrap()),
+        Err(ModelError::BadParameter)
+    );
+    let too_long = (MAX_DELAY_FRAMES - 1) as f32 * DT;
+    assert_eq!(
+        c.push(Effect::new(TransportDelay, &[too_long]).unwrap()),
+        Err(ModelError::BadParameter)
+    );
+    for k in [SensorLag, Backlash, Inertance] {
+        c.push(Effect::new(k, &[0.0]).unwrap()).unwrap();
+    }
+    assert_eq!(
+        c.push(Effect::new(DeliveryLag, &[0.1]).unwrap()),
+        Err(ModelError::BadLength)
+    );
+    // Kept in evaluation order whatever the order of pushing.
+    let kinds: Vec<EffectKind> = c.effects().iter().map(|e| e.kind()).collect();
+    assert_eq!(kinds, vec![Backlash, Leak, Inertance, SensorLag]);
+    // A frame period that is not > 0, or too short a delay line for the delay: every frame fails.
+    let mut st = ChainState::new();
+    let at = |dt: f32| ChainInput {
+        v: 300.0,
+        vdot: 0.0,
+        p: 0.0,
+        dt,
+    };
+    let lag = chain(&[(SensorLag, &[0.1])]);
+    assert_eq!(
+        lag.eval(&sba1(), &ArHistory::new(), &mut st, at(0.0)),
+        Err(ModelError::BadParameter)
+    );
+    let d = chain(&[(TransportDelay, &[1.5])]);
+    assert!(d.eval(&sba1(), &ArHistory::new(), &mut st, at(DT)).is_ok());
+    st.reset();
+    assert_eq!(
+        d.eval(&sba1(), &ArHistory::new(), &mut st, at(0.02)),
+        Err(ModelError::BadParameter)
+    );
+    for k in EffectKind::ALL {
+        assert_eq!(EffectKind::from_name(k.name()), Some(k));
+        assert_eq!(EffectKind::from_rank(k.rank()), Some(k));
+    }
+    assert_eq!(EffectKind::from_name("ripple"), None);
+    assert_eq!(EffectKind::from_name("offset_drift"), None);
+}
+
+fn effect_strategy() -> impl Strategy<Value = (EffectKind, Vec<f64>)> {
+    prop_oneof![
+        (1.0..40.0f64, -1.0..1.0f64, -0.5..0.5f64)
+            .prop_map(|(w, a, b)| (EffectKind::Hysteresis, vec![w, a, b])),
+        (0.0..1.0f64).prop_map(|t| (EffectKind::SensorLag, vec![t])),
+        (0.0..0.5f64).prop_map(|t| (EffectKind::DeliveryLag, vec![t])),
+        (0.0..1.5f64).prop_map(|t| (EffectKind::TransportDelay, vec![t])),
+        (0.0..5.0f64).prop_map(|b| (EffectKind::Backlash, vec![b])),
+        (-1e-3..1e-3f64).prop_map(|l| (EffectKind::Inertance, vec![l])),
+        (2.0..20.0f64, -0.3..0.3f64, -0.3..0.3f64)
+            .prop_map(|(l, a, b)| (EffectKind::PumpRipple, vec![l, a, b])),
+        (0.0..200.0f64).prop_map(|v| (EffectKind::AirCompliance, vec![v])),
+        (0.0..0.05f64).prop_map(|l| (EffectKind::Leak, vec![l])),
+    ]
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(48))]
+
+    /// Random chains (up to four distinct effects, random parameters) on random two-tone motion:
+    /// the f32 device form stays within `REL_TOL` of the f64 reference.
+    #[test]
+    fn random_chains_match_the_f64_reference(
+        effects in proptest::collection::vec(effect_strategy(), 1..=MAX_EFFECTS),
+        a1 in 20.0..200.0f64, w1 in 0.1..1.5f64, a2 in 0.0..40.0f64, w2 in 0.5..3.0f64,
+    ) {
+        let mut effects = effects;
+        effects.sort_by_key(|e| e.0);
+        effects.dedup_by_key(|e| e.0);
+        // Flows inside the model's range (±2 scaled units of 100 mm³/s, with a margin).
+        let peak = a1 * w1 + a2 * w2;
+        let shrink = (150.0 / peak).min(1.0);
+        let fr = frames(400, a1 * shrink, w1, a2 * shrink, w2);
+        let w = worst(&effects, &fr);
+        prop_assert!(w < REL_TOL, "{effects:?}: {w:e}");
+    }
+
+    /// Any finite inputs: an answer or an error, never a panic or a silent NaN.
+    #[test]
+    fn never_panics(
+        effects in proptest::collection::vec(effect_strategy(), 0..=MAX_EFFECTS),
+        inputs in proptest::collection::vec((-1e4..1e4f32, -1e3..1e3f32, -200.0..200.0f32), 1..50),
+    ) {
+        let mut c = Chain::new();
+        for (k, p) in &effects {
+            let p32: Vec<f32> = p.iter().map(|&x| x as f32).collect();
+            let _ = c.push(Effect::new(*k, &p32).unwrap());
+        }
+        let mut st = ChainState::new();
+        for (v, f, p) in inputs {
+            if let Ok(e) = c.eval(&sba1(), &ArHistory::new(), &mut st, ChainInput { v, vdot: f, p, dt: DT }) {
+                prop_assert!(e.p.is_finite() && e.k.is_finite() && e.c.is_finite());
+            }
+        }
+    }
+}

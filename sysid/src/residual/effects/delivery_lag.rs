@@ -1,0 +1,62 @@
+//! Delivery lag: the commanded motion reaching the chamber through a critically damped
+//! second-order lag, two first-order lags `L_τ` (`τ ẏ + y = x`) of time constant τ, the input
+//! transform `v' = L_τ² v`, `v̇' = L_τ² v̇`: late by 2τ and rounded off.
+
+use super::{
+    param, DeviceSupport, Effect, EffectModel, Fitted, Inputs, Param, Prepared, Scales, Search,
+};
+use crate::residual::signal;
+
+/// The commanded motion delivered through a critically damped lag.
+pub struct DeliveryLag;
+
+impl EffectModel for DeliveryLag {
+    fn name(&self) -> &'static str {
+        "delivery_lag"
+    }
+
+    fn story(&self) -> &'static str {
+        "The motor, lead screw, plunger seal and tubing deliver the commanded motion late and rounded off (a critically damped lag of time constant tau, about 2 tau late), so the chamber sees a smoothed, delayed copy of the logged volume and flow."
+    }
+
+    fn search(&self, sc: &Scales) -> Search {
+        Search::Log(0.05 * sc.dt, (0.75f64).min(sc.duration / 40.0).max(sc.dt))
+    }
+
+    fn has_nonlinear(&self) -> bool {
+        true
+    }
+
+    fn input_stage(&self) -> Option<u32> {
+        Some(0)
+    }
+
+    /// Each stage lags the volume with the flow as its exact slopes (the lag of a derivative is
+    /// the derivative of the lag), the flow with Akima slopes.
+    fn transform_inputs(&self, e: &Effect, prep: &Prepared, inputs: &mut Inputs) {
+        let t = &prep.series.t;
+        let c = signal::lag_cubic_coeffs(t, |_| e.theta);
+        for _ in 0..2 {
+            let f = &inputs.f;
+            let fv = signal::lag_cubic(&c, f, &signal::akima_slopes(t, f));
+            inputs.v = signal::lag_cubic(&c, &inputs.v, f);
+            inputs.f = fv;
+        }
+    }
+
+    fn params(&self, f: &Fitted) -> Vec<Param> {
+        vec![
+            param("time_constant", f.effect.theta, f.theta_se, "s"),
+            param(
+                "effective_delay",
+                2.0 * f.effect.theta,
+                2.0 * f.theta_se,
+                "s",
+            ),
+        ]
+    }
+
+    fn device_support(&self) -> DeviceSupport {
+        DeviceSupport::host_only("needs the polynomial evaluated on filtered inputs; PolyModel's AR terms are only linear in past inputs")
+    }
+}

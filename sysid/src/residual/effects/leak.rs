@@ -1,0 +1,65 @@
+//! Leak: fluid escaping at a rate proportional to pressure, `q_leak = λ P`, the input transform
+//! `v' = v − λ ∫P dt`, `v̇' = v̇ − λ P`, with the measured pressure (integrated, never
+//! differentiated, so its noise does not enter the regressors).
+
+use super::{
+    param, DeviceSupport, Effect, EffectModel, Fitted, Inputs, Param, Prepared, Scales, Search,
+};
+
+/// Leak: volume lost at a rate proportional to pressure.
+pub struct Leak;
+
+impl EffectModel for Leak {
+    fn name(&self) -> &'static str {
+        "leak"
+    }
+
+    fn story(&self) -> &'static str {
+        "Fluid escapes through a seal or fitting at a rate proportional to pressure, so the chamber slowly holds less than the syringe has delivered."
+    }
+
+    /// λ from the volume range over `∫P dt`; no search when the pressure never rose.
+    fn search(&self, sc: &Scales) -> Search {
+        if sc.p_integral > 0.0 {
+            Search::Log(
+                0.002 * sc.v_range / sc.p_integral,
+                1.0 * sc.v_range / sc.p_integral,
+            )
+        } else {
+            Search::None
+        }
+    }
+
+    fn has_nonlinear(&self) -> bool {
+        true
+    }
+
+    fn input_stage(&self) -> Option<u32> {
+        Some(50)
+    }
+
+    fn transform_inputs(&self, e: &Effect, prep: &Prepared, inputs: &mut Inputs) {
+        for k in 0..inputs.v.len() {
+            inputs.v[k] -= e.theta * prep.p_int[k];
+            inputs.f[k] -= e.theta * prep.p_sched[k];
+        }
+    }
+
+    fn uses_measured_pressure(&self) -> bool {
+        true
+    }
+
+    fn params(&self, f: &Fitted) -> Vec<Param> {
+        let (e, pi) = (f.effect, f.prep.scales.p_integral);
+        vec![
+            param("conductance", e.theta, f.theta_se, "mm3/(kPa*s)"),
+            param("volume_lost_over_log", e.theta * pi, f.theta_se * pi, "mm3"),
+        ]
+    }
+
+    fn device_support(&self) -> DeviceSupport {
+        DeviceSupport::host_only(
+            "needs the integral of measured pressure since the start; PolyModel has no such state",
+        )
+    }
+}

@@ -1,0 +1,444 @@
+//! The library of candidate effects: each a physically meaningful augmentation of the polynomial
+//! model with a name, a one-sentence physical story and parameters in physical units. Each effect
+//! is one type implementing [`EffectModel`], in one file of this module; [`REGISTRY`] lists them
+//! once, and [`super::Config::candidates`] (default: the registry) is what the loop tries.
+//!
+//! Every augmented model stays *linear in its coefficients once its nonlinear parameters θ are
+//! fixed*, so it is fitted by least squares and θ (a time constant, width, delay, frequency, air
+//! volume, leak conductance or drift rate) is found by search. An effect enters the model in one
+//! of three ways (the design is assembled in [`design`]):
+//!
+//! * **input transform** ([`EffectModel::transform_inputs`]): the baseline polynomial is evaluated
+//!   on what the chamber really sees, `P = Σ α_ij T_i(x') T_j(y')` with `(v', v̇')` the transformed
+//!   volume and flow: transport delay `v'(t) = v(t − d)`; delivery lag `v' = L_τ² v`,
+//!   `v̇' = L_τ² v̇` (the commanded motion through a critically damped second-order lag, two
+//!   first-order lags `L_τ` of time constant τ: motor, screw, seal and tubing deliver it late by
+//!   2τ and rounded); backlash `v' = play_b(v)` (the plunger waits `b` mm³ of nut travel after
+//!   each reversal, with zero flow meanwhile); volume drift `v' = v − r·t`; leak
+//!   `v' = v − λ ∫P dt` (flow out ∝ pressure); air compliance `v' = v − V_a·P/(P_atm + P)`
+//!   (isothermal gas of volume `V_a` at atmospheric pressure, Boyle's law). The transforms are
+//!   applied in the physical order along the chain ([`EffectModel::input_stage`]): timing,
+//!   nut→plunger, then volume that never reaches the chamber;
+//! * **added columns** ([`EffectModel::columns`]): hysteresis `H(v)·h_w(t)`, `h_w ∈ [−1, 1]` a
+//!   rate-independent direction memory that switches exponentially in volume after each reversal,
+//!   `dh_w = (s − h_w)|dv|/w` with `s = sign(dv)` (a Duhem hysteron: its output depends on the path
+//!   of v, never on its speed; w is the volume over which 63 % of the switch happens), with
+//!   `H(v) = H₀ + H₁ x`; inertance `L·v̈`; offset drift `Σ_d c_d P_d(s)` (Legendre in scaled time);
+//!   ripple `a sin 2πft + b cos 2πft`; pump ripple, a volume error `δ = a sin 2πv/Λ + b cos 2πv/Λ`
+//!   once per screw turn entered to first order, `k δ + c δ̇` (k, c the model's stiffness and
+//!   damping), its phase taken at the plunger, which the logged step count trails by a lag fitted
+//!   per cruise speed ([`CountLag`]), and then applied exactly as an input transform by
+//!   Gauss–Newton steps;
+//! * **output filter** on every column ([`EffectModel::filter`]; exact because the model is linear
+//!   in its coefficients): sensor lag `τ Ṗ_m + P_m = P`; air compliance's dynamic part,
+//!   `τ(t) Ṗ + P = P_static` with `τ(t) = c(v, v̇)·V_a·P_atm/(P_atm + P)²` — the line resistance
+//!   `c = ∂P/∂v̇` (paper's damping, Section V-A) charging the gas spring `dV/dP`, so an air pocket
+//!   lags most at low pressure. Air compliance filters before the sensor's own lag
+//!   ([`EffectModel::filter_stage`]).
+//!
+//! A log's frame is the mean of the sensor's conversions over its interval, and an effect acts
+//! inside it. The filters therefore lag each column's Akima interpolant between frames exactly
+//! (`signal::lag_cubic_coeffs`; a mean commutes with a linear filter, so this is the lag of the
+//! frame-averaged signal), and backlash runs its play operator on the nut's motion rebuilt at
+//! eight instants per frame and averages the plunger back (`signal::play_frames`): a dead band
+//! shorter than a frame is then neither all-or-nothing nor placed at a frame instant.
+//!
+//! Where a transform needs the pressure itself (leak, air compliance) it uses the measured
+//! pressure unfiltered; it only schedules or integrates it, never differentiates it, so the
+//! sensor noise does not leak into the regressors. A prediction with these effects therefore uses
+//! measured pressure as a scheduling input (stated in the report).
+//!
+//! # Adding an effect
+//!
+//! An effect is a type implementing [`EffectModel`]: a name and a story are required, everything
+//! else has a do-nothing default (no parameter searched, no transform, no column, no filter, not
+//! on the device). In this crate it is one new file `effects/<name>.rs` and one line in
+//! [`REGISTRY`]; outside it, one line added to the candidates the loop tries. Here a turbulent
+//! loss across a restriction (Bernoulli: `ΔP = K·v̇|v̇|`), one added column whose coefficient K
+//! must not be negative:
+//!
+//! ```
+//! use sysid::residual::effects::{
+//!     Column, DeviceSupport, Effect, EffectKind, EffectModel, Fitted, Prepared, REGISTRY,
+//! };
+//! use sysid::residual::{diagnose, param, Config, Param, Series};
+//!
+//! /// Turbulent pressure drop across a narrow fitting.
+//! struct OrificeLoss;
+//!
+//! impl EffectModel for OrificeLoss {
+//!     fn name(&self) -> &'static str {
+//!         "orifice_loss"
+//!     }
+//!     fn story(&self) -> &'static str {
+//!         "Flow through a narrow fitting loses pressure with the square of its speed (Bernoulli), in the direction of flow."
+//!     }
+//!     fn columns(&self, _e: &Effect, prep: &Prepared) -> Vec<Column> {
+//!         let q = &prep.series.vdot;
+//!         vec![Column::new(q.iter().map(|q| q * q.abs()).collect(), "orifice vdot|vdot|")]
+//!     }
+//!     fn unphysical(&self, _e: &Effect, coefs: &[f64]) -> Option<String> {
+//!         (coefs[0] < 0.0).then(|| "a restriction cannot push the flow along".to_string())
+//!     }
+//!     fn params(&self, f: &Fitted) -> Vec<Param> {
+//!         vec![param("loss_coefficient", f.coef(0), f.coef_se(0), "kPa*s^2/mm6")]
+//!     }
+//!     fn device_support(&self) -> DeviceSupport {
+//!         DeviceSupport::host_only("the device model is polynomial in the flow")
+//!     }
+//! }
+//!
+//! // A breathing-like motion whose pressure carries the loss (K = 4e-5 kPa·s²/mm⁶), with a
+//! // deterministic pseudo-noise of about 0.01 kPa.
+//! let t: Vec<f64> = (0..2500).map(|k| 0.04 * k as f64).collect();
+//! let v: Vec<f64> = t.iter().map(|&t| 275.0 + 150.0 * (0.3 * t).sin() + 80.0 * (0.71 * t).sin()).collect();
+//! let q: Vec<f64> = t.iter().map(|&t| 45.0 * (0.3 * t).cos() + 56.8 * (0.71 * t).cos()).collect();
+//! let p: Vec<f64> = (0..t.len())
+//!     .map(|k| 2.0 + 0.01 * v[k] + 0.002 * q[k] + 4e-5 * q[k] * q[k].abs() + 0.01 * (k as f64 * 12.9898).sin())
+//!     .collect();
+//! let train: Vec<bool> = (0..t.len()).map(|k| (k / 250) % 5 != 4).collect();
+//! let series = Series::new(t, v, q, p, train).unwrap();
+//!
+//! let mut cfg = Config { max_effects: 1, ..Config::default() };
+//! cfg.candidates.push(EffectKind(&OrificeLoss)); // the one line
+//! assert_eq!(cfg.candidates.len(), REGISTRY.len() + 1);
+//! let d = diagnose(series, &cfg).unwrap();
+//! assert_eq!(d.effects[0].name, "orifice_loss");
+//! let k = d.effects[0].params[0].value;
+//! assert!((k - 4e-5).abs() < 0.05 * 4e-5, "K = {k}");
+//! ```
+
+use serde::Serialize;
+
+pub mod air_compliance;
+pub mod backlash;
+pub mod delivery_lag;
+pub mod design;
+pub mod hysteresis;
+pub mod inertance;
+pub mod leak;
+pub mod offset_drift;
+pub mod pump_ripple;
+pub mod ripple;
+pub mod sensor_lag;
+pub mod transport_delay;
+pub mod volume_drift;
+
+pub use air_compliance::AirCompliance;
+pub use backlash::Backlash;
+pub use delivery_lag::DeliveryLag;
+pub use design::{build, sse_structured, Design, Effect, Inputs, Prepared, Scales};
+pub use hysteresis::Hysteresis;
+pub use inertance::Inertance;
+pub use leak::Leak;
+pub use offset_drift::OffsetDrift;
+pub use pump_ripple::{cruise_speeds, CountLag, PumpRipple};
+pub use ripple::Ripple;
+pub use sensor_lag::SensorLag;
+pub use transport_delay::TransportDelay;
+pub use volume_drift::VolumeDrift;
+
+pub use super::select::{param, Param, Stage};
+pub use super::DeviceSupport;
+
+/// Atmospheric pressure (kPa) for the isothermal air pocket.
+pub const P_ATM_KPA: f64 = 101.325;
+
+/// Every effect this crate knows, in the order they are reported when tied: the loop's default
+/// candidates.
+pub const REGISTRY: &[EffectKind] = &[
+    EffectKind(&Hysteresis),
+    EffectKind(&AirCompliance),
+    EffectKind(&SensorLag),
+    EffectKind(&TransportDelay),
+    EffectKind(&DeliveryLag),
+    EffectKind(&Inertance),
+    EffectKind(&OffsetDrift),
+    EffectKind(&VolumeDrift),
+    EffectKind(&Backlash),
+    EffectKind(&Ripple),
+    EffectKind(&PumpRipple),
+    EffectKind(&Leak),
+];
+
+/// How a nonlinear parameter is searched.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Search {
+    /// Positive, searched on a log grid between the bounds.
+    Log(f64, f64),
+    /// Either sign, searched on a symmetric log grid of magnitudes between the bounds.
+    Signed(f64, f64),
+    /// Frequency read off the residual spectrum, then refined.
+    Spectral,
+    /// Period in volume from the effect's own scan of the residual ([`EffectModel::scan`]), then
+    /// refined in spatial frequency within one scan step either side.
+    VolumeSpectral,
+    /// A small integer (polynomial degree), chosen by AICc.
+    Degree(usize),
+    /// No nonlinear parameter.
+    None,
+}
+
+/// Per-sample data of the current model a search attaches to each trial [`Effect`].
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Needs {
+    /// The damping `c = ∂P/∂v̇` ([`Effect::damping`]).
+    pub damping: bool,
+    /// The stiffness `k = ∂P/∂v` ([`Effect::stiffness`]).
+    pub stiffness: bool,
+}
+
+/// One added regressor column over every sample, with what it is.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Column {
+    /// Values over every sample (train and held-out).
+    pub values: Vec<f64>,
+    /// Label in reports.
+    pub label: String,
+}
+
+impl Column {
+    /// A column with its label.
+    pub fn new(values: Vec<f64>, label: impl Into<String>) -> Self {
+        Self {
+            values,
+            label: label.into(),
+        }
+    }
+}
+
+/// Candidate values of θ from an effect's scan of the current residual.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Scan {
+    /// Starting values of θ, best first.
+    pub starts: Vec<f64>,
+    /// Spacing of the scanned grid in `1/θ`: each start is refined within one step either side.
+    pub step: f64,
+}
+
+/// A fitted effect as its [`EffectModel::params`] sees it: its θ, its columns' coefficients and
+/// their covariance, with the residual variance inflated for autocorrelation (`N/N_eff`).
+pub struct Fitted<'a> {
+    /// The data.
+    pub prep: &'a Prepared,
+    /// The fitted model the effect belongs to.
+    pub stage: &'a Stage,
+    /// The effect.
+    pub effect: &'a Effect,
+    /// Design indices of the effect's columns, in order.
+    pub cols: Vec<usize>,
+    /// Standard error of θ from the profile SSE's curvature (NaN when flat or without θ).
+    pub theta_se: f64,
+    /// Residual variance `σ̂²·N/N_eff`.
+    pub s2: f64,
+}
+
+impl Fitted<'_> {
+    /// Coefficient of the effect's `k`-th column.
+    pub fn coef(&self, k: usize) -> f64 {
+        self.stage.fit.beta[self.cols[k]]
+    }
+
+    /// Standard error of [`Self::coef`].
+    pub fn coef_se(&self, k: usize) -> f64 {
+        (self.s2 * self.cov(k, k)).sqrt()
+    }
+
+    /// `(XᵀX)⁻¹` between the effect's columns `a` and `b` (multiply by [`Self::s2`]).
+    pub fn cov(&self, a: usize, b: usize) -> f64 {
+        self.stage.fit.xtx_inv[(self.cols[a], self.cols[b])]
+    }
+
+    /// Backlash, transport delay: 1 when the samples fitted best as frame means (an averaging
+    /// sensor), 0 as instants ([`Effect::point_sampled`]).
+    pub fn frame_averaged(&self) -> Param {
+        let v = if self.effect.point_sampled { 0.0 } else { 1.0 };
+        param("frame_averaged", v, f64::NAN, "1")
+    }
+}
+
+/// One candidate effect: everything the loop needs to know about it. Only [`Self::name`] and
+/// [`Self::story`] are required; every other method defaults to doing nothing (see "Adding an
+/// effect" in the module docs).
+pub trait EffectModel: Send + Sync {
+    /// Stable machine name (JSON, CLI), snake case, unique among the candidates.
+    fn name(&self) -> &'static str;
+
+    /// One sentence of physics, for the person reading the report.
+    fn story(&self) -> &'static str;
+
+    /// How θ is searched, from the data's scales (default: no θ).
+    fn search(&self, _scales: &Scales) -> Search {
+        Search::None
+    }
+
+    /// Whether the effect has a searched nonlinear parameter θ, counted as one parameter by the
+    /// nested test (default: no).
+    fn has_nonlinear(&self) -> bool {
+        false
+    }
+
+    /// Per-sample data of the current model each trial carries (default: none).
+    fn needs(&self) -> Needs {
+        Needs::default()
+    }
+
+    /// Whether the search fits θ twice, with the samples as frame means and as instants
+    /// ([`Effect::point_sampled`]), and keeps the form with the lower held-out error.
+    fn tries_point_sampled(&self) -> bool {
+        false
+    }
+
+    /// Guessed cost of the search relative to a plain one, before its first round is timed (to
+    /// start the costliest first).
+    fn cost_guess(&self) -> f64 {
+        1.0
+    }
+
+    /// The training SSE as a function of θ when the effect knows a shortcut around building the
+    /// design with it added to `cur` (default: none).
+    fn fast_sse<'a>(
+        &self,
+        _prep: &'a Prepared,
+        _cur: &'a Stage,
+    ) -> Option<Box<dyn Fn(f64) -> f64 + 'a>> {
+        None
+    }
+
+    /// [`Search::VolumeSpectral`]: candidate θ from a scan of `cur`'s residual, `trial` carrying
+    /// the [`Self::needs`] data (default: none).
+    fn scan(&self, _prep: &Prepared, _cur: &Stage, _trial: &Effect) -> Scan {
+        Scan::default()
+    }
+
+    /// Refines the best fit the search found with the effect last in `stage` added to `base`
+    /// (default: as found).
+    fn refine(&self, _prep: &Prepared, _base: &[Effect], stage: Stage) -> Stage {
+        stage
+    }
+
+    /// Place along the input chain (lower first: delivery lag 0, transport delay 10, backlash
+    /// 20, pump ripple 30, volume drift 40, leak 50, air compliance 60); `None` for no input
+    /// transform (default).
+    fn input_stage(&self) -> Option<u32> {
+        None
+    }
+
+    /// Whether `e` transforms the inputs (default: whenever the effect has an input stage).
+    fn transforms_inputs(&self, _e: &Effect) -> bool {
+        self.input_stage().is_some()
+    }
+
+    /// Transforms the volume and flow the baseline is evaluated on.
+    fn transform_inputs(&self, _e: &Effect, _prep: &Prepared, _inputs: &mut Inputs) {}
+
+    /// Columns added to the design (default: none).
+    fn columns(&self, _e: &Effect, _prep: &Prepared) -> Vec<Column> {
+        Vec::new()
+    }
+
+    /// Place among the output filters (lower first: air compliance 0, sensor lag 10); `None` for
+    /// no output filter (default).
+    fn filter_stage(&self) -> Option<u32> {
+        None
+    }
+
+    /// Filters every design column (each over every sample).
+    fn filter(&self, _e: &Effect, _prep: &Prepared, _cols: &mut [Vec<f64>]) {}
+
+    /// Whether a prediction with the effect uses the measured pressure as a scheduling input.
+    fn uses_measured_pressure(&self) -> bool {
+        false
+    }
+
+    /// Why the fitted effect is physically impossible, from θ and its columns' coefficients, or
+    /// `None` when it is admissible (default: θ, when searched, must be finite; the search keeps
+    /// it inside its physical range).
+    fn unphysical(&self, e: &Effect, _coefs: &[f64]) -> Option<String> {
+        (self.has_nonlinear() && !e.theta.is_finite())
+            .then(|| format!("{} parameter is not finite", self.name()))
+    }
+
+    /// Physical parameters with uncertainties and units (default: θ when searched, then each
+    /// column's coefficient).
+    fn params(&self, f: &Fitted) -> Vec<Param> {
+        let theta = self
+            .has_nonlinear()
+            .then(|| param("theta", f.effect.theta, f.theta_se, "1"));
+        theta
+            .into_iter()
+            .chain(
+                (0..f.cols.len())
+                    .map(|k| param(&format!("coefficient_{k}"), f.coef(k), f.coef_se(k), "1")),
+            )
+            .collect()
+    }
+
+    /// Whether `model_core::poly::PolyModel` (polynomial plus linear AR terms on v(t−k), v̇(t−k))
+    /// can carry the effect, and why (not) (default: not).
+    fn device_support(&self) -> DeviceSupport {
+        DeviceSupport::host_only("no device form is known for this effect")
+    }
+}
+
+/// A candidate effect: a handle on its [`EffectModel`], compared, hashed and serialised by name.
+#[derive(Clone, Copy)]
+pub struct EffectKind(pub &'static dyn EffectModel);
+
+impl EffectKind {
+    /// The registry's effect called `name`.
+    pub fn named(name: &str) -> Option<EffectKind> {
+        REGISTRY.iter().copied().find(|k| k.name() == name)
+    }
+}
+
+impl std::ops::Deref for EffectKind {
+    type Target = dyn EffectModel;
+
+    fn deref(&self) -> &Self::Target {
+        self.0
+    }
+}
+
+impl PartialEq for EffectKind {
+    fn eq(&self, other: &Self) -> bool {
+        self.name() == other.name()
+    }
+}
+
+impl Eq for EffectKind {}
+
+impl std::hash::Hash for EffectKind {
+    fn hash<H: std::hash::Hasher>(&self, state: &mut H) {
+        self.name().hash(state);
+    }
+}
+
+impl std::fmt::Debug for EffectKind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl Serialize for EffectKind {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.serialize_str(self.name())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_effect_has_story_and_unique_name() {
+        let mut names: Vec<&str> = REGISTRY.iter().map(|k| k.name()).collect();
+        names.sort_unstable();
+        names.dedup();
+        assert_eq!(names.len(), REGISTRY.len());
+        assert!(REGISTRY.iter().all(|k| k.story().ends_with('.')));
+        assert!(REGISTRY
+            .iter()
+            .all(|k| EffectKind::named(k.name()) == Some(*k)));
+    }
+}

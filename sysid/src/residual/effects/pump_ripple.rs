@@ -1,0 +1,578 @@
+//! Pump ripple: the lead screw's pitch error makes the plunger run ahead of and behind the step
+//! count once per screw turn, a volume error `δ = a sin 2πv/Λ + b cos 2πv/Λ` (Λ the volume per
+//! turn). To first order it adds `k δ + c δ̇` to the pressure (k, c the model's stiffness and
+//! damping, [`pump_ripple_columns`]); the search reads Λ off a periodogram of the residual against
+//! volume ([`pump_ripple_periods`]), then applies what the columns found exactly as an input
+//! transform `u = v + δ` ([`pump_ripple_inputs`]) by Gauss–Newton steps, with the phase taken at
+//! the plunger, which the logged count trails by a lag fitted per cruise speed ([`CountLag`]).
+
+use std::sync::Arc;
+
+use super::ripple::amplitude;
+use super::{
+    param, Column, DeviceSupport, Effect, EffectModel, Fitted, Inputs, Needs, Param, Prepared,
+    Scales, Scan, Search, Stage,
+};
+use crate::residual::lsq;
+use crate::residual::select::{fit_stage, with};
+use crate::residual::signal;
+
+/// Ripple periodic in plunger position (lead-screw pitch error, once per screw turn).
+pub struct PumpRipple;
+
+impl EffectModel for PumpRipple {
+    fn name(&self) -> &'static str {
+        "pump_ripple"
+    }
+
+    fn story(&self) -> &'static str {
+        "The lead screw's pitch error makes the plunger run ahead of and behind the step count once per screw turn, so pressure ripples periodically in volume (in time its frequency follows the flow): the stiffness times the volume error plus the damping times its rate."
+    }
+
+    fn search(&self, _sc: &Scales) -> Search {
+        Search::VolumeSpectral
+    }
+
+    fn has_nonlinear(&self) -> bool {
+        true
+    }
+
+    fn needs(&self) -> Needs {
+        Needs {
+            damping: true,
+            stiffness: true,
+        }
+    }
+
+    fn scan(&self, prep: &Prepared, cur: &Stage, trial: &Effect) -> Scan {
+        let (Some(k), Some(c)) = (&trial.stiffness, &trial.damping) else {
+            return Scan::default();
+        };
+        pump_ripple_periods(prep, &cur.resid, k, c)
+    }
+
+    fn refine(&self, prep: &Prepared, base: &[Effect], stage: Stage) -> Stage {
+        let stage = ripple_gauss_newton(prep, base, stage);
+        count_lag_gauss_newton(prep, base, stage)
+    }
+
+    fn input_stage(&self) -> Option<u32> {
+        Some(30)
+    }
+
+    /// Only once the columns' first-order fit has been applied ([`Effect::ripple_offset`]).
+    fn transforms_inputs(&self, e: &Effect) -> bool {
+        e.ripple_offset != (0.0, 0.0)
+    }
+
+    fn transform_inputs(&self, e: &Effect, prep: &Prepared, inputs: &mut Inputs) {
+        let fresh;
+        let sub = if inputs.raw {
+            &prep.subframe
+        } else {
+            fresh = signal::frame_instants(&prep.series.t, &inputs.v, &inputs.f);
+            &fresh
+        };
+        (inputs.v, inputs.f) = pump_ripple_inputs(sub, e.theta, e.ripple_offset, &e.count_lag);
+    }
+
+    fn columns(&self, e: &Effect, prep: &Prepared) -> Vec<Column> {
+        let zero = Arc::new(vec![0.0; prep.series.len()]);
+        let k = e.stiffness.as_ref().unwrap_or(&zero);
+        let c = e.damping.as_ref().unwrap_or(&zero);
+        let (a, b) = pump_ripple_columns(&prep.subframe, k, c, e.theta, &e.count_lag);
+        vec![
+            Column::new(a, "pump ripple in phase"),
+            Column::new(b, "pump ripple quadrature"),
+        ]
+    }
+
+    fn params(&self, f: &Fitted) -> Vec<Param> {
+        // The columns carry the correction to the volume error δ already applied: a, b in mm³.
+        let e = f.effect;
+        let (amp, se) = amplitude(f, e.ripple_offset);
+        let mut ps = vec![
+            param("period", e.theta, f.theta_se, "mm3"),
+            param("amplitude", amp, se, "mm3"),
+        ];
+        let lag = &e.count_lag;
+        for (i, (&l, &se)) in lag.lags.iter().zip(&lag.se).enumerate() {
+            ps.push(match lag.speeds.get(i) {
+                Some(s) => param(&format!("count_lag_at_{s:.3}_mm3_s"), l, se, "mm3"),
+                None => param("count_lag", l, se, "mm3"),
+            });
+        }
+        ps
+    }
+
+    fn device_support(&self) -> DeviceSupport {
+        DeviceSupport::host_only("needs sines of the plunger position at the screw's period; PolyModel has polynomial and linear autoregressive terms only")
+    }
+}
+
+/// The volume error `(a, b)` (mm³) of the pump ripple at `idx` of `stage`: what is applied
+/// exactly as an input transform plus the first-order correction its two columns fitted.
+fn pump_ripple_error(stage: &Stage, idx: usize) -> (f64, f64) {
+    let cols = stage.owned_columns(idx);
+    let off = stage.effects[idx].ripple_offset;
+    (
+        off.0 + stage.fit.beta[cols[0]],
+        off.1 + stage.fit.beta[cols[1]],
+    )
+}
+
+/// How far (mm³) a logged step count trails the plunger while it moves, which shifts a pump
+/// ripple's phase one way on inflation and the other on deflation.
+///
+/// A count trails continuous motion by up to one step, and by how much depends on the step rate:
+/// the firmware reads the count at each of a frame's conversions, and where the step period
+/// divides the conversion period (2 000 steps/s against 200 conversions/s) every conversion reads
+/// the same fraction of a step; at other rates the fractions spread out and average to about
+/// half a step. So the lag is one number per speed the log dwells at (its cruise speeds,
+/// [`cruise_speeds`]), interpolated linearly in |v̇| between them and held beyond; a log without
+/// plateaus of speed gets one lag for all speeds.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct CountLag {
+    /// Speeds |v̇| (mm³/s, ascending) the lags are given at; empty: one lag for every speed.
+    pub speeds: std::sync::Arc<Vec<f64>>,
+    /// The lag at each speed (or the one lag), mm³; empty: no lag.
+    pub lags: Vec<f64>,
+    /// Standard error of each lag from the last linearised fit, mm³.
+    pub se: Vec<f64>,
+}
+
+impl CountLag {
+    /// No lag, to be fitted at `speeds` (one lag when `speeds` is empty).
+    pub fn zero(speeds: std::sync::Arc<Vec<f64>>) -> Self {
+        let n = speeds.len().max(1);
+        Self {
+            speeds,
+            lags: vec![0.0; n],
+            se: vec![f64::NAN; n],
+        }
+    }
+
+    /// Linear-interpolation weights of the lags at `speed`: `(i, j, f)` with the lag
+    /// `(1 − f)·lags[i] + f·lags[j]`.
+    pub fn weights(&self, speed: f64) -> (usize, usize, f64) {
+        let s = &self.speeds;
+        if s.len() <= 1 {
+            return (0, 0, 0.0);
+        }
+        match s.iter().position(|&k| k >= speed) {
+            Some(0) => (0, 0, 0.0),
+            None => (s.len() - 1, s.len() - 1, 0.0),
+            Some(j) => (j - 1, j, (speed - s[j - 1]) / (s[j] - s[j - 1])),
+        }
+    }
+
+    /// The lag at `speed`, mm³.
+    pub fn at(&self, speed: f64) -> f64 {
+        if self.lags.is_empty() {
+            return 0.0;
+        }
+        let (i, j, f) = self.weights(speed);
+        (1.0 - f) * self.lags[i] + f * self.lags[j]
+    }
+}
+
+/// The speeds |v̇| (mm³/s, ascending) a log dwells at: clusters of frames whose flow is flat
+/// (within 0.1 % of the top speed of both neighbours) and moving (above 2 % of it), clusters 1 %
+/// of the top speed wide holding at least 2 % of the flat frames (and 25). At most 8, the most
+/// populated; none when the flow has no plateaus (a ventilator's, say).
+pub fn cruise_speeds(vdot: &[f64]) -> Vec<f64> {
+    let top = vdot.iter().fold(0.0_f64, |m, x| m.max(x.abs()));
+    if top <= 0.0 || vdot.len() < 3 {
+        return Vec::new();
+    }
+    let mut flat: Vec<f64> = (1..vdot.len() - 1)
+        .filter(|&k| {
+            vdot[k].abs() > 0.02 * top
+                && (vdot[k] - vdot[k - 1]).abs() <= 1e-3 * top
+                && (vdot[k + 1] - vdot[k]).abs() <= 1e-3 * top
+        })
+        .map(|k| vdot[k].abs())
+        .collect();
+    flat.sort_by(f64::total_cmp);
+    let min_size = 25.max(flat.len() / 50);
+    let mut clusters: Vec<(usize, f64)> = Vec::new();
+    let mut start = 0;
+    for k in 1..=flat.len() {
+        if k == flat.len() || flat[k] - flat[k - 1] > 0.01 * top {
+            if k - start >= min_size {
+                clusters.push((k - start, flat[(start + k) / 2]));
+            }
+            start = k;
+        }
+    }
+    clusters.sort_by_key(|c| std::cmp::Reverse(c.0));
+    clusters.truncate(8);
+    let mut speeds: Vec<f64> = clusters.into_iter().map(|c| c.1).collect();
+    speeds.sort_by(f64::total_cmp);
+    speeds
+}
+
+/// The pump ripple's two columns for period `lambda` (mm³): the pressure a volume error
+/// `δ = a sin φ + b cos φ`, `φ = 2π v/Λ`, makes to first order through the model's stiffness k and
+/// damping c, `k δ + c δ̇` with `δ̇ = (2π/Λ) v̇ (a cos φ − b sin φ)`, averaged over each frame's
+/// instants (at 100 mm³/s an 8 mm³ period is 12.5 Hz, half the frame rate: the frame mean of the
+/// ripple is a fraction of its amplitude, which the average reproduces).
+pub fn pump_ripple_columns(
+    sub: &(Vec<f64>, Vec<f64>),
+    k: &[f64],
+    c: &[f64],
+    lambda: f64,
+    count_lag: &CountLag,
+) -> (Vec<f64>, Vec<f64>) {
+    let w = std::f64::consts::TAU / lambda;
+    let ns = signal::SUB_SAMPLES;
+    let n = k.len();
+    let (mut a, mut b) = (Vec::with_capacity(n), Vec::with_capacity(n));
+    for f in 0..n {
+        let (mut sa, mut sb) = (0.0, 0.0);
+        for j in f * ns..(f + 1) * ns {
+            let (sin, cos) = (w * plunger(sub.0[j], sub.1[j], count_lag)).sin_cos();
+            let q = c[f] * w * sub.1[j];
+            sa += k[f] * sin + q * cos;
+            sb += k[f] * cos - q * sin;
+        }
+        a.push(sa / ns as f64);
+        b.push(sb / ns as f64);
+    }
+    (a, b)
+}
+
+/// The plunger's position where the logged volume `x` trails it by `count_lag` in the direction
+/// of motion `q`.
+fn plunger(x: f64, q: f64, count_lag: &CountLag) -> f64 {
+    if q == 0.0 {
+        x
+    } else {
+        x + count_lag.at(q.abs()) * q.signum()
+    }
+}
+
+/// The derivatives of a pump ripple's pressure `k δ + c δ̇` with respect to each of `count_lag`'s
+/// lags (one column each), for the volume error `δ = a sin φ + b cos φ`, `φ = 2π x/Λ` at the
+/// plunger, averaged over each frame's instants: shifting the plunger by `ℓ` in the direction of
+/// motion `s = sign q` gives `∂δ/∂ℓ = s w (a cos φ − b sin φ)` and
+/// `∂δ̇/∂ℓ = −s w² q (a sin φ + b cos φ)`, `w = 2π/Λ`, each weighted by the lag's share at the
+/// instant's speed. One Gauss–Newton step in the lags fits these columns with the model.
+pub fn count_lag_columns(
+    sub: &(Vec<f64>, Vec<f64>),
+    k: &[f64],
+    c: &[f64],
+    lambda: f64,
+    (a, b): (f64, f64),
+    count_lag: &CountLag,
+) -> Vec<Vec<f64>> {
+    let w = std::f64::consts::TAU / lambda;
+    let ns = signal::SUB_SAMPLES;
+    let n = k.len();
+    let mut cols = vec![vec![0.0; n]; count_lag.lags.len()];
+    for f in 0..n {
+        for j in f * ns..(f + 1) * ns {
+            let (x, q) = (sub.0[j], sub.1[j]);
+            if q == 0.0 {
+                continue;
+            }
+            let (sin, cos) = (w * plunger(x, q, count_lag)).sin_cos();
+            let d =
+                q.signum() * w * (k[f] * (a * cos - b * sin) - c[f] * w * q * (a * sin + b * cos))
+                    / ns as f64;
+            let (i0, i1, fr) = count_lag.weights(q.abs());
+            cols[i0][f] += (1.0 - fr) * d;
+            cols[i1][f] += fr * d;
+        }
+    }
+    cols
+}
+
+/// Frame means of the displaced volume `u = x + a sin φ + b cos φ`, `φ = 2π x/Λ`, and its rate
+/// `u̇ = ẋ (1 + (2π/Λ)(a cos φ − b sin φ))`, over the instants of each frame
+/// (`signal::frame_instants`): at 100 mm³/s an 8 mm³ period is 12.5 Hz, and the flow ripple
+/// (±16 % for 0.2 mm³) must be averaged where it happens, not at the frame's mean volume.
+fn pump_ripple_inputs(
+    (x, q): &(Vec<f64>, Vec<f64>),
+    lambda: f64,
+    (a, b): (f64, f64),
+    count_lag: &CountLag,
+) -> (Vec<f64>, Vec<f64>) {
+    let w = std::f64::consts::TAU / lambda;
+    let ns = signal::SUB_SAMPLES as f64;
+    x.chunks(signal::SUB_SAMPLES)
+        .zip(q.chunks(signal::SUB_SAMPLES))
+        .map(|(xs, qs)| {
+            let (mut u, mut ud) = (0.0, 0.0);
+            for (&x, &q) in xs.iter().zip(qs) {
+                let (sin, cos) = (w * plunger(x, q, count_lag)).sin_cos();
+                u += x + a * sin + b * cos;
+                ud += q * (1.0 + w * (a * cos - b * sin));
+            }
+            (u / ns, ud / ns)
+        })
+        .unzip()
+}
+
+/// Candidate periods (mm³) of a pump ripple in `resid`, best first, with the spacing of the
+/// spatial-frequency grid they came from (1/mm³, [`Scan::step`]): a periodogram against volume over spatial
+/// frequencies `1/Λ` from `1/(0.1·range)` up to two periods per frame of median motion, on a
+/// uniform grid fine enough that the phase drifts by at most a quarter turn over the stroke (at
+/// most [`RIPPLE_SCAN_STEPS`] steps), scored by the residual energy the two columns (at the frames'
+/// mean volumes, on at most ~3,000 training frames) capture. Returns up to three local maxima.
+pub fn pump_ripple_periods(prep: &Prepared, resid: &[f64], k: &[f64], c: &[f64]) -> Scan {
+    let se = &prep.series;
+    let mut moving: Vec<f64> = se
+        .vdot
+        .iter()
+        .map(|f| f.abs())
+        .filter(|&f| f > 1e-9)
+        .collect();
+    if moving.is_empty() {
+        return Scan::default();
+    }
+    moving.sort_by(f64::total_cmp);
+    let flow = moving[moving.len() / 2];
+    let range = prep.scales.v_range;
+    let lo = (0.5 * flow * prep.scales.dt).max(1e-6 * range);
+    let hi = 0.1 * range;
+    if lo >= hi {
+        return Scan::default();
+    }
+    let (k_lo, k_hi) = (1.0 / hi, 1.0 / lo);
+    let steps = ((k_hi - k_lo) * 4.0 * range)
+        .ceil()
+        .min(RIPPLE_SCAN_STEPS as f64) as usize;
+    let dk = (k_hi - k_lo) / steps as f64;
+    let stride = (prep.train_rows.len() / 3000).max(1);
+    let rows: Vec<usize> = prep.train_rows.iter().copied().step_by(stride).collect();
+    // Per row: the phase 2πκv as a unit complex number, advanced along the grid by a fixed
+    // rotation (4 multiplications per step instead of a sine and a cosine).
+    let tau = std::f64::consts::TAU;
+    let mut z: Vec<(f64, f64)> = rows
+        .iter()
+        .map(|&r| {
+            let (s, c) = (tau * k_lo * se.v[r]).sin_cos();
+            (c, s)
+        })
+        .collect();
+    let rot: Vec<(f64, f64)> = rows
+        .iter()
+        .map(|&r| {
+            let (s, c) = (tau * dk * se.v[r]).sin_cos();
+            (c, s)
+        })
+        .collect();
+    let mut power = Vec::with_capacity(steps + 1);
+    for i in 0..=steps {
+        let w = tau * (k_lo + i as f64 * dk);
+        let (mut g0, mut g1, mut a00, mut a01, mut a11) = (0.0, 0.0, 0.0, 0.0, 0.0);
+        for (j, &r) in rows.iter().enumerate() {
+            let (cos, sin) = z[j];
+            let q = c[r] * w * se.vdot[r];
+            let x0 = k[r] * sin + q * cos;
+            let x1 = k[r] * cos - q * sin;
+            g0 += x0 * resid[r];
+            g1 += x1 * resid[r];
+            a00 += x0 * x0;
+            a01 += x0 * x1;
+            a11 += x1 * x1;
+            let (rc, rs) = rot[j];
+            z[j] = (cos * rc - sin * rs, sin * rc + cos * rs);
+        }
+        let det = a00 * a11 - a01 * a01;
+        power.push(if det <= 1e-12 * (a00 * a11).max(f64::MIN_POSITIVE) {
+            0.0
+        } else {
+            (a11 * g0 * g0 - 2.0 * a01 * g0 * g1 + a00 * g1 * g1) / det
+        });
+    }
+    let mut peaks: Vec<usize> = (1..power.len().saturating_sub(1))
+        .filter(|&i| power[i] > power[i - 1] && power[i] >= power[i + 1])
+        .collect();
+    peaks.sort_by(|&a, &b| power[b].total_cmp(&power[a]));
+    let periods = peaks
+        .into_iter()
+        .take(3)
+        .map(|i| 1.0 / (k_lo + i as f64 * dk))
+        .collect();
+    Scan {
+        starts: periods,
+        step: dk,
+    }
+}
+
+/// Most spatial frequencies the pump-ripple periodogram scans.
+pub const RIPPLE_SCAN_STEPS: usize = 6000;
+
+/// The pump ripple's two columns fit the volume error to first order (stiffness × δ + damping ×
+/// δ̇); apply what they found exactly, as an input transform, and fit what is left: a few
+/// Gauss–Newton steps, kept while the training SSE falls by more than 0.1 %.
+fn ripple_gauss_newton(prep: &Prepared, base: &[Effect], mut stage: Stage) -> Stage {
+    for _ in 0..4 {
+        let last = stage.effects.len() - 1;
+        let mut e = stage.effects[last].clone();
+        e.ripple_offset = pump_ripple_error(&stage, last);
+        match fit_stage(prep, &with(base, e)) {
+            Some(next) if next.fit.sse < stage.fit.sse => {
+                let small = next.fit.sse > (1.0 - 1e-3) * stage.fit.sse;
+                stage = next;
+                if small {
+                    break;
+                }
+            }
+            _ => break,
+        }
+    }
+    stage
+}
+
+/// How far the logged count trails the plunger at each cruise speed ([`CountLag`]): Gauss–Newton
+/// steps on the lags, each fitting their derivative columns
+/// ([`count_lag_columns`]) together with the model, applying the step, and
+/// refitting the ripple's amplitude; kept while the training SSE falls by more than 0.1 %. The
+/// last step's standard errors are the lags'.
+fn count_lag_gauss_newton(prep: &Prepared, base: &[Effect], mut stage: Stage) -> Stage {
+    let last = stage.effects.len() - 1;
+    if stage.effects[last].count_lag.lags.is_empty() {
+        stage.effects[last].count_lag = CountLag::zero(prep.cruise_speeds.clone());
+    }
+    for _ in 0..4 {
+        let e = stage.effects[last].clone();
+        let (Some(k), Some(c)) = (&e.stiffness, &e.damping) else {
+            break;
+        };
+        let ab = pump_ripple_error(&stage, last);
+        let extra = count_lag_columns(&prep.subframe, k, c, e.theta, ab, &e.count_lag);
+        let mut cols = stage.design.cols.clone();
+        let p0 = cols.len();
+        cols.extend(extra);
+        let Some(fit) = lsq::fit(&cols, &prep.series.p, &prep.train_rows) else {
+            break;
+        };
+        let s2 = fit.sigma2();
+        let mut next = e.clone();
+        for (i, lag) in next.count_lag.lags.iter_mut().enumerate() {
+            *lag += fit.beta[p0 + i];
+        }
+        next.count_lag.se = (0..next.count_lag.lags.len())
+            .map(|i| (s2 * fit.xtx_inv[(p0 + i, p0 + i)]).sqrt())
+            .collect();
+        match fit_stage(prep, &with(base, next)) {
+            Some(next) if next.fit.sse < stage.fit.sse => {
+                let small = next.fit.sse > (1.0 - 1e-3) * stage.fit.sse;
+                stage = ripple_gauss_newton(prep, base, next);
+                if small {
+                    break;
+                }
+            }
+            _ => break,
+        }
+    }
+    stage
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn cruise_speeds_are_the_plateaus_of_the_flow() {
+        // 25 Hz: plateaus at +20, −20, +50 and −90 mm³/s joined by 500 mm³/s² ramps, dwell at 0.
+        let mut f = Vec::new();
+        let mut q: f64 = 0.0;
+        for target in [20.0, 0.0, -20.0, 0.0, 50.0, 0.0, -90.0, 0.0] {
+            while (q - target).abs() > 1e-9 {
+                q += (target - q).clamp(-20.0, 20.0);
+                f.push(q);
+            }
+            f.extend(std::iter::repeat_n(target, 100));
+        }
+        let s = cruise_speeds(&f);
+        assert_eq!(s.len(), 3, "{s:?}");
+        for (got, want) in s.iter().zip([20.0, 50.0, 90.0]) {
+            assert!((got - want).abs() < 1e-9, "{s:?}");
+        }
+        // A breathing flow has no plateaus.
+        let sine: Vec<f64> = (0..2000).map(|k| 80.0 * (0.05 * k as f64).sin()).collect();
+        assert!(cruise_speeds(&sine).is_empty());
+    }
+
+    #[test]
+    fn count_lag_interpolates_between_speeds_and_holds_beyond() {
+        let lag = CountLag {
+            speeds: std::sync::Arc::new(vec![20.0, 40.0, 80.0]),
+            lags: vec![0.01, 0.03, -0.01],
+            se: vec![f64::NAN; 3],
+        };
+        for (s, want) in [
+            (5.0, 0.01),
+            (20.0, 0.01),
+            (30.0, 0.02),
+            (60.0, 0.01),
+            (200.0, -0.01),
+        ] {
+            assert!((lag.at(s) - want).abs() < 1e-15, "{s}: {}", lag.at(s));
+        }
+        let one = CountLag {
+            lags: vec![0.02],
+            ..CountLag::zero(std::sync::Arc::new(Vec::new()))
+        };
+        assert_eq!((one.at(3.0), one.at(300.0)), (0.02, 0.02));
+        assert_eq!(CountLag::default().at(50.0), 0.0);
+    }
+
+    #[test]
+    fn count_lag_columns_are_the_derivatives_of_the_ripple_pressure() {
+        // Against central differences of the ripple's pressure a·A + b·B, (A, B) the columns of
+        // `pump_ripple_columns`, in each lag.
+        let n = 400;
+        let t: Vec<f64> = (0..n).map(|k| 0.04 * k as f64).collect();
+        let f: Vec<f64> = (0..n)
+            .map(|k| match k / 100 {
+                0 => 30.0,
+                1 => -60.0,
+                2 => 90.0,
+                _ => -30.0,
+            })
+            .collect();
+        let mut v = vec![100.0; n];
+        for k in 1..n {
+            v[k] = v[k - 1] + 0.02 * (f[k - 1] + f[k]);
+        }
+        let sub = signal::frame_instants(&t, &v, &f);
+        let k: Vec<f64> = (0..n).map(|i| 0.05 + 1e-4 * i as f64).collect();
+        let c: Vec<f64> = (0..n).map(|i| 0.1 - 1e-4 * i as f64).collect();
+        let (lambda, ab) = (8.0, (0.2, -0.07));
+        let lag = CountLag {
+            speeds: std::sync::Arc::new(vec![30.0, 60.0, 90.0]),
+            lags: vec![0.01, 0.02, 0.03],
+            se: vec![f64::NAN; 3],
+        };
+        let pressure = |lag: &CountLag| {
+            let (a, b) = pump_ripple_columns(&sub, &k, &c, lambda, lag);
+            a.iter()
+                .zip(&b)
+                .map(|(a, b)| ab.0 * a + ab.1 * b)
+                .collect::<Vec<f64>>()
+        };
+        let cols = count_lag_columns(&sub, &k, &c, lambda, ab, &lag);
+        let h = 1e-6;
+        for i in 0..3 {
+            let (mut up, mut down) = (lag.clone(), lag.clone());
+            up.lags[i] += h;
+            down.lags[i] -= h;
+            let (pu, pd) = (pressure(&up), pressure(&down));
+            let scale = cols[i].iter().fold(0.0_f64, |m, x| m.max(x.abs()));
+            assert!(scale > 0.1, "lag {i} moves the pressure");
+            for r in 0..n {
+                let fd = (pu[r] - pd[r]) / (2.0 * h);
+                assert!(
+                    (fd - cols[i][r]).abs() < 1e-6 * scale,
+                    "lag {i}, frame {r}: {fd} vs {}",
+                    cols[i][r]
+                );
+            }
+        }
+    }
+}

@@ -1,0 +1,97 @@
+//! Sensor lag: the pressure sensor (or its filter) as a first-order lag `τ Ṗ_m + P_m = P`, an
+//! output filter on every design column (exact because the model is linear in its coefficients;
+//! each column's Akima interpolant between frames is lagged exactly, `signal::lag_cubic_coeffs`).
+//! It is the last step of the design, so its search only filters the current model's design
+//! ([`LagBase`]).
+
+use super::{
+    param, DeviceSupport, Effect, EffectKind, EffectModel, Fitted, Param, Prepared, Scales, Search,
+    Stage,
+};
+use crate::residual::lsq;
+use crate::residual::signal;
+
+/// First-order lag of the pressure sensor.
+pub struct SensorLag;
+
+impl EffectModel for SensorLag {
+    fn name(&self) -> &'static str {
+        "sensor_lag"
+    }
+
+    fn story(&self) -> &'static str {
+        "The pressure sensor (or its filter) responds to a step with a first-order exponential of time constant tau, so fast pressure changes are reported late and smoothed."
+    }
+
+    fn search(&self, sc: &Scales) -> Search {
+        Search::Log(0.25 * sc.dt, (3.0f64).min(sc.duration / 20.0).max(sc.dt))
+    }
+
+    fn has_nonlinear(&self) -> bool {
+        true
+    }
+
+    /// Filters the whole design at every trial τ (but see [`Self::fast_sse`]).
+    fn cost_guess(&self) -> f64 {
+        1e2
+    }
+
+    /// Added to a model without a sensor lag, the lag is the design's last step: filter the
+    /// current design at each τ instead of rebuilding it.
+    fn fast_sse<'a>(
+        &self,
+        prep: &'a Prepared,
+        cur: &'a Stage,
+    ) -> Option<Box<dyn Fn(f64) -> f64 + 'a>> {
+        let me = EffectKind(&SensorLag);
+        if cur.effects.iter().any(|e| e.kind == me) {
+            return None;
+        }
+        let lb = LagBase::new(prep, &cur.design.cols);
+        Some(Box::new(move |tau| lb.sse(prep, tau)))
+    }
+
+    fn filter_stage(&self) -> Option<u32> {
+        Some(10)
+    }
+
+    fn filter(&self, e: &Effect, prep: &Prepared, cols: &mut [Vec<f64>]) {
+        let t = &prep.series.t;
+        let coeffs = signal::lag_cubic_coeffs(t, |_| e.theta);
+        signal::lag_cubic_apply_all(t, &coeffs, cols);
+    }
+
+    fn params(&self, f: &Fitted) -> Vec<Param> {
+        vec![param("time_constant", f.effect.theta, f.theta_se, "s")]
+    }
+
+    fn device_support(&self) -> DeviceSupport {
+        DeviceSupport::host_only("a lag on the output needs past pressures (output autoregression), which PolyModel does not have")
+    }
+}
+
+/// A design about to be filtered by a sensor lag, with each column's Akima slopes, which do not
+/// depend on τ: sensor lag is the last step of [`super::build`], so adding it to a model whose design is
+/// known only filters that design, and a search over τ need not rebuild it.
+pub struct LagBase {
+    cols: Vec<Vec<f64>>,
+    slopes: Vec<Vec<f64>>,
+}
+
+impl LagBase {
+    /// The design `cols` (every sample) of the model the lag is added to.
+    pub fn new(prep: &Prepared, cols: &[Vec<f64>]) -> Self {
+        Self {
+            cols: cols.to_vec(),
+            slopes: signal::akima_slopes_all(&prep.series.t, cols),
+        }
+    }
+
+    /// Training SSE of the design filtered by a sensor lag of time constant `tau`.
+    pub fn sse(&self, prep: &Prepared, tau: f64) -> f64 {
+        let mut cols = self.cols.clone();
+        let coeffs = signal::lag_cubic_coeffs(&prep.series.t, |_| tau);
+        signal::lag_cubic_apply_with(&coeffs, &mut cols, &self.slopes);
+        lsq::sse_fast(&cols, &prep.series.p, &prep.train_rows)
+    }
+}

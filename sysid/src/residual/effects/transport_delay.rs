@@ -1,0 +1,54 @@
+//! Transport delay: pressure reported a fixed time d after the volume that caused it, the input
+//! transform `v'(t) = v(t − d)`, `v̇'(t) = v̇(t − d)` on the Hermite interpolant of the samples, taken
+//! as frame means or as instants (both tried, [`Effect::point_sampled`]).
+
+use super::{
+    param, DeviceSupport, Effect, EffectModel, Fitted, Inputs, Param, Prepared, Scales, Search,
+};
+use crate::residual::signal;
+
+/// Pure time delay between volume and pressure.
+pub struct TransportDelay;
+
+impl EffectModel for TransportDelay {
+    fn name(&self) -> &'static str {
+        "transport_delay"
+    }
+
+    fn story(&self) -> &'static str {
+        "Pressure is reported a fixed time after the volume that caused it (a sampling offset or pressure-wave travel), so the whole pressure trace is shifted in time."
+    }
+
+    fn search(&self, sc: &Scales) -> Search {
+        Search::Log(0.25 * sc.dt, (1.5f64).min(sc.duration / 20.0).max(sc.dt))
+    }
+
+    fn has_nonlinear(&self) -> bool {
+        true
+    }
+
+    fn tries_point_sampled(&self) -> bool {
+        true
+    }
+
+    fn input_stage(&self) -> Option<u32> {
+        Some(10)
+    }
+
+    fn transform_inputs(&self, e: &Effect, prep: &Prepared, inputs: &mut Inputs) {
+        let t = &prep.series.t;
+        (inputs.v, inputs.f) =
+            signal::delay_hermite(t, &inputs.v, &inputs.f, e.theta, !e.point_sampled);
+    }
+
+    fn params(&self, f: &Fitted) -> Vec<Param> {
+        vec![
+            param("delay", f.effect.theta, f.theta_se, "s"),
+            f.frame_averaged(),
+        ]
+    }
+
+    fn device_support(&self) -> DeviceSupport {
+        DeviceSupport::host_only("needs the polynomial evaluated on delayed inputs; PolyModel's AR terms are only linear in past inputs")
+    }
+}
