@@ -2,33 +2,21 @@
 //! SVGs of a long log stay under 1 MB (scatter plots are decimated), and both formats write the
 //! same set of figures.
 
-use std::path::{Path, PathBuf};
-use std::process::Command;
+mod common;
 
-fn root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
-}
+use std::path::{Path, PathBuf};
 
 fn scratch(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("vfp-fig-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).expect("temp dir is writable");
-    d
+    common::scratch("fig", name)
 }
 
 /// Runs `vfp identify LOG --family poly --plots DIR --plot-format FORMAT`; the files written.
 fn identify_plots(log: &str, dir: &Path, format: &str) -> Vec<PathBuf> {
-    let out = Command::new(env!("CARGO_BIN_EXE_vfp"))
-        .current_dir(root())
-        .args(["identify", log, "--family", "poly", "--plots"])
-        .arg(dir)
-        .args(["--plot-format", format])
-        .output()
-        .expect("vfp runs");
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
+    common::ok(
+        common::vfp()
+            .args(["identify", log, "--family", "poly", "--plots"])
+            .arg(dir)
+            .args(["--plot-format", format]),
     );
     let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
         .expect("plots dir")

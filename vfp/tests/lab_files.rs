@@ -13,6 +13,9 @@
 //! far below any difference between two models (the RMSEs of neighbouring shapes differ by
 //! 10⁻³ relative and more), so the same model is selected.
 
+mod common;
+use common::root;
+
 use serde_json::Value;
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -20,30 +23,17 @@ use sysid::columns::Quantity;
 
 const BAG: &str = "data/real/bag-lung-pip15-peep5.csv";
 
-fn root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
-}
-
 fn scratch(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("vfp-lab-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).expect("temp dir is writable");
-    d
+    common::scratch("lab", name)
 }
 
 fn identify(log: &Path, extra: &[&str]) -> Value {
-    let out = Command::new(env!("CARGO_BIN_EXE_vfp"))
-        .current_dir(root())
-        .arg("identify")
-        .arg(log)
-        .args(["--json", "--family", "poly", "--family", "poly-ar"])
-        .args(extra)
-        .output()
-        .expect("vfp runs");
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
+    let out = common::ok(
+        common::vfp()
+            .arg("identify")
+            .arg(log)
+            .args(["--json", "--family", "poly", "--family", "poly-ar"])
+            .args(extra),
     );
     serde_json::from_slice(&out.stdout).expect("JSON")
 }

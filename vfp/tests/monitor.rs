@@ -4,6 +4,8 @@
 //! monitor's reader thread into its state, is drawn on ratatui's `TestBackend` and recorded.
 //! The truth is the simulator's: the frames it sent, the lines its transport refused.
 
+mod common;
+
 use std::io::Cursor;
 use std::path::PathBuf;
 
@@ -56,10 +58,7 @@ fn capture(run: &SimRun) -> String {
 }
 
 fn scratch(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("vfp-monitor-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
+    common::scratch("monitor", name)
 }
 
 /// Reads the whole capture through a session and draws it on a `width × height` test screen.

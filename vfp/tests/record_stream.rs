@@ -7,6 +7,8 @@
 
 #![cfg(unix)]
 
+mod common;
+
 use firmware::telemetry::{ChamberFrame, Flags, Frame};
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -15,10 +17,7 @@ use std::process::{Child, ChildStdin, Command, Output, Stdio};
 const FRAMES: u32 = 1_500;
 
 fn scratch(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("vfp-record-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).expect("temp dir is writable");
-    d
+    common::scratch("record", name)
 }
 
 /// Frame `seq` at 25 Hz with values that differ per frame and chamber.

@@ -364,29 +364,6 @@ fn chain_upload(r: &mut Rig, ch: usize, effects: &[&str]) {
     r.command(fwb_begin_cmd_model_commit, &line);
 }
 
-/// The model read-back (`model 0 read`, `read coef 0`, `read coef 8`) loaded back into
-/// chamber 0 (`begin`, `coef 0 …`, `coef 8 …`, `commit`).
-fn model_round_trip(r: &mut Rig) {
-    let header = r.command(fwb_begin_cmd_model_read, "model 0 read");
-    let c0 = r.command(fwb_begin_cmd_model_read_coef, "model 0 read coef 0");
-    let c8 = r.command(fwb_begin_cmd_model_read_coef, "model 0 read coef 8");
-    let fields = |reply: &Line| -> Line {
-        let mut s = Line::new();
-        let _ = s.push_str(reply.trim_end().trim_start_matches("ok").trim());
-        s
-    };
-    let mut line = Line::new();
-    let _ = write!(line, "model 0 begin {}", fields(&header));
-    r.command(fwb_begin_cmd_model_begin, &line);
-    line.clear();
-    let _ = write!(line, "model 0 coef 0 {}", fields(&c0));
-    r.command(fwb_begin_cmd_model_coef, &line);
-    line.clear();
-    let _ = write!(line, "model 0 coef 8 {}", fields(&c8));
-    r.command(fwb_begin_cmd_model_coef, &line);
-    r.command(fwb_begin_cmd_model_commit, "model 0 commit");
-}
-
 /// The whole scripted run.
 pub fn run(telemetry: UpChannel) -> Summary {
     let mut r = Rig::new(telemetry);
@@ -398,7 +375,8 @@ pub fn run(telemetry: UpChannel) -> Summary {
     r.command(fwb_begin_cmd_status, "status");
     r.command(fwb_begin_cmd_limit, "limit all 80 550");
     r.command(fwb_begin_cmd_origin, "origin all 100");
-    model_round_trip(&mut r);
+    // The model read back and loaded again into chamber 0, bare.
+    chain_upload(&mut r, 0, &[]);
     let t = r.now + 2 * r.period;
     r.advance(t);
 
