@@ -139,31 +139,50 @@ pub fn model_for(
         (None, None) => {
             let (_, scores) = crate::select::cross_validate(ds, &sc, 7, 7)?;
             let ok: Vec<_> = scores.into_iter().flatten().collect();
-            let mut passed_over: Option<(usize, usize, F32Loss)> = None;
-            for s in crate::select::ranked(&ok) {
-                let mut e = build(ds, s.n, s.m, p, all_samples, sc)?;
-                let loss = f32_loss(&e, &ds.v, &ds.vdot, &ds.p);
-                if loss.rms <= F32_LOSS_LIMIT * loss.model_rmse {
-                    if let Some((n0, m0, l0)) = passed_over {
-                        e.prov.push_str(&format!(
-                            "; the selection's choice (n = {n0}, m = {m0}) passed over: in f32 on the device it would add {:.4} kPa RMS to its {:.4} kPa fit error",
-                            l0.rms, l0.model_rmse
-                        ));
-                    }
-                    return Ok(e);
-                }
-                passed_over.get_or_insert((s.n, s.m, loss));
+            let order: Vec<(usize, usize)> = crate::select::ranked(&ok)
+                .iter()
+                .map(|s| (s.n, s.m))
+                .collect();
+            let (mut e, passed_over) = first_carried(ds, &order, p, all_samples, sc)?;
+            if let Some((n0, m0, l0)) = passed_over {
+                e.prov.push_str(&format!(
+                    "; the selection's choice (n = {n0}, m = {m0}) passed over: in f32 on the device it would add {:.4} kPa RMS to its {:.4} kPa fit error",
+                    l0.rms, l0.model_rmse
+                ));
             }
-            Err(ExportError(
-                "no polynomial shape of the sweep is evaluated by the device's f32 arithmetic within a tenth of its fit error; give --n and --m"
-                    .into(),
-            ))
+            Ok(e)
         }
         _ => Err(ExportError(
             "give both --n and --m, or neither (then the selection of `vfp identify` is used)"
                 .into(),
         )),
     }
+}
+
+/// The first shape of `order` whose f32 loss ([`f32_loss`] on all of `ds`'s samples) is at most
+/// [`F32_LOSS_LIMIT`] of its fit error, with the first shape passed over (if any) and its loss.
+/// `Err` when none passes.
+#[allow(clippy::type_complexity)]
+pub fn first_carried(
+    ds: &Dataset,
+    order: &[(usize, usize)],
+    p: usize,
+    all_samples: bool,
+    sc: Scaling,
+) -> Result<(Exported, Option<(usize, usize, F32Loss)>), ExportError> {
+    let mut passed_over: Option<(usize, usize, F32Loss)> = None;
+    for &(n, m) in order {
+        let e = build(ds, n, m, p, all_samples, sc)?;
+        let loss = f32_loss(&e, &ds.v, &ds.vdot, &ds.p);
+        if loss.rms <= F32_LOSS_LIMIT * loss.model_rmse {
+            return Ok((e, passed_over));
+        }
+        passed_over.get_or_insert((n, m, loss));
+    }
+    Err(ExportError(
+        "no polynomial shape of the sweep is evaluated by the device's f32 arithmetic within a tenth of its fit error; give --n and --m"
+            .into(),
+    ))
 }
 
 /// Most f32 loss, as a fraction of the fit's RMSE, the default shape selection accepts.

@@ -12,7 +12,12 @@
 //! # The rule
 //! 1. The training cycles are the blocks (a cycle is the unit of repetition, and the errors within
 //!    one are correlated). With fewer than [`MIN_CYCLE_BLOCKS`] training cycles, the training
-//!    samples are cut into [`MIN_CYCLE_BLOCKS`] equal stretches of time instead.
+//!    samples are cut into [`TIME_STRETCHES`] short stretches of time instead, so that every fold
+//!    leaves out several short pieces spread over the log: a few long stretches of a log that
+//!    visits its flow levels one after another would each hold a whole flow level, and the folds
+//!    would measure extrapolation to flows they never saw (on a one-cycle, two-flow simulated log
+//!    every shape with m ≥ 2 scored hundreds of kPa that way, and the rule fell back to (3, 1),
+//!    linear in flow, which the plant's (3, 2) law is not).
 //! 2. Blocks are dealt to K = min([`MAX_FOLDS`], blocks) folds in time order (block b to fold
 //!    b mod K). Each shape is fitted K times, each time without one fold, and scored on the
 //!    blocks of the fold it left out. All of it comes from per-block Chebyshev moments
@@ -20,7 +25,15 @@
 //!    yy − 2cᵀb + cᵀGc on its own moments. No design matrix is built.
 //! 3. The cross-validated error of a shape is its pooled mean squared error over all blocks,
 //!    ē = Σ SSE_b / Σ n_b (e_b = SSE_b / n_b, weights w_b = n_b / N).
-//! 4. The selected shape is the one with the fewest parameters ν = (n+1)(m+1) whose ē exceeds
+//! 4. A shape is *admissible* when on every block its error is at most the variance of the
+//!    training pressure, e_b ≤ Var(P): a prediction that misses by more than the pressure's own
+//!    spread on some stretch of the log is worse there than the constant mean (R² below zero),
+//!    whatever it does elsewhere. Only admissible shapes are compared (all of them, if none is).
+//!    The paired rule below cannot do this by itself: when the whole excess sits in one block
+//!    (one fold whose fit extrapolates), the standard error of the excess equals the excess, and
+//!    "within one standard error" holds however large it is (on a simulated rig log whose last
+//!    training cycle is cut short, (1, 4) at 68 kPa passed against (7, 2) at 0.06 kPa).
+//! 5. The selected shape is the one with the fewest parameters ν = (n+1)(m+1) whose ē exceeds
 //!    the lowest, ē_best, by at most one standard error of that excess (Breiman et al.,
 //!    *Classification and Regression Trees*, 1984, §3.4.3; Hastie, Tibshirani and Friedman,
 //!    *The Elements of Statistical Learning*, §7.10). Equal ν: the lower ē. Every shape is scored
@@ -49,6 +62,9 @@ use std::ops::Range;
 pub const MIN_CYCLE_BLOCKS: usize = 5;
 /// Most folds of the cross-validation.
 pub const MAX_FOLDS: usize = 10;
+/// Number of time stretches used as blocks when there are too few cycles: four per fold, so
+/// each fold leaves out four short pieces spread over the log.
+pub const TIME_STRETCHES: usize = 4 * MAX_FOLDS;
 
 /// What the cross-validation's blocks are.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
@@ -94,7 +110,7 @@ pub fn training_blocks(ds: &Dataset) -> Blocks {
     }
     Blocks {
         kind: BlockKind::TimeStretches,
-        ranges: time_stretches(k, MIN_CYCLE_BLOCKS),
+        ranges: time_stretches(k, TIME_STRETCHES),
     }
 }
 
@@ -120,6 +136,8 @@ pub struct CvScore {
     pub mse: f64,
     /// Its standard error across blocks, kPa².
     pub se: f64,
+    /// Every block's error is at most the training pressure's variance (module docs).
+    pub admissible: bool,
     /// Each block's SSE under the fold that left it out, kPa².
     #[serde(skip)]
     pub block_sse: Vec<f64>,
@@ -162,6 +180,7 @@ pub fn cv_sweep(
         return Err(PolyError::NoData);
     }
     let centre = train.p.iter().sum::<f64>() / train.p.len() as f64;
+    let var_p = train.p.iter().map(|p| (p - centre).powi(2)).sum::<f64>() / train.p.len() as f64;
     let per_block = gather_blocks(train, scaling, centre, blocks);
     let folds = MAX_FOLDS.min(blocks.len());
     let fold_fits: Vec<Moments> = (0..folds)
@@ -178,7 +197,7 @@ pub fn cv_sweep(
     let mut out = Vec::with_capacity(max_n * max_m);
     for n in 1..=max_n {
         for m in 1..=max_m {
-            out.push(score_shape(&per_block, &fold_fits, n, m));
+            out.push(score_shape(&per_block, &fold_fits, n, m, var_p));
         }
     }
     Ok(out)
@@ -218,6 +237,7 @@ fn score_shape(
     fold_fits: &[Moments],
     n: usize,
     m: usize,
+    var_p: f64,
 ) -> Result<CvScore, PolyError> {
     let folds = fold_fits.len();
     let coefs: Vec<_> = fold_fits
@@ -253,6 +273,9 @@ fn score_shape(
         nu: (n + 1) * (m + 1),
         mse,
         se: var.sqrt(),
+        admissible: errs
+            .iter()
+            .all(|&(e, nb)| nb == 0 || e / nb as f64 <= var_p),
         block_sse: errs.iter().map(|e| e.0).collect(),
         block_n: errs.iter().map(|e| e.1).collect(),
     })
@@ -277,11 +300,21 @@ pub fn paired_difference(a: &CvScore, b: &CvScore) -> (f64, f64) {
     (d_bar, (ss * blocks as f64 / (blocks - 1) as f64).sqrt())
 }
 
-/// The shape with the lowest ē.
+/// The shapes the rule compares: the admissible ones with a finite ē, or every finite one if
+/// none is admissible (module docs).
+fn candidates(scores: &[CvScore]) -> Vec<&CvScore> {
+    let finite: Vec<&CvScore> = scores.iter().filter(|s| s.mse.is_finite()).collect();
+    if finite.iter().any(|s| s.admissible) {
+        finite.into_iter().filter(|s| s.admissible).collect()
+    } else {
+        finite
+    }
+}
+
+/// The candidate with the lowest ē.
 fn lowest(scores: &[CvScore]) -> Option<&CvScore> {
-    scores
-        .iter()
-        .filter(|s| s.mse.is_finite())
+    candidates(scores)
+        .into_iter()
         .min_by(|a, b| a.mse.total_cmp(&b.mse))
 }
 
@@ -296,8 +329,8 @@ fn within_one_se(s: &CvScore, best: &CvScore) -> bool {
 /// when no score is finite.
 pub fn one_se_rule(scores: &[CvScore]) -> Option<CvScore> {
     let best = lowest(scores)?;
-    scores
-        .iter()
+    candidates(scores)
+        .into_iter()
         .filter(|s| within_one_se(s, best))
         .min_by(|a, b| a.nu.cmp(&b.nu).then(a.mse.total_cmp(&b.mse)))
         .cloned()
@@ -413,16 +446,23 @@ pub fn poly_shape(ds: &Dataset) -> Option<(usize, usize)> {
     one_se_rule(&ok).map(|s| (s.n, s.m))
 }
 
-/// Shapes in the order a default export tries them: the one-SE choice, then the other shapes
-/// within one SE by ν (then ē), then the rest by ē.
+/// Shapes in the order a default export tries them: the one-SE choice, then the other candidates
+/// (module docs) within one SE by ν (then ē), then the rest by ē, admissible shapes first.
 pub fn ranked(scores: &[CvScore]) -> Vec<CvScore> {
     let Some(best) = lowest(scores) else {
         return Vec::new();
     };
-    let (mut within, mut rest): (Vec<CvScore>, Vec<CvScore>) =
-        scores.iter().cloned().partition(|s| within_one_se(s, best));
+    let cand = candidates(scores);
+    let (mut within, mut rest): (Vec<CvScore>, Vec<CvScore>) = scores
+        .iter()
+        .cloned()
+        .partition(|s| cand.contains(&s) && within_one_se(s, best));
     within.sort_by(|a, b| a.nu.cmp(&b.nu).then(a.mse.total_cmp(&b.mse)));
-    rest.sort_by(|a, b| a.mse.total_cmp(&b.mse));
+    rest.sort_by(|a, b| {
+        (!a.admissible)
+            .cmp(&!b.admissible)
+            .then(a.mse.total_cmp(&b.mse))
+    });
     within.extend(rest);
     within
 }

@@ -61,8 +61,84 @@ fn time_stretches_replace_cycles_when_there_are_too_few() {
         ds.n_cycles
     );
     assert_eq!(b.kind, select::BlockKind::TimeStretches);
-    assert_eq!(b.ranges.len(), select::MIN_CYCLE_BLOCKS);
+    assert_eq!(b.ranges.len(), select::TIME_STRETCHES);
     assert_eq!(b.ranges.last().unwrap().end, ds.train().len());
+}
+
+/// A host-sim log (the paper's rig, `PlantConfig::default()`: the (3, 2) law with delivery lag and
+/// sensor noise) of one protocol cycle, parsed as `vfp` reads it.
+fn host_sim_log(cycles: u16, flows: &[f64], chamber: u8) -> Dataset {
+    let protocol = host_sim::Protocol {
+        cycles,
+        flows: flows.to_vec(),
+        ..host_sim::Protocol::paper()
+    };
+    let run = host_sim::simulate(&host_sim::Scenario::protocol(
+        "selection",
+        host_sim::PlantConfig::default(),
+        &protocol,
+    ))
+    .unwrap();
+    let mut csv = Vec::new();
+    run.write_log(&mut csv).unwrap();
+    let log = sysid::log::parse_log(&csv[..], "sim.csv").unwrap();
+    Dataset::from_log(&log, chamber, &DatasetConfig::default()).unwrap()
+}
+
+/// One cycle at two flows, too few cycles for cycle blocks: the time stretches are short, so no
+/// fold loses a whole flow level, and the rule finds the law's quadratic flow dependence (with
+/// five long stretches every m ≥ 2 extrapolated to hundreds of kPa and (3, 1) was chosen).
+#[test]
+fn short_stretches_find_the_flow_order_of_a_one_cycle_log() {
+    for chamber in 0..3 {
+        let ds = host_sim_log(1, &[40.0, 100.0], chamber);
+        assert!(ds.n_cycles < select::MIN_CYCLE_BLOCKS);
+        let (n, m) = select::poly_shape(&ds).expect("a shape");
+        assert_eq!(m, 2, "chamber {chamber}: ({n}, {m})");
+        assert!(n >= 3, "chamber {chamber}: ({n}, {m})");
+    }
+}
+
+/// A shape whose fold fits extrapolate on one block (error above the pressure's variance there)
+/// is not a candidate, however its paired standard error turns out; the true law's shape is.
+/// Two cycles at three flows: the last training cycle is cut short, and with the excess all in
+/// that block (1, 4) passed the paired rule at 68 kPa of cross-validated RMSE (law: 0.07 kPa).
+#[test]
+fn shapes_worse_than_the_mean_on_a_block_are_not_candidates() {
+    let ds = host_sim_log(2, &[20.0, 60.0, 100.0], 0);
+    let train = ds.train();
+    let mean = train.p.iter().sum::<f64>() / train.len() as f64;
+    let var = train.p.iter().map(|p| (p - mean).powi(2)).sum::<f64>() / train.len() as f64;
+    let all = ds.all();
+    let sc = poly::Scaling::from_data(&all.v, &all.vdot).unwrap();
+    let (_, scores) = select::cross_validate(&ds, &sc, 7, 7).unwrap();
+    let ok: Vec<_> = scores.into_iter().flatten().collect();
+    for s in &ok {
+        let worst = s
+            .block_sse
+            .iter()
+            .zip(&s.block_n)
+            .map(|(e, &n)| e / n as f64)
+            .fold(0.0, f64::max);
+        assert_eq!(s.admissible, worst <= var, "({}, {})", s.n, s.m);
+    }
+    let law = ok.iter().find(|s| (s.n, s.m) == (3, 2)).unwrap();
+    assert!(law.admissible);
+    let chosen = select::one_se_rule(&ok).unwrap();
+    assert!(chosen.admissible, "{chosen:?}");
+    // The choice fits the training cycles about as well as the law's own shape does.
+    let rmse = |n, m| {
+        poly::fit(Xy::from(&train), n, m, Some(sc))
+            .unwrap()
+            .train
+            .rmse
+    };
+    assert!(
+        rmse(chosen.n, chosen.m) <= 1.5 * rmse(3, 2),
+        "({}, {})",
+        chosen.n,
+        chosen.m
+    );
 }
 
 /// The acceptance of issue #17 on every real log in `data/real/`: the selected polynomial has at
