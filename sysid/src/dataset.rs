@@ -16,7 +16,9 @@
 //! the ventilator log's flow swings by ±200 000 mm³/s within one breath). The phase switches to
 //! "inflating" when the smoothed v̇ > +deadband and to "deflating" when it is < −deadband for
 //! `min_phase_s` (default 0.2 s) in a row; dwell inside the deadband keeps the current phase. A new cycle starts at each switch from
-//! deflating to inflating. Samples before the first inflation belong to cycle 0.
+//! deflating to inflating. Samples before the first inflation belong to cycle 0. A switch is kept
+//! as a cycle start only where the volume itself turns, by half its range ([`crate::cycles`]), so
+//! noise on a real flow sensor does not cut one breath into several.
 //! The default deadband is 5 % of the 95th percentile of |v̇| (robust to spikes).
 //!
 //! # Split
@@ -270,7 +272,7 @@ impl Dataset {
             }
         };
         let force: Option<Vec<f64>> = rows.iter().map(|s| s.force_n).collect();
-        let (cycle, deadband) = cycles(&t, &vdot, cfg);
+        let (cycle, deadband) = cycles(&t, &v, &vdot, cfg);
         let n_cycles = cycle.last().map_or(0, |c| c + 1);
         let (heldout, split) = holdout_mask(&cycle, n_cycles, cfg.holdout_every);
         Ok(Dataset {
@@ -305,7 +307,7 @@ impl Dataset {
         );
         let h = cfg.diff_half_width.max(1);
         let (vddot, _) = local_quadratic_derivatives(&t, &vdot, h);
-        let (cycle, deadband) = cycles(&t, &vdot, cfg);
+        let (cycle, deadband) = cycles(&t, &v, &vdot, cfg);
         let n_cycles = cycle.last().map_or(0, |c| c + 1);
         let (heldout, split) = holdout_mask(&cycle, n_cycles, cfg.holdout_every);
         Dataset {
@@ -533,16 +535,18 @@ impl LogData {
     }
 }
 
-/// Smooths the flow, picks the deadband and segments (see the module docs).
-fn cycles(t: &[f64], vdot: &[f64], cfg: &DatasetConfig) -> (Vec<usize>, f64) {
+/// Smooths the flow, picks the deadband and segments (see the module docs), keeping only the
+/// boundaries where the volume turns ([`crate::cycles`]).
+fn cycles(t: &[f64], v: &[f64], vdot: &[f64], cfg: &DatasetConfig) -> (Vec<usize>, f64) {
     let mut dts: Vec<f64> = t.windows(2).map(|w| w[1] - w[0]).collect();
     dts.sort_by(f64::total_cmp);
     let dt = dts.get(dts.len() / 2).copied().unwrap_or(1.0);
     let samples = |secs: f64| ((secs / dt).round() as usize).max(1);
     let smooth = moving_average(vdot, samples(cfg.phase_smooth_s) / 2);
     let deadband = cfg.deadband.unwrap_or_else(|| default_deadband(&smooth));
+    let flow_labels = segment_cycles(&smooth, deadband, samples(cfg.min_phase_s));
     (
-        segment_cycles(&smooth, deadband, samples(cfg.min_phase_s)),
+        crate::cycles::keep_volume_cycles(v, &flow_labels).0,
         deadband,
     )
 }

@@ -128,11 +128,13 @@ pub fn rust_constants(ch: u8, model: &PolyModel, provenance: &str) -> String {
     s
 }
 
-/// The device model for one chamber's dataset: the requested (n, m), or by default the shape of
-/// the 49-model sweep with the lowest training AICc **among those the device evaluates faithfully**
-/// (its f32 loss, [`f32_loss`], at most a tenth of the fit's own RMSE; high degrees fitted on a few
-/// flow levels have cancelling coefficients that f32 cannot hold). When AICc's own choice is
-/// passed over, the provenance says so and by how much it would have lost. `p` AR lags.
+/// The device model for one chamber's dataset: the requested (n, m), or by default the shape
+/// `vfp identify` selects ([`crate::select`]: the fewest parameters within one standard error of
+/// the best cycle-blocked cross-validated error) **if the device evaluates it faithfully** (its
+/// f32 loss, [`f32_loss`], at most a tenth of the fit's own RMSE; high degrees fitted on a few
+/// flow levels have cancelling coefficients that f32 cannot hold). Otherwise the next shape in
+/// [`crate::select::ranked`] order that passes, and the provenance names the one passed over and
+/// by how much it would have lost. `p` AR lags.
 pub fn model_for(
     ds: &Dataset,
     n: Option<usize>,
@@ -146,39 +148,57 @@ pub fn model_for(
             model_core::poly::MAX_AR
         )));
     }
-    let data = if all_samples { ds.all() } else { ds.train() };
     let all = ds.all();
     let sc = Scaling::from_data(&all.v, &all.vdot)?;
     match (n, m) {
         (Some(n), Some(m)) => build(ds, n, m, p, all_samples, sc),
         (None, None) => {
-            let entries = poly::sweep(Xy::from(&data), None, &sc, 7, 7)?;
-            let mut ranked: Vec<_> = entries.iter().filter_map(|e| e.as_ref().ok()).collect();
-            ranked.sort_by(|a, b| a.train.aicc.total_cmp(&b.train.aicc));
-            let mut passed_over: Option<(usize, usize, F32Loss)> = None;
-            for entry in ranked {
-                let mut e = build(ds, entry.n, entry.m, p, all_samples, sc)?;
-                let loss = f32_loss(&e, &ds.v, &ds.vdot, &ds.p);
-                if loss.rms <= F32_LOSS_LIMIT * loss.model_rmse {
-                    if let Some((n0, m0, l0)) = passed_over {
-                        e.prov.push_str(&format!(
-                            "; AICc's choice (n = {n0}, m = {m0}) passed over: in f32 on the device it would add {:.4} kPa RMS to its {:.4} kPa fit error",
-                            l0.rms, l0.model_rmse
-                        ));
-                    }
-                    return Ok(e);
-                }
-                passed_over.get_or_insert((entry.n, entry.m, loss));
+            let (_, scores) = crate::select::cross_validate(ds, &sc, 7, 7)?;
+            let ok: Vec<_> = scores.into_iter().flatten().collect();
+            let order: Vec<(usize, usize)> = crate::select::ranked(&ok)
+                .iter()
+                .map(|s| (s.n, s.m))
+                .collect();
+            let (mut e, passed_over) = first_carried(ds, &order, p, all_samples, sc)?;
+            if let Some((n0, m0, l0)) = passed_over {
+                e.prov.push_str(&format!(
+                    "; the selection's choice (n = {n0}, m = {m0}) passed over: in f32 on the device it would add {:.4} kPa RMS to its {:.4} kPa fit error",
+                    l0.rms, l0.model_rmse
+                ));
             }
-            Err(ExportError(
-                "no polynomial shape of the sweep is evaluated by the device's f32 arithmetic within a tenth of its fit error; give --n and --m"
-                    .into(),
-            ))
+            Ok(e)
         }
         _ => Err(ExportError(
-            "give both --n and --m, or neither (then the AICc selection is used)".into(),
+            "give both --n and --m, or neither (then the selection of `vfp identify` is used)"
+                .into(),
         )),
     }
+}
+
+/// The first shape of `order` whose f32 loss ([`f32_loss`] on all of `ds`'s samples) is at most
+/// [`F32_LOSS_LIMIT`] of its fit error, with the first shape passed over (if any) and its loss.
+/// `Err` when none passes.
+#[allow(clippy::type_complexity)]
+pub fn first_carried(
+    ds: &Dataset,
+    order: &[(usize, usize)],
+    p: usize,
+    all_samples: bool,
+    sc: Scaling,
+) -> Result<(Exported, Option<(usize, usize, F32Loss)>), ExportError> {
+    let mut passed_over: Option<(usize, usize, F32Loss)> = None;
+    for &(n, m) in order {
+        let e = build(ds, n, m, p, all_samples, sc)?;
+        let loss = f32_loss(&e, &ds.v, &ds.vdot, &ds.p);
+        if loss.rms <= F32_LOSS_LIMIT * loss.model_rmse {
+            return Ok((e, passed_over));
+        }
+        passed_over.get_or_insert((n, m, loss));
+    }
+    Err(ExportError(
+        "no polynomial shape of the sweep is evaluated by the device's f32 arithmetic within a tenth of its fit error; give --n and --m"
+            .into(),
+    ))
 }
 
 /// Most f32 loss, as a fraction of the fit's RMSE, the default shape selection accepts.

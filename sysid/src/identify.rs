@@ -9,6 +9,7 @@ use crate::dataset::{Columns, Dataset};
 use crate::linreg::CoefStat;
 use crate::metrics::{self, CostWeights, Metrics};
 use crate::poly::{self, PolyFit, PruneRow, Scaling, Xy};
+use crate::select::{self, CvScore, Selection, Shape};
 use crate::{exp, nn, polyar};
 use serde::Serialize;
 use std::collections::BTreeMap;
@@ -131,6 +132,12 @@ pub struct ModelRow {
     pub bic_heldout: Option<f64>,
     /// Joint cost J on the training metrics.
     pub cost: f64,
+    /// Cross-validated RMSE on the training cycles, kPa (poly; see [`crate::select`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub cv_rmse: Option<f64>,
+    /// Its standard error across blocks, kPa (first-order: SE(ē) / (2√ē)).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub cv_rmse_se: Option<f64>,
 }
 
 impl ModelRow {
@@ -152,6 +159,8 @@ impl ModelRow {
             aicc_heldout: held.map(|h| h.aicc),
             bic_heldout: held.map(|h| h.bic),
             cost: w.cost(train),
+            cv_rmse: None,
+            cv_rmse_se: None,
         }
     }
 
@@ -296,10 +305,13 @@ pub struct ChamberReport {
     pub models: Vec<ModelRow>,
     /// Models that could not be fitted.
     pub failed: Vec<Failed>,
-    /// The lowest-cost model of each family.
+    /// Each family's choice: the polynomial's by [`crate::select`] (the simplest shape within one
+    /// standard error of the best cross-validated error), the others' by the lowest joint cost.
     pub best: Vec<ModelRow>,
-    /// The lowest-cost model overall.
+    /// The lowest-cost model among the families' choices (`best`).
     pub selected: Option<ModelRow>,
+    /// How the polynomial's shape was chosen, with the AICc and joint-cost picks beside it.
+    pub poly_selection: Option<Selection>,
     /// The selected polynomial (n, m) refitted by QR, with statistics.
     #[serde(skip)]
     pub poly_fit: Option<PolyFit>,
@@ -342,6 +354,61 @@ fn tell(opt: &Options, p: Progress<'_>) {
     }
 }
 
+/// Fewest samples on each side of the training / held-out split `identify` accepts (as the
+/// residual loop, [`crate::residual::Series::new`]).
+pub const MIN_SAMPLES: usize = 100;
+
+/// Why a dataset cannot be identified.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum IdentifyError {
+    /// Too little data on one side of the split.
+    #[error("too few samples: {train} training and {heldout} held-out, need at least {needed} of each (record more cycles, or fit without a held-out set with --holdout-every 0)")]
+    TooFewSamples {
+        /// Training samples.
+        train: usize,
+        /// Held-out samples.
+        heldout: usize,
+        /// Minimum of each.
+        needed: usize,
+    },
+    /// Every model failed.
+    #[error("no model could be fitted: {0}")]
+    NothingFitted(String),
+}
+
+/// Refuses a dataset too short for its split: fewer than [`MIN_SAMPLES`] training samples, or a
+/// held-out set (when one was asked for) of fewer than [`MIN_SAMPLES`].
+pub fn check_split(ds: &Dataset) -> Result<(), IdentifyError> {
+    let held = ds.heldout.iter().filter(|&&h| h).count();
+    let train = ds.len() - held;
+    let wants_held = !matches!(ds.split, crate::dataset::Split::None);
+    if train < MIN_SAMPLES || (wants_held && held < MIN_SAMPLES) {
+        return Err(IdentifyError::TooFewSamples {
+            train,
+            heldout: held,
+            needed: MIN_SAMPLES,
+        });
+    }
+    Ok(())
+}
+
+/// `Err` naming every failure when `rep` holds no fitted model.
+pub fn check_fitted(rep: &ChamberReport) -> Result<(), IdentifyError> {
+    if !rep.models.is_empty() {
+        return Ok(());
+    }
+    let why: Vec<String> = rep
+        .failed
+        .iter()
+        .map(|f| format!("{} {}: {}", f.family.name(), f.shape, f.error))
+        .collect();
+    Err(IdentifyError::NothingFitted(if why.is_empty() {
+        "no family was run".into()
+    } else {
+        why.join("; ")
+    }))
+}
+
 /// Runs the selected families on one chamber's dataset.
 pub fn identify(ds: &Dataset, opt: &Options) -> ChamberReport {
     let w = opt.weights;
@@ -366,6 +433,7 @@ pub fn identify(ds: &Dataset, opt: &Options) -> ChamberReport {
         failed: Vec::new(),
         best: Vec::new(),
         selected: None,
+        poly_selection: None,
         poly_fit: None,
         poly_coefficients: Vec::new(),
         pruning: Vec::new(),
@@ -531,8 +599,7 @@ pub fn identify(ds: &Dataset, opt: &Options) -> ChamberReport {
                                 idx += 1;
                             }
                         }
-                        poly_choice =
-                            best_of(&rep.models, Family::Poly).and_then(|r| Some((r.n?, r.m?)));
+                        poly_choice = choose_poly(&mut rep, ds, sc, opt);
                     }
                 },
             },
@@ -594,7 +661,7 @@ pub fn identify(ds: &Dataset, opt: &Options) -> ChamberReport {
         }
         if opt.prune_k > 0 {
             match poly::prune(Xy::from(&train), held_xy, n, m, opt.prune_k) {
-                Ok((_, rows)) => rep.pruning = rows,
+                Ok(rows) => rep.pruning = rows,
                 Err(e) => fail(&mut rep, Family::Poly, format!("({n}, {m}) pruning"), &e),
             }
         }
@@ -602,14 +669,71 @@ pub fn identify(ds: &Dataset, opt: &Options) -> ChamberReport {
 
     rep.best = Family::ALL
         .iter()
-        .filter_map(|&f| best_of(&rep.models, f).cloned())
+        .filter_map(|&f| match (f, poly_choice) {
+            (Family::Poly, Some((n, m))) => rep
+                .models
+                .iter()
+                .find(|r| r.family == f && r.n == Some(n) && r.m == Some(m))
+                .cloned(),
+            _ => best_of(&rep.models, f).cloned(),
+        })
         .collect();
     rep.selected = rep
-        .models
+        .best
         .iter()
         .min_by(|a, b| a.cost.total_cmp(&b.cost))
         .cloned();
     rep
+}
+
+/// Cross-validates the polynomial sweep on the training cycles, notes each row's cross-validated
+/// RMSE, records the [`Selection`] and returns the chosen shape. When the cross-validation cannot
+/// run (fewer than two blocks), the lowest joint cost chooses, and a note says so.
+fn choose_poly(
+    rep: &mut ChamberReport,
+    ds: &Dataset,
+    sc: &Scaling,
+    opt: &Options,
+) -> Option<(usize, usize)> {
+    let rows = || rep.models.iter().filter(|r| r.family == Family::Poly);
+    let shape_of = |r: &ModelRow| Some(Shape::new(r.n?, r.m?));
+    let aicc = rows()
+        .min_by(|a, b| a.aicc.total_cmp(&b.aicc))
+        .and_then(shape_of);
+    let cost = rows()
+        .min_by(|a, b| a.cost.total_cmp(&b.cost))
+        .and_then(shape_of);
+    let fallback = cost.map(|s| (s.n, s.m));
+    let (blocks, scores) = match select::cross_validate(ds, sc, opt.max_n, opt.max_m) {
+        Ok(x) => x,
+        Err(e) => {
+            rep.notes.push(format!(
+                "poly: no cross-validation ({e}); the lowest joint cost chose the shape"
+            ));
+            return fallback;
+        }
+    };
+    let ok: Vec<CvScore> = scores.into_iter().flatten().collect();
+    for r in rep.models.iter_mut().filter(|r| r.family == Family::Poly) {
+        if let Some(s) = ok.iter().find(|s| Some(s.n) == r.n && Some(s.m) == r.m) {
+            r.cv_rmse = Some(s.rmse());
+            r.cv_rmse_se = Some(s.se / (2.0 * s.rmse()).max(f64::MIN_POSITIVE));
+        }
+    }
+    match select::selection(&blocks, &ok, aicc, cost, opt.weights) {
+        Some(sel) => {
+            let pick = (sel.selected.n, sel.selected.m);
+            rep.poly_selection = Some(sel);
+            Some(pick)
+        }
+        None => {
+            rep.notes.push(
+                "poly: no shape could be cross-validated; the lowest joint cost chose the shape"
+                    .into(),
+            );
+            fallback
+        }
+    }
 }
 
 fn best_of(rows: &[ModelRow], family: Family) -> Option<&ModelRow> {

@@ -15,6 +15,7 @@
 
 pub mod capture;
 pub mod columns;
+pub mod cycles;
 pub mod dataset;
 pub mod deploy;
 pub mod diag;
@@ -32,4 +33,5 @@ pub mod record;
 pub mod replay;
 pub mod residual;
 pub mod sequence;
+pub mod select;
 pub mod synth;

@@ -429,7 +429,29 @@ pub fn fit(data: Xy, n: usize, m: usize, scaling: Option<Scaling>) -> Result<Pol
         .collect();
     let lf = linreg::lstsq(x, data.p, &names).map_err(|source| PolyError::Fit { n, m, source })?;
 
-    // c (Chebyshev) → a (scaled power): a_kl = Σ_ij c_ij t_ik t_jl.
+    let (a_of_c, raw_of_c) = chebyshev_maps(n, m, &scaling);
+    let c = DVector::from_column_slice(&lf.coef);
+    let power: Vec<f64> = (&a_of_c * &c).iter().copied().collect();
+    let raw = &raw_of_c * &c;
+    let cov_raw = &raw_of_c * lf.cov() * raw_of_c.transpose();
+    let raw_stats = linreg::coef_stats(raw.as_slice(), &cov_raw, lf.dof());
+    finish(
+        data,
+        n,
+        m,
+        scaling,
+        power,
+        raw_stats,
+        vec![true; nu],
+        lf.sigma2(),
+    )
+}
+
+/// The linear maps from the (n, m) model's Chebyshev coefficients c (index i·(m+1)+j) to its
+/// scaled power-basis coefficients a (a_kl = Σ_ij c_ij t_ik t_jl) and to its raw paper-unit
+/// coefficients α (the binomial expansion of x = (v − o)/s), as (a_of_c, raw_of_c).
+fn chebyshev_maps(n: usize, m: usize, scaling: &Scaling) -> (DMatrix<f64>, DMatrix<f64>) {
+    let nu = (n + 1) * (m + 1);
     let tn = chebyshev_to_power(n);
     let tm = chebyshev_to_power(m);
     let a_of_c = DMatrix::from_fn(nu, nu, |row, col| {
@@ -444,22 +466,8 @@ pub fn fit(data: Xy, n: usize, m: usize, scaling: Option<Scaling>) -> Result<Pol
         let (k, l) = (col / (m + 1), col % (m + 1));
         bn[p][k] * bm[q][l]
     });
-    let c = DVector::from_column_slice(&lf.coef);
-    let power: Vec<f64> = (&a_of_c * &c).iter().copied().collect();
     let raw_of_c = &raw_of_a * &a_of_c;
-    let raw = &raw_of_c * &c;
-    let cov_raw = &raw_of_c * lf.cov() * raw_of_c.transpose();
-    let raw_stats = linreg::coef_stats(raw.as_slice(), &cov_raw, lf.dof());
-    finish(
-        data,
-        n,
-        m,
-        scaling,
-        power,
-        raw_stats,
-        vec![true; nu],
-        lf.sigma2(),
-    )
+    (a_of_c, raw_of_c)
 }
 
 /// Builds the [`PolyFit`] and its in-sample metrics from directly computed residuals.
@@ -623,6 +631,48 @@ impl Moments {
         total
     }
 
+    /// All-zero moments of no samples (the neutral element of [`Moments::add`]).
+    pub fn zero() -> Moments {
+        Moments {
+            n: 0,
+            mu: [[0.0; K]; K],
+            b: [[0.0; MAX_DEGREE + 1]; MAX_DEGREE + 1],
+            yy: 0.0,
+            sst: 0.0,
+        }
+    }
+
+    /// Adds the sums of `o` (samples of another part of the data, same scaling and centre) to
+    /// these. `sst` is not additive and is left alone.
+    pub fn add(&mut self, o: &Moments) {
+        self.n += o.n;
+        for (row, orow) in self.mu.iter_mut().zip(&o.mu) {
+            for (a, b) in row.iter_mut().zip(orow) {
+                *a += b;
+            }
+        }
+        for (row, orow) in self.b.iter_mut().zip(&o.b) {
+            for (a, b) in row.iter_mut().zip(orow) {
+                *a += b;
+            }
+        }
+        self.yy += o.yy;
+    }
+
+    /// The moments of the samples `range` of `data`, in one thread (`sst` left at zero).
+    pub fn gather_range(
+        data: Xy,
+        scaling: &Scaling,
+        centre: f64,
+        range: std::ops::Range<usize>,
+    ) -> Moments {
+        let n = range.len();
+        Moments {
+            n,
+            ..Self::gather_serial(data, scaling, centre, range)
+        }
+    }
+
     fn gather_serial(
         data: Xy,
         scaling: &Scaling,
@@ -752,6 +802,29 @@ fn solve_entry(
 ) -> Result<SweepEntry, PolyError> {
     let nu = (n + 1) * (m + 1);
     let err = |source| PolyError::Fit { n, m, source };
+    let c = solve_chebyshev(mt, n, m)?;
+    let sse = mt.sse(n, m, &c);
+    let train = metrics::from_sse(sse, mt.sst, mt.n, nu)
+        .map_err(|_| err(FitError::TooFewSamples { n: mt.n, nu }))?;
+    let heldout = mh.and_then(|h| metrics::from_sse(h.sse(n, m, &c), h.sst, h.n, nu).ok());
+    let mut chebyshev: Vec<f64> = c.iter().copied().collect();
+    chebyshev[0] += centre;
+    Ok(SweepEntry {
+        n,
+        m,
+        nu,
+        chebyshev,
+        train,
+        heldout,
+    })
+}
+
+/// The least-squares Chebyshev coefficients of the (n, m) model (for the pressure centred as in
+/// `mt`) from the moments alone: Cholesky of the Jacobi-scaled Gram, a pivot below [`CHOL_TOL`]
+/// naming the term that is not identifiable.
+pub fn solve_chebyshev(mt: &Moments, n: usize, m: usize) -> Result<DVector<f64>, PolyError> {
+    let nu = (n + 1) * (m + 1);
+    let err = |source| PolyError::Fit { n, m, source };
     if mt.n < nu + 2 {
         return Err(err(FitError::TooFewSamples { n: mt.n, nu }));
     }
@@ -771,21 +844,7 @@ fn solve_entry(
         }));
     }
     let bs = b.component_mul(&d);
-    let c = chol.solve(&bs).component_mul(&d);
-    let sse = (mt.yy - 2.0 * c.dot(&b) + c.dot(&(&g * &c))).max(0.0);
-    let train = metrics::from_sse(sse, mt.sst, mt.n, nu)
-        .map_err(|_| err(FitError::TooFewSamples { n: mt.n, nu }))?;
-    let heldout = mh.and_then(|h| metrics::from_sse(h.sse(n, m, &c), h.sst, h.n, nu).ok());
-    let mut chebyshev: Vec<f64> = c.iter().copied().collect();
-    chebyshev[0] += centre;
-    Ok(SweepEntry {
-        n,
-        m,
-        nu,
-        chebyshev,
-        train,
-        heldout,
-    })
+    Ok(chol.solve(&bs).component_mul(&d))
 }
 
 /// One row of a Table IV-style pruning report.
@@ -802,50 +861,200 @@ pub struct PruneRow {
 }
 
 /// Table IV: the `k` least significant raw terms of the full (n, m) model (largest p-value, then
-/// smallest |t|) are excluded one at a time and in pairs, each variant refitted and scored.
+/// smallest |t|) are excluded one at a time and in pairs, and each variant is scored on `train`
+/// and `heldout`.
+///
+/// No variant is refitted. Leaving out the raw terms S is the full model under the constraint
+/// α_S = W_S c = 0 (W: Chebyshev → raw coefficients), whose least-squares solution and error follow
+/// from the full model's Gram matrix G alone (restricted least squares):
+/// c_S = ĉ − G⁻¹W_Sᵀ M⁻¹ W_S ĉ and SSE_S = SSE + (W_S ĉ)ᵀ M⁻¹ (W_S ĉ), with M = W_S G⁻¹ W_Sᵀ
+/// (1×1 or 2×2). G comes from one pass of Chebyshev moments and is factored once (Cholesky of its
+/// Jacobi-scaled form); each variant then costs O(ν²). The held-out error of c_S comes from the
+/// held-out moments. The t statistics that rank the terms are those of the full fit,
+/// Var(α̂_k) = σ̂² w_kᵀ G⁻¹ w_k.
 pub fn prune(
     train: Xy,
     heldout: Option<Xy>,
     n: usize,
     m: usize,
     k: usize,
-) -> Result<(PolyFit, Vec<PruneRow>), PolyError> {
-    let full_mask = vec![true; (n + 1) * (m + 1)];
-    let full = fit_terms(train, n, m, &full_mask)?;
-    let mut order: Vec<usize> = (0..full.raw.len()).collect();
-    order.sort_by(|&a, &b| {
-        let (sa, sb) = (full.raw[a], full.raw[b]);
-        sb.p.total_cmp(&sa.p)
-            .then(sa.t.abs().total_cmp(&sb.t.abs()))
-    });
-    let cand: Vec<usize> = order
-        .into_iter()
-        .take(k.min(full.raw.len().saturating_sub(1)))
-        .collect();
+) -> Result<Vec<PruneRow>, PolyError> {
+    train.check()?;
+    if n > MAX_DEGREE || m > MAX_DEGREE {
+        return Err(PolyError::Degree { n, m });
+    }
+    let sc = Scaling::from_data(train.v, train.vdot)?;
+    let centre = train.p.iter().sum::<f64>() / train.p.len() as f64;
+    let mt = Moments::gather(train, &sc, centre);
+    let mh = match heldout {
+        Some(h) if !h.p.is_empty() => {
+            h.check()?;
+            Some(Moments::gather(h, &sc, centre))
+        }
+        _ => None,
+    };
+    let full = Restricted::new(&mt, n, m, &sc, centre)?;
+    let cand = full.least_significant(k);
     let mut sets: Vec<Vec<usize>> = cand.iter().map(|&a| vec![a]).collect();
     for (x, &a) in cand.iter().enumerate() {
         for &b in &cand[x + 1..] {
             sets.push(vec![a, b]);
         }
     }
-    let names = full.term_names();
-    let mut rows = Vec::new();
-    for set in sets {
-        let mut mask = full_mask.clone();
-        for &t in &set {
-            mask[t] = false;
-        }
-        let f = fit_terms(train, n, m, &mask)?;
-        let heldout = heldout.filter(|h| !h.p.is_empty()).and_then(|h| {
-            let pred = f.predict_all(h.v, h.vdot);
-            metrics::compute(h.p, &pred, f.nu).ok()
-        });
-        rows.push(PruneRow {
-            excluded: set.iter().map(|&t| names[t].clone()).collect(),
-            nu: f.nu,
-            train: f.train,
-            heldout,
-        });
+    let err = |source| PolyError::Fit { n, m, source };
+    sets.into_iter()
+        .map(|set| {
+            let (c, sse) = full.without(&set).ok_or_else(|| {
+                err(FitError::RankDeficient {
+                    term: set
+                        .iter()
+                        .map(|&t| full.name(t))
+                        .collect::<Vec<_>>()
+                        .join(", "),
+                })
+            })?;
+            let nu = full.nu - set.len();
+            let train = metrics::from_sse(sse, mt.sst, mt.n, nu)
+                .map_err(|_| err(FitError::TooFewSamples { n: mt.n, nu }))?;
+            let heldout = mh
+                .as_ref()
+                .and_then(|h| metrics::from_sse(h.sse(n, m, &c), h.sst, h.n, nu).ok());
+            Ok(PruneRow {
+                excluded: set.iter().map(|&t| full.name(t)).collect(),
+                nu,
+                train,
+                heldout,
+            })
+        })
+        .collect()
+}
+
+/// The full (n, m) fit from moments, factored once, for restricted refits (see [`prune`]).
+struct Restricted {
+    m: usize,
+    nu: usize,
+    /// Chebyshev coefficients of the centred pressure.
+    c: DVector<f64>,
+    /// SSE of the full fit.
+    sse: f64,
+    /// Jacobi scaling D (G = D⁻¹ Gs D⁻¹).
+    d: DVector<f64>,
+    /// Cholesky factor of the scaled Gram Gs = D G D.
+    chol: nalgebra::Cholesky<f64, nalgebra::Dyn>,
+    /// Chebyshev → raw coefficients.
+    raw_of_c: DMatrix<f64>,
+    /// Residual degrees of freedom of the full fit.
+    dof: usize,
+    /// The pressure's centring (the fit is of P − centre).
+    centre: f64,
+}
+
+impl Restricted {
+    fn new(
+        mt: &Moments,
+        n: usize,
+        m: usize,
+        sc: &Scaling,
+        mt_centre: f64,
+    ) -> Result<Restricted, PolyError> {
+        let nu = (n + 1) * (m + 1);
+        let c = solve_chebyshev(mt, n, m)?;
+        let g = mt.gram(n, m);
+        let d = DVector::from_fn(nu, |i, _| 1.0 / g[(i, i)].max(f64::MIN_POSITIVE).sqrt());
+        let gs = DMatrix::from_fn(nu, nu, |i, j| g[(i, j)] * d[i] * d[j]);
+        let chol = nalgebra::Cholesky::new(gs).ok_or(PolyError::Fit {
+            n,
+            m,
+            source: FitError::RankDeficient {
+                term: term_name(n, m),
+            },
+        })?;
+        let (_, raw_of_c) = chebyshev_maps(n, m, sc);
+        Ok(Restricted {
+            centre: mt_centre,
+            m,
+            nu,
+            sse: mt.sse(n, m, &c),
+            c,
+            d,
+            chol,
+            raw_of_c,
+            dof: mt.n - nu,
+        })
     }
-    Ok((full, rows))
+
+    fn name(&self, k: usize) -> String {
+        term_name(k / (self.m + 1), k % (self.m + 1))
+    }
+
+    /// Z = L⁻¹ D W_Sᵀ, so that W_S G⁻¹ W_Sᵀ = ZᵀZ.
+    fn z(&self, set: &[usize]) -> DMatrix<f64> {
+        let mut z = DMatrix::from_fn(self.nu, set.len(), |i, s| {
+            self.raw_of_c[(set[s], i)] * self.d[i]
+        });
+        let l = self.chol.l_dirty();
+        for col in 0..set.len() {
+            for i in 0..self.nu {
+                let acc: f64 = (0..i).map(|j| l[(i, j)] * z[(j, col)]).sum();
+                z[(i, col)] = (z[(i, col)] - acc) / l[(i, i)];
+            }
+        }
+        z
+    }
+
+    /// The raw terms ordered from least significant (largest p, then smallest |t|), first `k`,
+    /// never all of them.
+    fn least_significant(&self, k: usize) -> Vec<usize> {
+        let s2 = self.sse / self.dof.max(1) as f64;
+        let stats: Vec<(f64, f64)> = (0..self.nu)
+            .map(|t| {
+                let z = self.z(&[t]);
+                let se = (s2 * z.norm_squared()).sqrt();
+                let est = self.raw(t);
+                let tt = if se > 0.0 {
+                    est / se
+                } else {
+                    f64::INFINITY * est.signum()
+                };
+                (linreg::two_sided_p(tt, self.dof), tt.abs())
+            })
+            .collect();
+        let mut order: Vec<usize> = (0..self.nu).collect();
+        order.sort_by(|&a, &b| {
+            stats[b]
+                .0
+                .total_cmp(&stats[a].0)
+                .then(stats[a].1.total_cmp(&stats[b].1))
+        });
+        order.truncate(k.min(self.nu.saturating_sub(1)));
+        order
+    }
+
+    /// Raw coefficient α_t of the full fit (the centring enters through the T₀T₀ column).
+    fn raw(&self, t: usize) -> f64 {
+        let centred: f64 = (0..self.nu)
+            .map(|i| self.raw_of_c[(t, i)] * self.c[i])
+            .sum();
+        centred + self.centre * self.raw_of_c[(t, 0)]
+    }
+
+    /// The restricted fit without the raw terms `set`: its centred Chebyshev coefficients and its
+    /// SSE. `None` when the constraints are degenerate.
+    fn without(&self, set: &[usize]) -> Option<(DVector<f64>, f64)> {
+        // The constraint is on the uncentred coefficients: W_S (ĉ + centre·e₀) = α̂_S must vanish.
+        let resid = DVector::from_fn(set.len(), |s, _| self.raw(set[s]));
+        let z = self.z(set);
+        let mm = z.transpose() * &z;
+        let lambda = mm.clone().cholesky()?.solve(&resid);
+        let dsse = resid.dot(&lambda);
+        // G⁻¹W_Sᵀλ = D L⁻ᵀ Z λ.
+        let mut u = &z * &lambda;
+        let l = self.chol.l_dirty();
+        for i in (0..self.nu).rev() {
+            let acc: f64 = (i + 1..self.nu).map(|j| l[(j, i)] * u[j]).sum();
+            u[i] = (u[i] - acc) / l[(i, i)];
+        }
+        let c = DVector::from_fn(self.nu, |i, _| self.c[i] - self.d[i] * u[i]);
+        Some((c, self.sse + dsse))
+    }
 }

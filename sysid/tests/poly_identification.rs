@@ -150,7 +150,8 @@ fn pruning_refits_without_the_least_significant_terms() {
         vdot: &tr.vdot,
         p: &p,
     };
-    let (full, rows) = poly::prune(xy, None, 3, 2, 3).unwrap();
+    let rows = poly::prune(xy, None, 3, 2, 3).unwrap();
+    let full = poly::fit_terms(xy, 3, 2, &[true; 12]).unwrap();
     assert_eq!(rows.len(), 6, "3 singles and 3 pairs as in Table IV");
     let single = rows
         .iter()
@@ -175,7 +176,7 @@ fn pruning_refits_without_the_least_significant_terms() {
     );
     for r in &rows {
         assert!(
-            r.train.rmse >= full.train.rmse * (1.0 - 1e-12),
+            r.train.rmse >= full.train.rmse * (1.0 - 1e-9),
             "a refit on fewer terms cannot fit better"
         );
     }

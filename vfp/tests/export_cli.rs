@@ -223,7 +223,6 @@ fn identify_json_has_the_documented_fields() {
 #[test]
 fn export_warns_when_f32_cannot_carry_the_polynomial() {
     const ACCEL: f64 = 1000.0;
-    use sysid::deploy::{deploy, parse_lines, FirmwarePort};
     use sysid::export::{f32_loss, f32_warning, model_for};
     // Fast ramps: the flow dwells on seven levels (0, ±20, ±60, ±100 mm³/s), so degree 7 in v̇
     // is barely determined and its coefficients cancel.
@@ -240,19 +239,8 @@ fn export_warns_when_f32_cannot_carry_the_polynomial() {
     for (n, m) in [(3, 2), (7, 7)] {
         let e = model_for(&ds, Some(n), Some(m), 0, false).unwrap();
         let loss = f32_loss(&e, &ds.v, &ds.vdot, &ds.p);
-        // The same loss measured independently: the model as the firmware's command handler
-        // installs it, against sysid's own f64 evaluation of the fit (Chebyshev basis).
-        let fit = poly::fit(Xy::from(&ds.train()), n, m, Some(e.scaling)).unwrap();
-        let ups = parse_lines(&command_lines(0, &e.model).join("\n"), "x").unwrap();
-        let mut port = FirmwarePort::new();
-        deploy(&mut port, &ups).unwrap();
-        let dev = port.shared.lock(|s| *s.model(0));
-        let mut d2 = 0.0;
-        for k in 0..ds.len() {
-            let got = dev.eval(ds.v[k] as f32, ds.vdot[k] as f32).unwrap().p;
-            d2 += (f64::from(got) - fit.predict(ds.v[k], ds.vdot[k])).powi(2);
-        }
-        let direct = (d2 / ds.len() as f64).sqrt();
+        // The same loss measured independently (the firmware's own command handler and model).
+        let (direct, _) = device_loss(&ds, n, m);
         assert_eq!(loss.samples, ds.len());
         assert!(
             (loss.rms - direct).abs() <= 0.05 * direct + 1e-6,
@@ -281,50 +269,76 @@ fn export_warns_when_f32_cannot_carry_the_polynomial() {
     );
 }
 
-/// AICc's ranking of the 49 shapes on the training cycles.
-fn aicc_ranking(ds: &Dataset) -> Vec<(usize, usize)> {
+/// The f32 loss of shape (n, m) on `ds` measured independently of `sysid::export::f32_loss`: the
+/// model as the firmware's command handler installs it, evaluated along the log, against sysid's
+/// own f64 evaluation of the fit (Chebyshev basis). Returns (loss RMS, the fit's RMSE), kPa.
+fn device_loss(ds: &Dataset, n: usize, m: usize) -> (f64, f64) {
+    use sysid::deploy::{deploy, parse_lines, FirmwarePort};
+    let e = sysid::export::model_for(ds, Some(n), Some(m), 0, false).unwrap();
+    let fit = poly::fit(Xy::from(&ds.train()), n, m, Some(e.scaling)).unwrap();
+    let ups = parse_lines(&command_lines(0, &e.model).join("\n"), "x").unwrap();
+    let mut port = FirmwarePort::new();
+    deploy(&mut port, &ups).unwrap();
+    let dev = port.shared.lock(|s| *s.model(0));
+    let (mut d2, mut e2) = (0.0, 0.0);
+    for k in 0..ds.len() {
+        let host = fit.predict(ds.v[k], ds.vdot[k]);
+        let got = dev.eval(ds.v[k] as f32, ds.vdot[k] as f32).unwrap().p;
+        d2 += (f64::from(got) - host).powi(2);
+        e2 += (ds.p[k] - host).powi(2);
+    }
+    let len = ds.len() as f64;
+    ((d2 / len).sqrt(), (e2 / len).sqrt())
+}
+
+/// Whether the device carries (n, m) on `ds`: its loss at most the export's limit of its fit error.
+fn carried(ds: &Dataset, n: usize, m: usize) -> bool {
+    let (loss, rmse) = device_loss(ds, n, m);
+    loss <= sysid::export::F32_LOSS_LIMIT * rmse
+}
+
+/// The fast-ramp synthetic log of `export_warns_when_f32_cannot_carry_the_polynomial`: (7, 7)'s
+/// coefficients cancel beyond f32 there, the paper's (3, 2) is carried.
+fn fast_ramps() -> Dataset {
+    let fast = Protocol {
+        rates: vec![20.0, 60.0, 100.0],
+        accel: 1000.0,
+        samples: 9_000,
+        ..Protocol::default()
+    }
+    .trajectory();
+    let p = synth::pressure(&SBA1_RAW, 3, 2, &fast, 0.05, 5);
+    Dataset::from_columns(fast.t, fast.v, fast.vdot, p, &DatasetConfig::default())
+}
+
+/// A shape the device cannot carry is passed over for the next in the order, and the one passed
+/// over is named with its loss (checked against the device's own evaluation).
+#[test]
+fn export_passes_over_shapes_f32_cannot_carry() {
+    let ds = fast_ramps();
+    assert!(!carried(&ds, 7, 7) && carried(&ds, 3, 2));
     let all = ds.all();
     let sc = sysid::poly::Scaling::from_data(&all.v, &all.vdot).unwrap();
-    let mut ranked: Vec<_> = poly::sweep(Xy::from(&ds.train()), None, &sc, 7, 7)
-        .unwrap()
-        .into_iter()
-        .filter_map(Result::ok)
-        .collect();
-    ranked.sort_by(|a, b| a.train.aicc.total_cmp(&b.train.aicc));
-    ranked.iter().map(|r| (r.n, r.m)).collect()
-}
-
-/// Checks the default selection on `ds`: the exported shape is the first in AICc order the device
-/// evaluates within the limit; every shape before it is not. Returns (AICc's first, exported).
-fn check_default_selection(ds: &Dataset) -> ((usize, usize), (usize, usize)) {
-    use sysid::export::{f32_loss, model_for, F32_LOSS_LIMIT};
-    let ranked = aicc_ranking(ds);
-    let e = model_for(ds, None, None, 0, false).unwrap();
-    let loss = f32_loss(&e, &ds.v, &ds.vdot, &ds.p);
-    assert!(loss.rms <= F32_LOSS_LIMIT * loss.model_rmse, "{loss:?}");
+    let (e, over) = sysid::export::first_carried(&ds, &[(7, 7), (3, 2)], 0, false, sc).unwrap();
     let sh = e.model.shape();
-    let chosen = (usize::from(sh.n), usize::from(sh.m));
-    for &(n, m) in ranked.iter().take_while(|&&s| s != chosen) {
-        let x = model_for(ds, Some(n), Some(m), 0, false).unwrap();
-        let l = f32_loss(&x, &ds.v, &ds.vdot, &ds.p);
-        assert!(l.rms > F32_LOSS_LIMIT * l.model_rmse, "({n}, {m}) {l:?}");
-    }
-    let first = ranked[0];
-    let said = format!(
-        "AICc's choice (n = {}, m = {}) passed over",
-        first.0, first.1
+    assert_eq!((sh.n, sh.m), (3, 2));
+    let (n0, m0, l0) = over.expect("(7, 7) passed over");
+    assert_eq!((n0, m0), (7, 7));
+    let (direct, _) = device_loss(&ds, 7, 7);
+    assert!(
+        (l0.rms - direct).abs() <= 0.05 * direct,
+        "{l0:?} vs {direct}"
     );
-    assert_eq!(e.prov.contains(&said), chosen != first, "{}", e.prov);
-    eprintln!("AICc first {first:?}, exported {chosen:?}: {}", e.prov);
-    (first, chosen)
+    // Nothing to pass over when the first is carried.
+    let (e, over) = sysid::export::first_carried(&ds, &[(3, 2), (7, 7)], 0, false, sc).unwrap();
+    assert!(over.is_none() && e.model.shape().m == 2);
 }
 
-/// With no --n/--m, export takes the best-AICc shape the device evaluates within a tenth of its fit
-/// error and says which AICc choice it passed over. On a short simulated-rig log (three flow
-/// levels) AICc picks a high degree whose coefficients cancel beyond f32; on the synthetic
-/// (3, 2) law every good shape is safe and AICc's own choice stands.
+/// With no --n/--m, export tries the shapes in the selection's order (`sysid::select::ranked`: the
+/// one-SE choice first) and exports the first the device carries (judged here by the device's own
+/// evaluation); the provenance names the selection's choice when it was passed over.
 #[test]
-fn default_export_passes_over_shapes_f32_cannot_carry() {
+fn default_export_follows_the_selection_order() {
     let protocol = host_sim::Protocol {
         cycles: 2,
         flows: vec![20.0, 60.0, 100.0],
@@ -339,22 +353,30 @@ fn default_export_passes_over_shapes_f32_cannot_carry() {
     let mut csv = Vec::new();
     run.write_log(&mut csv).unwrap();
     let log = sysid::log::parse_log(&csv[..], "sim.csv").unwrap();
-    let ds = Dataset::from_log(&log, 0, &DatasetConfig::default()).unwrap();
-    let (first, chosen) = check_default_selection(&ds);
-    assert_ne!(
-        first, chosen,
-        "AICc's choice was expected to be unsafe in f32 here"
-    );
-
-    let fast = Protocol {
-        rates: vec![20.0, 60.0, 100.0],
-        accel: 1000.0,
-        samples: 9_000,
-        ..Protocol::default()
+    let sim = Dataset::from_log(&log, 0, &DatasetConfig::default()).unwrap();
+    for ds in [&sim, &fast_ramps()] {
+        let all = ds.all();
+        let sc = sysid::poly::Scaling::from_data(&all.v, &all.vdot).unwrap();
+        let (_, scores) = sysid::select::cross_validate(ds, &sc, 7, 7).unwrap();
+        let ok: Vec<_> = scores.into_iter().flatten().collect();
+        let order: Vec<_> = sysid::select::ranked(&ok)
+            .iter()
+            .map(|s| (s.n, s.m))
+            .collect();
+        assert_eq!(Some(order[0]), sysid::select::poly_shape(ds));
+        let expected = *order
+            .iter()
+            .find(|&&(n, m)| carried(ds, n, m))
+            .expect("a carried shape");
+        let e = sysid::export::model_for(ds, None, None, 0, false).unwrap();
+        let sh = e.model.shape();
+        assert_eq!((usize::from(sh.n), usize::from(sh.m)), expected);
+        assert_eq!(
+            e.prov.contains("passed over"),
+            expected != order[0],
+            "{}",
+            e.prov
+        );
+        eprintln!("order starts {:?}, exported {expected:?}", &order[..3]);
     }
-    .trajectory();
-    let p = synth::pressure(&SBA1_RAW, 3, 2, &fast, 0.05, 5);
-    let ds = Dataset::from_columns(fast.t, fast.v, fast.vdot, p, &DatasetConfig::default());
-    let (first, chosen) = check_default_selection(&ds);
-    assert_eq!(first, chosen);
 }

@@ -35,7 +35,6 @@ pub(crate) mod signal;
 use serde::Serialize;
 
 use crate::dataset::Dataset;
-use crate::poly::{self, Scaling, Xy};
 
 pub use analysis::{ResidualAnalysis, Signature};
 pub use basis::PolyBasis;
@@ -686,21 +685,9 @@ pub fn series_from_dataset(ds: &Dataset) -> Result<Series, DiagnoseError> {
     Ok(s)
 }
 
-/// The shape the polynomial sweep selects by training AICc (the default joint cost of eq. (12)).
+/// The shape the loop starts from by default: the polynomial's selection
+/// ([`crate::select::poly_shape`], the simplest shape within one standard error of the best
+/// cycle-blocked cross-validated error), as `vfp identify` and `vfp export` choose it.
 pub fn select_shape(ds: &Dataset) -> Option<(usize, usize)> {
-    let train = ds.train();
-    let scaling = Scaling::from_data(&ds.v, &ds.vdot).ok()?;
-    let entries = poly::sweep(
-        Xy::from(&train),
-        None,
-        &scaling,
-        poly::MAX_DEGREE,
-        poly::MAX_DEGREE,
-    )
-    .ok()?;
-    entries
-        .into_iter()
-        .flatten()
-        .min_by(|a, b| a.train.aicc.total_cmp(&b.train.aicc))
-        .map(|e| (e.n, e.m))
+    crate::select::poly_shape(ds)
 }

@@ -19,8 +19,9 @@ pub struct Args {
     /// The log, `--chamber` (default: the lowest chamber in the log) and the data options.
     #[command(flatten)]
     pub input: LogInput,
-    /// Baseline polynomial as `N,M` (degree in v, degree in v̇); default: the shape the
-    /// polynomial sweep selects by AICc on the training cycles, as `vfp identify` does.
+    /// Baseline polynomial as `N,M` (degree in v, degree in v̇); default: the shape `vfp identify`
+    /// selects (the fewest parameters within one standard error of the best cross-validated error
+    /// on the training cycles).
     #[arg(long, value_name = "N,M")]
     pub model: Option<String>,
     /// Level of the nested F-test.

@@ -18,10 +18,10 @@ pub struct Args {
     /// The log, `--chamber` (default: every chamber) and the data options.
     #[command(flatten)]
     pub input: LogInput,
-    /// Highest power of v (default: the polynomial sweep's AICc selection).
+    /// Highest power of v (default: the shape `vfp identify` selects).
     #[arg(long)]
     pub n: Option<usize>,
-    /// Highest power of v̇ (default: the polynomial sweep's AICc selection).
+    /// Highest power of v̇ (default: the shape `vfp identify` selects).
     #[arg(long)]
     pub m: Option<usize>,
     /// Autoregressive order (0..=5) of the exported model.
@@ -34,7 +34,7 @@ pub struct Args {
     #[arg(long)]
     pub all_samples: bool,
     /// Export the model `vfp diagnose` ends with: run the residual loop on each chamber (baseline
-    /// shape from --n/--m, default the AICc selection), refit it with the kept effects the board
+    /// shape from --n/--m, default the selected shape), refit it with the kept effects the board
     /// can run (hysteresis, sensor and delivery lag, transport delay, backlash, leak, air
     /// compliance as `model <ch> effect …` lines of its effect chain; inertance L·v̈ as an AR(1)
     /// flow term, v̈ the backward difference at the log's frame interval), and name those it
@@ -118,7 +118,7 @@ fn loop_config(args: &Args, ds: &Dataset) -> Result<residual::Config, Error> {
         (None, None) => residual::select_shape(ds).unwrap_or((3, 2)),
         _ => {
             return Err(Error::Msg(
-                "give both --n and --m, or neither (then the AICc selection is used)".into(),
+                "give both --n and --m, or neither (then the selected shape is used)".into(),
             ))
         }
     };

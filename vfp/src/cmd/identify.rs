@@ -7,6 +7,7 @@ use serde::Serialize;
 use std::collections::BTreeMap;
 use sysid::identify::{self, ChamberReport, Family, ModelRow, Options};
 use sysid::metrics::CostWeights;
+use sysid::select::{BlockKind, Selection, Shape};
 
 /// Identify volume-flow-pressure models from a log (Tables I, II and IV of the paper).
 #[derive(Debug, Clone, clap::Args)]
@@ -127,10 +128,19 @@ pub fn run(args: &Args) -> Result<(), Error> {
     let options = args.options()?;
     let data = args.input.load()?;
     let datasets = &data.datasets;
+    let wrap = |ch: u8, e: identify::IdentifyError| {
+        Error::Msg(format!("{}, chamber {ch}: {e}", data.path.display()))
+    };
+    for ds in datasets {
+        identify::check_split(ds).map_err(|e| wrap(ds.chamber, e))?;
+    }
     let reports: Vec<ChamberReport> = datasets
         .iter()
         .map(|ds| identify::identify(ds, &options))
         .collect();
+    for r in &reports {
+        identify::check_fitted(r).map_err(|e| wrap(r.chamber, e))?;
+    }
     if let Some(dir) = &args.out.plots {
         for (ds, rep) in datasets.iter().zip(&reports) {
             crate::plots::identify::write_all(dir, args.out.plot_format, ds, rep)?;
@@ -191,7 +201,9 @@ pub fn render(r: &ChamberReport, file: &str, options: &Options) -> String {
     );
     let _ = writeln!(
         s,
-        "selection: J = {}·RMSE + {}·(1 - R2adj) + {}·AICc on training data (eq. 8)\n",
+        "selection: polynomial shape by the one-standard-error rule on cycle-blocked cross-validation \
+         of the training cycles; other families and the overall choice by J = {}·RMSE + {}·(1 - R2adj) + {}·AICc \
+         on training data (eq. 8)\n",
         w.w_rmse, w.w_r2, w.w_aicc
     );
 
@@ -232,7 +244,7 @@ pub fn render(r: &ChamberReport, file: &str, options: &Options) -> String {
 
     let _ = writeln!(
         s,
-        "Table II. Regression performances (training | held-out); * = lowest cost in the family"
+        "Table II. Regression performances (training | held-out); * = the family's choice (poly: see below; others: lowest cost)"
     );
     for fam in Family::ALL {
         let rows: Vec<&ModelRow> = r.models.iter().filter(|m| m.family == fam).collect();
@@ -277,6 +289,9 @@ pub fn render(r: &ChamberReport, file: &str, options: &Options) -> String {
     }
     for n in &r.notes {
         let _ = writeln!(s, "  note: {n}");
+    }
+    if let Some(sel) = &r.poly_selection {
+        s.push_str(&render_selection(sel));
     }
     let _ = writeln!(s);
 
@@ -344,6 +359,32 @@ pub fn render(r: &ChamberReport, file: &str, options: &Options) -> String {
         );
     }
     s
+}
+
+/// The polynomial selection in words, with the AICc and joint-cost picks beside it.
+fn render_selection(sel: &Selection) -> String {
+    let shape = |s: &Shape| format!("({}, {}) (nu = {})", s.n, s.m, s.nu);
+    let pick = |s: &Option<Shape>| s.as_ref().map_or("-".into(), shape);
+    let blocks = match sel.blocks {
+        BlockKind::Cycles => "training cycles",
+        BlockKind::TimeStretches => "stretches of the training samples (too few cycles)",
+    };
+    format!(
+        "  poly selection: {} — cross-validated RMSE {} kPa; lowest {} kPa at {}, excess MSE {:.3e} \
+         kPa2 within one paired SE {:.3e} (textbook one-SE limit {} kPa); {} blocks ({blocks}), {} folds\n  \
+         beside it: lowest training AICc {}; lowest joint cost J {}\n",
+        shape(&sel.selected),
+        num(sel.cv_rmse),
+        num(sel.cv_best_rmse),
+        shape(&sel.cv_best),
+        sel.mse_excess,
+        sel.mse_excess_paired_se,
+        num(sel.cv_limit_rmse),
+        sel.n_blocks,
+        sel.folds,
+        pick(&sel.aicc_pick),
+        pick(&sel.joint_cost_pick),
+    )
 }
 
 fn opt_f(x: Option<f64>) -> String {
