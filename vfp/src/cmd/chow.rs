@@ -215,12 +215,10 @@ fn plot_chow(
         .iter()
         .map(|p| format!("[{}]-[{}]", idx(&p.a), idx(&p.b)))
         .collect();
-    plot::panel_categorical(
+    plot::panel_with(
         &right,
         &path,
-        "Chow F per pair",
-        "pair of logs",
-        "log10 F",
+        ["Chow F per pair", "pair of logs", "log10 F"],
         &curves,
         &pairs,
     )?;

@@ -197,6 +197,30 @@ impl Session {
     }
 }
 
+impl Shared {
+    /// The input ended, at its end or by an error (shown in the log pane).
+    fn end(&mut self, err: Option<std::io::Error>) {
+        self.state.input_ended = true;
+        if let Some(e) = err {
+            self.state
+                .push_line(format!("vfp monitor: reading the input failed: {e}").as_bytes());
+        }
+    }
+
+    /// Appends `bytes` to the raw capture and flushes it; if that fails recording stops and the
+    /// screen says so (the view goes on).
+    fn keep(&mut self, bytes: &[u8]) {
+        let Some(w) = self.capture.as_mut() else {
+            return;
+        };
+        if !(w.write_all(bytes).is_ok() && w.flush().is_ok()) {
+            self.capture = None;
+            self.state
+                .push_line(b"vfp monitor: writing the raw capture failed; recording stopped");
+        }
+    }
+}
+
 /// The lock, even if a thread panicked while holding it (the state stays usable).
 fn lock(m: &Mutex<Shared>) -> MutexGuard<'_, Shared> {
     m.lock().unwrap_or_else(|e| e.into_inner())
@@ -211,29 +235,14 @@ fn pump(mut input: Box<dyn BufRead + Send>, shared: &Mutex<Shared>) {
         let read = input.read_until(b'\n', &mut buf);
         let mut s = lock(shared);
         match read {
-            Ok(0) => {
-                s.state.input_ended = true;
-                return;
-            }
+            Ok(0) => return s.end(None),
             Ok(_) => {}
-            Err(e) => {
-                s.state.input_ended = true;
-                s.state
-                    .push_line(format!("vfp monitor: reading the input failed: {e}").as_bytes());
-                return;
-            }
+            Err(e) => return s.end(Some(e)),
         }
-        if let Some(w) = s.capture.as_mut() {
-            let ok = w.write_all(&buf).is_ok()
-                && (buf.ends_with(b"\n") || w.write_all(b"\n").is_ok())
-                && w.flush().is_ok();
-            if !ok {
-                // Recording stopped; the screen says so, the view goes on.
-                s.capture = None;
-                s.state
-                    .push_line(b"vfp monitor: writing the raw capture failed; recording stopped");
-            }
+        if !buf.ends_with(b"\n") {
+            buf.push(b'\n');
         }
+        s.keep(&buf);
         s.state.push_line(&buf);
     }
 }
@@ -248,28 +257,16 @@ fn pump_binary(mut input: Box<dyn Read + Send>, shared: &Mutex<Shared>) {
         let mut s = lock(shared);
         let n = match read {
             Ok(0) => {
-                s.state.input_ended = true;
                 if let Some(item) = packets.finish() {
                     s.state.push_item(item);
                 }
-                return;
+                return s.end(None);
             }
             Ok(n) => n,
             Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
-            Err(e) => {
-                s.state.input_ended = true;
-                s.state
-                    .push_line(format!("vfp monitor: reading the input failed: {e}").as_bytes());
-                return;
-            }
+            Err(e) => return s.end(Some(e)),
         };
-        if let Some(w) = s.capture.as_mut() {
-            if !(w.write_all(&buf[..n]).is_ok() && w.flush().is_ok()) {
-                s.capture = None;
-                s.state
-                    .push_line(b"vfp monitor: writing the raw capture failed; recording stopped");
-            }
-        }
+        s.keep(&buf[..n]);
         packets.feed(&buf[..n], |item| s.state.push_item(item));
     }
 }

@@ -95,20 +95,6 @@ pub(crate) fn panel(
     panel_with(area, path, [title, xdesc, ydesc], curves, &[])
 }
 
-/// [`panel`] whose x axis is categorical: point `i` stands for `categories[i]`, and only whole
-/// positions get a tick label (its name).
-pub(crate) fn panel_categorical(
-    area: &Canvas<'_>,
-    path: &Path,
-    title: &str,
-    xdesc: &str,
-    ydesc: &str,
-    curves: &[Curve],
-    categories: &[String],
-) -> Result<(), Error> {
-    panel_with(area, path, [title, xdesc, ydesc], curves, categories)
-}
-
 fn category_tick(x: f64, categories: &[String]) -> String {
     let i = x.round();
     if (x - i).abs() > 1e-6 || i < 0.0 {
@@ -117,7 +103,9 @@ fn category_tick(x: f64, categories: &[String]) -> String {
     categories.get(i as usize).cloned().unwrap_or_default()
 }
 
-fn panel_with(
+/// [`panel`], and when `categories` is not empty a categorical x axis: point `i` stands for
+/// `categories[i]`, and only whole positions get a tick label (its name).
+pub(crate) fn panel_with(
     area: &Canvas<'_>,
     path: &Path,
     [title, xdesc, ydesc]: [&str; 3],
