@@ -214,3 +214,61 @@ fn air_compliance_runs_on_the_board_as_replayed() {
 fn transport_delay_runs_on_the_board_as_replayed() {
     check("transport-delay", "transport_delay", 16, 0.02);
 }
+
+/// The force path: a board running its boot model (SBA1, no chain: nothing to start over) is
+/// pushed on; `vfp replay` of its log with SBA1's lines gives the board's streamed force on every
+/// frame bit for bit, and `--json`'s force error is the error of the board's own force column
+/// against the simulator's true force.
+#[test]
+fn replay_reproduces_the_boards_force_and_its_error() {
+    let run = simulate(&Scenario::force_pushes(0.5, 4.0)).expect("valid scenario");
+    let dir = scratch("replay-board", "force");
+    let log = dir.join("log.csv");
+    std::fs::write(&log, log_text(&run)).expect("write log");
+    let sba1 = firmware::store::Model::from(model_core::poly::sba1());
+    let lines: Vec<String> = (0..3).flat_map(|c| board_lines(c, &sba1)).collect();
+    let model = dir.join("model.txt");
+    std::fs::write(&model, lines.join("\n")).expect("write model");
+    let out = dir.join("replay.csv");
+    let json = ok(vfp()
+        .arg("replay")
+        .arg(&model)
+        .arg(&log)
+        .arg("-o")
+        .arg(&out)
+        .arg("--json"));
+    let summary: serde_json::Value = serde_json::from_slice(&json.stdout).expect("json");
+
+    // The board's own force per zeroed frame, from its telemetry (not from the replay code).
+    let zeroed: Vec<(&Frame, f64)> = run
+        .frames
+        .iter()
+        .zip(&run.truth)
+        .filter(|(f, _)| f.flags.0 & firmware::telemetry::Flags::NOT_ZEROED == 0)
+        .map(|(f, t)| (f, t.force_n))
+        .collect();
+    let csv = std::fs::read_to_string(&out).expect("replay csv");
+    let mut rows = csv.lines();
+    let head: Vec<&str> = rows.next().expect("header").split(',').collect();
+    let col = head.iter().position(|&c| c == "force_n").expect("force_n");
+    let replayed: Vec<f32> = rows
+        .map(|r| r.split(',').nth(col).expect("cell").parse().expect("f32"))
+        .collect();
+    assert_eq!(replayed.len(), zeroed.len());
+    assert!(replayed
+        .iter()
+        .zip(&zeroed)
+        .all(|(r, (f, _))| r.to_bits() == f.force_n.to_bits()));
+    let err: Vec<f64> = zeroed
+        .iter()
+        .map(|(f, t)| f64::from(f.force_n) - t)
+        .filter(|e| e.is_finite())
+        .collect();
+    let mean = err.iter().sum::<f64>() / err.len() as f64;
+    let got = summary["force"]["mean_error_n"].as_f64().expect("mean");
+    // The log's force_n is the truth as printed (to about 1e-8 N); the board's force is exact.
+    assert!((got - mean).abs() < 1e-6, "{got} vs {mean}");
+    assert_eq!(summary["force"]["frames"].as_u64(), Some(err.len() as u64));
+    assert_eq!(summary["chambers"].as_array().map(Vec::len), Some(3));
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -11,9 +11,12 @@
 //! 5. **diagnose** — the residual loop on chamber 0: what does the model lack?
 //! 6. **deploy** — each chamber's selected polynomial is exported (`vfp export`'s line generator)
 //!    and sent to a fresh simulated board through its serial port; every line must be
-//!    acknowledged, and the board's telemetry p̂ is compared with sysid's own prediction.
-//! 7. **force** — the paper's Sec. IV-C pushes on the same plant: the board's force estimate
-//!    against the simulator's true force (mean, std, RMSE in mN).
+//!    acknowledged, and the board's telemetry p̂ is compared with sysid's own prediction. Then
+//!    the augmented models, through `vfp export --augmented`'s path ([`augmented_lines`]: the
+//!    effect chain's lines included), go to another fresh board the same way.
+//! 7. **force** — the paper's Sec. IV-C pushes on the same plant: each board's force estimate
+//!    (bare polynomials, augmented models; same pushes, same noise) against the simulator's true
+//!    force (mean, std, RMSE in mN).
 //! 8. **report** — `report.md` with figures, and `report.json`, in the output directory.
 //!
 //! Every number in the report is computed in this run; a stage that cannot run says why.
