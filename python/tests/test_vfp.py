@@ -32,12 +32,29 @@ def test_identify_equals_cli_json():
     assert py["selected"]["family"] == "poly"
 
 
-def test_diagnose_equals_cli_json():
-    py = vfp.diagnose(BAG)
+@pytest.fixture(scope="module")
+def bag_diagnosis():
+    """`diagnose` on the bag-lung log with the residuals (one run shared by the tests below)."""
+    return vfp.diagnose(BAG, residuals=True)
+
+
+def test_diagnose_equals_cli_json(bag_diagnosis):
+    py, _ = bag_diagnosis
     cli = cli_json("diagnose", BAG)
     assert py == cli
     assert py["final"] == cli["final"]
     assert py["final"]["rmse_heldout"] <= py["baseline"]["rmse_heldout"]
+
+
+def test_diagnose_residuals_are_the_reported_ones(bag_diagnosis):
+    """The residual points returned with `residuals=True` are the held-out residuals the
+    document's RMSEs were computed from: their RMS is the baseline's and the final model's
+    held-out RMSE (an identity, independent of the fitting)."""
+    doc, res = bag_diagnosis
+    for key, rmse in [("before", doc["baseline"]["rmse_heldout"]), ("after", doc["final"]["rmse_heldout"])]:
+        r = res[key]["residual_kpa"]
+        assert len(r) == doc["samples"][1] and len(res[key]["time_s"]) == len(r)
+        assert math.isclose(float(np.sqrt(np.mean(r**2))), rmse, rel_tol=1e-12)
 
 
 def test_diagnose_options_reach_the_library():
