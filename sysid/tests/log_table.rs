@@ -82,7 +82,7 @@ fn errors_name_the_table_the_row_and_the_column() {
             numbers("pressure_kpa", p),
         ]
     };
-    let err = |t| {
+    let err = |t: Vec<(String, TableColumn)>| {
         log_from_table("frame", &t, &ReadOptions::default())
             .unwrap_err()
             .to_string()
