@@ -42,7 +42,8 @@ pub mod sim;
 pub use law::Design;
 pub use plant::{ChamberTruth, Effects, ForcePush, PlantConfig, SensorSpec, EFFECT_PRESETS};
 pub use scenario::{
-    FaultInjection, Protocol, Scenario, SerialFault, SerialFaultKind, TelemetryStall, TimedCommand,
+    FaultInjection, PresetOptions, Protocol, Scenario, SerialFault, SerialFaultKind,
+    TelemetryStall, TimedCommand,
 };
 pub use sim::{simulate, simulate_with, FrameTruth, LogRow, RunStats, SimRun, LOG_COLUMNS};
 

@@ -265,7 +265,104 @@ impl Protocol {
     }
 }
 
+/// The settings of [`Scenario::preset`] beyond its name.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PresetOptions {
+    /// Cycles per flow rate (protocol presets; default: the protocol's).
+    pub cycles: Option<u16>,
+    /// Flow rates, mm³/s (protocol presets; default: the protocol's).
+    pub flows: Option<Vec<f64>>,
+    /// Peak push force, N (`force` preset).
+    pub force_peak_n: f64,
+    /// Seconds of pushing (`force` preset).
+    pub force_seconds: f64,
+}
+
+impl Default for PresetOptions {
+    fn default() -> Self {
+        Self {
+            cycles: None,
+            flows: None,
+            force_peak_n: 0.5,
+            force_seconds: 20.0,
+        }
+    }
+}
+
 impl Scenario {
+    /// The scenario a preset names (`vfp simulate --preset`, the Python package's `simulate`):
+    /// `paper` (the paper's protocol on SBA1), `air:MM3` (an air pocket of MM3 mm³ in every
+    /// syringe), `design:sba1|sba2|sba3|sba4`, `effect:NAME` (one plant effect of
+    /// [`crate::EFFECT_PRESETS`]), `force` (1 Hz pushes at 500 mm³, with truth); the protocol
+    /// presets take `args.cycles` and `args.flows`. The error names the option at fault.
+    pub fn preset(spec: &str, args: &PresetOptions) -> Result<Scenario, String> {
+        let (kind, value) = match spec.split_once(':') {
+            Some((k, v)) => (k, Some(v)),
+            None => (spec, None),
+        };
+        let protocol_for = |base: Scenario, proto: Protocol| -> Result<Scenario, String> {
+            let mut proto = proto;
+            if let Some(c) = args.cycles {
+                if c == 0 {
+                    return Err("--cycles must be at least 1".into());
+                }
+                proto.cycles = c;
+            }
+            if let Some(f) = &args.flows {
+                if f.is_empty() || f.iter().any(|x| !(x.is_finite() && *x > 0.0)) {
+                    return Err(format!(
+                        "--flows {f:?}: every flow must be a positive number of mm3/s"
+                    ));
+                }
+                proto.flows = f.clone();
+            }
+            Ok(Self::protocol(&base.name, base.plant, &proto))
+        };
+        match (kind, value) {
+            ("paper", None) => protocol_for(Self::paper_protocol(), Protocol::paper()),
+            ("air", Some(v)) => {
+                let mm3: f64 = v
+                    .parse()
+                    .ok()
+                    .filter(|x: &f64| x.is_finite() && *x >= 0.0)
+                    .ok_or_else(|| {
+                        format!("--preset air:{v}: the air volume must be a number of mm3 >= 0")
+                    })?;
+                protocol_for(Self::air_pocket(mm3), Protocol::paper())
+            }
+            ("design", Some(v)) => {
+                let design = Design::ALL
+                    .into_iter()
+                    .find(|d| d.name() == v.to_ascii_lowercase())
+                    .ok_or_else(|| {
+                        format!("--preset design:{v}: unknown design (sba1, sba2, sba3 or sba4)")
+                    })?;
+                protocol_for(Self::design(design), Protocol::for_design(design, 1.0))
+            }
+            ("effect", Some(v)) => {
+                let base = Self::effect(v).ok_or_else(|| {
+                    format!(
+                        "--preset effect:{v}: unknown effect (one of {})",
+                        crate::EFFECT_PRESETS.join(", ")
+                    )
+                })?;
+                protocol_for(base, Protocol::paper())
+            }
+            ("force", None) => {
+                if !(args.force_peak_n.is_finite() && args.force_seconds > 0.0) {
+                    return Err(
+                        "--force-peak-n and --force-seconds must be finite, seconds > 0".into(),
+                    );
+                }
+                Ok(Self::force_pushes(args.force_peak_n, args.force_seconds))
+            }
+            _ => Err(format!(
+                "--preset {}: unknown preset (paper, air:MM3, design:sbaN, effect:NAME, force)",
+                spec
+            )),
+        }
+    }
+
     /// Run `protocol` on all three chambers of `plant`, ending shortly after it is done.
     pub fn protocol(name: &str, plant: PlantConfig, protocol: &Protocol) -> Self {
         let d = plant.design;

@@ -402,3 +402,42 @@ pub fn augmented_report(log: &Path, chamber: u8, x: &AugmentedExport) -> Vec<Str
     }
     out
 }
+
+/// One chamber's plain (not augmented) export: what `vfp export` prints for it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ChamberExport {
+    /// The chamber.
+    pub chamber: u8,
+    /// The f32 warning ([`f32_warning`]), when there is one.
+    pub warning: Option<String>,
+    /// The serial command lines ([`command_lines`]).
+    pub lines: Vec<String>,
+    /// The Rust constants ([`rust_constants`]) with the log and the model's provenance.
+    pub rust: String,
+}
+
+/// The plain export of every dataset of a log ([`model_for`] with these settings, per chamber).
+pub fn export_log(
+    data: &crate::dataset::LogData,
+    n: Option<usize>,
+    m: Option<usize>,
+    p: usize,
+    all_samples: bool,
+) -> Result<Vec<ChamberExport>, ExportError> {
+    data.datasets
+        .iter()
+        .map(|ds| {
+            let e = model_for(ds, n, m, p, all_samples)?;
+            Ok(ChamberExport {
+                chamber: ds.chamber,
+                warning: f32_warning(&e, ds),
+                lines: command_lines(ds.chamber, &e.model),
+                rust: rust_constants(
+                    ds.chamber,
+                    &e.model,
+                    &format!("{} ({})", data.name(), e.prov),
+                ),
+            })
+        })
+        .collect()
+}

@@ -328,6 +328,65 @@ pub struct ChamberReport {
     pub timing_s: BTreeMap<&'static str, f64>,
 }
 
+/// A model row tagged with its chamber (the document's `models` and `selected`).
+#[derive(Debug, Clone, Serialize)]
+pub struct Tagged<'a> {
+    /// Chamber index.
+    pub chamber: u8,
+    /// The row.
+    #[serde(flatten)]
+    pub row: &'a ModelRow,
+}
+
+/// The whole identification of a log as one document (`vfp identify --json`, the Python
+/// package's `identify`): the file, the weights, the first chamber's selection, every chamber's
+/// models tagged with the chamber, the sweep times summed over chambers (s) and the per-chamber
+/// reports.
+#[derive(Debug, Clone, Serialize)]
+pub struct Document<'a> {
+    /// The log as reports name it.
+    pub file: String,
+    /// Joint-cost weights, eq. (8).
+    pub weights: CostWeights,
+    /// The first chamber's lowest-cost model.
+    pub selected: Option<Tagged<'a>>,
+    /// Every fitted model of every chamber.
+    pub models: Vec<Tagged<'a>>,
+    /// Seconds spent in each family's sweep, summed over chambers.
+    pub timing_s: BTreeMap<&'static str, f64>,
+    /// The per-chamber reports.
+    pub chambers: &'a [ChamberReport],
+}
+
+impl<'a> Document<'a> {
+    /// The document of `reports` (in chamber order) identified from `file` with `weights`.
+    pub fn new(file: String, weights: CostWeights, reports: &'a [ChamberReport]) -> Self {
+        let mut timing_s: BTreeMap<&'static str, f64> = BTreeMap::new();
+        for r in reports {
+            for (k, v) in &r.timing_s {
+                *timing_s.entry(k).or_default() += v;
+            }
+        }
+        let tag = |r: &'a ChamberReport, row: &'a ModelRow| Tagged {
+            chamber: r.chamber,
+            row,
+        };
+        Document {
+            file,
+            weights,
+            selected: reports
+                .first()
+                .and_then(|r| r.selected.as_ref().map(|row| tag(r, row))),
+            models: reports
+                .iter()
+                .flat_map(|r| r.models.iter().map(move |row| tag(r, row)))
+                .collect(),
+            timing_s,
+            chambers: reports,
+        }
+    }
+}
+
 /// What a slow sweep reports to [`Options::progress`] (the tool shows it as a spinner).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Progress<'a> {

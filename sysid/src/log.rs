@@ -321,6 +321,75 @@ pub fn parse_log_with(
     Ok(log)
 }
 
+/// One column of an in-memory table (a pandas DataFrame or a dict of arrays in the Python
+/// package).
+#[derive(Debug, Clone, PartialEq)]
+pub enum TableColumn {
+    /// Numbers; NaN is an empty cell ("not recorded" in an optional column).
+    Numbers(Vec<f64>),
+    /// Cells kept as text (extra columns such as the firmware's `flags`).
+    Text(Vec<String>),
+}
+
+impl TableColumn {
+    fn len(&self) -> usize {
+        match self {
+            TableColumn::Numbers(x) => x.len(),
+            TableColumn::Text(x) => x.len(),
+        }
+    }
+
+    fn cell(&self, row: usize) -> String {
+        match self {
+            TableColumn::Numbers(x) if x[row].is_nan() => String::new(),
+            TableColumn::Numbers(x) => x[row].to_string(),
+            TableColumn::Text(x) => x[row].clone(),
+        }
+    }
+}
+
+/// Reads an in-memory table of named columns as a log. The table is written as the text of a log
+/// file (numbers in Rust's shortest round-trip form, so the reader gets back the very same f64;
+/// text quoted) and read by [`parse_log_with`]: column names, the [`ReadOptions`] mapping and
+/// units, chamber numbering, every check and every error message are the file reader's own. In
+/// errors `name` stands for the file and row k (counted from 0) is line k + 2 (the header is
+/// line 1).
+pub fn log_from_table(
+    name: &str,
+    columns: &[(String, TableColumn)],
+    opts: &ReadOptions,
+) -> Result<Log, LogError> {
+    let rows = columns.first().map_or(0, |(_, c)| c.len());
+    if let Some((col, c)) = columns.iter().find(|(_, c)| c.len() != rows) {
+        return Err(LogError::Malformed {
+            file: name.into(),
+            line: 1,
+            message: format!(
+                "column `{col}` has {} rows but column `{}` has {rows}",
+                c.len(),
+                columns[0].0
+            ),
+        });
+    }
+    let mut w = csv::WriterBuilder::new()
+        .quote_style(csv::QuoteStyle::NonNumeric)
+        .from_writer(Vec::new());
+    let io = |source| LogError::Io {
+        file: name.into(),
+        source,
+    };
+    let header: Vec<&str> = columns.iter().map(|(n, _)| n.as_str()).collect();
+    w.write_record(&header).map_err(|e| io(e.into()))?;
+    let mut record = Vec::with_capacity(columns.len());
+    for row in 0..rows {
+        record.clear();
+        record.extend(columns.iter().map(|(_, c)| c.cell(row)));
+        w.write_record(&record).map_err(|e| io(e.into()))?;
+    }
+    let text = w.into_inner().map_err(|e| io(e.into_error()))?;
+    parse_log_with(&text[..], name, opts)
+}
+
 fn utf8<'a>(bytes: &'a [u8], file: &str) -> Result<&'a str, LogError> {
     std::str::from_utf8(bytes).map_err(|e| {
         let line = 1 + bytes[..e.valid_up_to()]

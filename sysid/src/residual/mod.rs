@@ -691,3 +691,51 @@ pub fn series_from_dataset(ds: &Dataset) -> Result<Series, DiagnoseError> {
 pub fn select_shape(ds: &Dataset) -> Option<(usize, usize)> {
     crate::select::poly_shape(ds)
 }
+
+/// Why the loop could not run on a log: the log and chamber, then the reason.
+#[derive(Debug, thiserror::Error)]
+#[error("{path}, chamber {chamber}: {source}")]
+pub struct LogDiagnoseError {
+    /// The log as reports name it.
+    pub path: String,
+    /// The chamber.
+    pub chamber: u8,
+    /// Why.
+    pub source: DiagnoseError,
+}
+
+/// The loop on the first requested chamber of a log, as `vfp diagnose` runs it: the baseline
+/// shape is `cfg.n`, `cfg.m` when `shape_given`, else the training-AICc selection
+/// ([`select_shape`], (3, 2) when the sweep fits nothing).
+pub fn diagnose_log(
+    data: &crate::dataset::LogData,
+    cfg: &Config,
+    shape_given: bool,
+) -> Result<Diagnosis, LogDiagnoseError> {
+    let ds = data.first();
+    let wrap = |source| LogDiagnoseError {
+        path: data.name(),
+        chamber: ds.chamber,
+        source,
+    };
+    let series = series_from_dataset(ds).map_err(wrap)?;
+    let mut cfg = cfg.clone();
+    if !shape_given {
+        (cfg.n, cfg.m) = select_shape(ds).unwrap_or((3, 2));
+    }
+    diagnose(series, &cfg).map_err(wrap)
+}
+
+/// The `vfp diagnose --json` document (also the Python package's `diagnose`): the diagnosis at
+/// top level (`baseline`, `effects`, `final`, `remaining`, …) plus `log`, `chamber` and `split`
+/// of the log's first requested chamber. Non-finite numbers become `null`.
+pub fn document(data: &crate::dataset::LogData, d: &Diagnosis) -> serde_json::Value {
+    let ds = data.first();
+    let mut doc = serde_json::to_value(d).unwrap_or_default();
+    if let Some(obj) = doc.as_object_mut() {
+        obj.insert("log".into(), data.name().into());
+        obj.insert("chamber".into(), ds.chamber.into());
+        obj.insert("split".into(), ds.split_description().into());
+    }
+    doc
+}

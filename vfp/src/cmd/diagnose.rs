@@ -9,8 +9,7 @@ use crate::opts::{effect_parser, LogInput, OutputOpts};
 use crate::Error;
 use sysid::residual::analysis::Binned;
 use sysid::residual::{
-    diagnose, select_shape, series_from_dataset, Config, Diagnosis, EffectKind, Param,
-    ResidualAnalysis,
+    diagnose_log, document, Config, Diagnosis, EffectKind, Param, ResidualAnalysis,
 };
 
 /// `vfp diagnose`: trace the residual of a fitted model to physical effects it lacks.
@@ -72,19 +71,8 @@ pub fn run(args: &Args) -> Result<(), Error> {
         return Err(Error::Usage("--holdout-every must be at least 2".into()));
     }
     let data = args.input.load()?;
-    let ds = data.first();
-    let chamber = ds.chamber;
-    let wrap = |source: sysid::residual::DiagnoseError| {
-        Error::Msg(format!(
-            "{}, chamber {chamber}: {source}",
-            data.path.display()
-        ))
-    };
-    let series = series_from_dataset(ds).map_err(wrap)?;
-    let (n, m) = match &args.model {
-        Some(s) => parse_shape(s)?,
-        None => select_shape(ds).unwrap_or((3, 2)),
-    };
+    let shape = args.model.as_deref().map(parse_shape).transpose()?;
+    let (n, m) = shape.unwrap_or((3, 2));
     let mut cfg = Config {
         n,
         m,
@@ -95,23 +83,21 @@ pub fn run(args: &Args) -> Result<(), Error> {
     if !args.effects.is_empty() {
         cfg.candidates = args.effects.clone();
     }
-    let d = diagnose(series, &cfg).map_err(wrap)?;
+    let d = diagnose_log(&data, &cfg, shape.is_some()).map_err(|e| Error::Msg(e.to_string()))?;
     if let Some(dir) = &args.out.plots {
         write_plots(dir, args.out.plot_format, &d)?;
     }
     if args.out.json {
-        // The diagnosis itself at top level (baseline, effects, final, remaining, …) plus context.
-        let mut doc = serde_json::to_value(&d).unwrap_or_default();
-        if let Some(obj) = doc.as_object_mut() {
-            obj.insert("log".into(), data.path.display().to_string().into());
-            obj.insert("chamber".into(), chamber.into());
-            obj.insert("split".into(), ds.split_description().into());
-        }
-        crate::opts::print_json(&doc)?;
+        crate::opts::print_json(&document(&data, &d))?;
     } else {
         print!(
             "{}",
-            report(&data.path, chamber, &ds.split_description(), &d)
+            report(
+                &data.path,
+                data.first().chamber,
+                &data.first().split_description(),
+                &d
+            )
         );
     }
     Ok(())

@@ -5,9 +5,7 @@
 use crate::opts::{effect_parser, LogInput};
 use crate::Error;
 use sysid::dataset::Dataset;
-use sysid::export::{
-    augmented_report, board_lines, command_lines, f32_warning, model_for, rust_constants,
-};
+use sysid::export::{augmented_report, board_lines, export_log, rust_constants};
 use sysid::poly;
 use sysid::residual::export::augmented_export;
 use sysid::residual::{self, EffectKind};
@@ -131,72 +129,67 @@ pub fn run(args: &Args) -> Result<(), Error> {
     let datasets = &data.datasets;
     let mut lines = Vec::new();
     let mut rust = String::new();
-    for ds in datasets {
-        if args.augmented {
-            let cfg = loop_config(args, ds)?;
-            let wrap = |e: &dyn std::fmt::Display| {
-                Error::Msg(format!(
-                    "{}, chamber {}: {e}",
-                    data.path.display(),
-                    ds.chamber
-                ))
-            };
-            let series = residual::series_from_dataset(ds).map_err(|e| wrap(&e))?;
-            let x = augmented_export(series, &cfg).map_err(|e| wrap(&e))?;
-            let report = augmented_report(&data.path, ds.chamber, &x);
-            for l in report
-                .iter()
-                .filter(|l| l.starts_with("NO") || l.starts_with("WARNING"))
-            {
-                eprintln!("chamber {}: {l}", ds.chamber);
+    for ds in datasets.iter().filter(|_| args.augmented) {
+        let cfg = loop_config(args, ds)?;
+        let wrap = |e: &dyn std::fmt::Display| {
+            Error::Msg(format!(
+                "{}, chamber {}: {e}",
+                data.path.display(),
+                ds.chamber
+            ))
+        };
+        let series = residual::series_from_dataset(ds).map_err(|e| wrap(&e))?;
+        let x = augmented_export(series, &cfg).map_err(|e| wrap(&e))?;
+        let report = augmented_report(&data.path, ds.chamber, &x);
+        for l in report
+            .iter()
+            .filter(|l| l.starts_with("NO") || l.starts_with("WARNING"))
+        {
+            eprintln!("chamber {}: {l}", ds.chamber);
+        }
+        let comments: Vec<String> = report.iter().map(|l| format!("// {l}")).collect();
+        lines.extend(comments.iter().cloned());
+        lines.extend(board_lines(ds.chamber, &x.device.board_model()));
+        if args.format == Format::Rust {
+            // With `both` the same comments already head the lines.
+            for c in &comments {
+                rust.push_str(c);
+                rust.push('\n');
             }
-            let comments: Vec<String> = report.iter().map(|l| format!("// {l}")).collect();
-            lines.extend(comments.iter().cloned());
-            lines.extend(board_lines(ds.chamber, &x.device.board_model()));
-            if args.format == Format::Rust {
-                // With `both` the same comments already head the lines.
-                for c in &comments {
-                    rust.push_str(c);
-                    rust.push('\n');
+        }
+        let prov = format!(
+            "{} (augmented: n = {}, m = {}, p = {}, held-out RMSE {:.4} kPa on the device)",
+            data.path.display(),
+            x.diagnosis.baseline.n,
+            x.diagnosis.baseline.m,
+            x.device.model.shape().p,
+            x.rmse.device
+        );
+        rust.push_str(&rust_constants(ds.chamber, &x.device.model, &prov));
+        for e in x.device.chain.effects() {
+            // The constants hold the polynomial; the chain travels as protocol lines.
+            let vals: Vec<String> = e.params().iter().map(|v| format!("{v:e}")).collect();
+            rust.push_str(&format!(
+                "// CH{} chain (not in these constants; load with the lines): model {} effect {} {}\n",
+                ds.chamber,
+                ds.chamber,
+                e.kind().name(),
+                vals.join(" ")
+            ));
+        }
+    }
+    if !args.augmented {
+        for e in export_log(&data, args.n, args.m, args.p, args.all_samples)? {
+            if let Some(w) = &e.warning {
+                eprintln!("chamber {}: {w}", e.chamber);
+                lines.push(format!("// chamber {}: {w}", e.chamber));
+                if args.format == Format::Rust {
+                    rust.push_str(&format!("// {w}\n"));
                 }
             }
-            let prov = format!(
-                "{} (augmented: n = {}, m = {}, p = {}, held-out RMSE {:.4} kPa on the device)",
-                data.path.display(),
-                x.diagnosis.baseline.n,
-                x.diagnosis.baseline.m,
-                x.device.model.shape().p,
-                x.rmse.device
-            );
-            rust.push_str(&rust_constants(ds.chamber, &x.device.model, &prov));
-            for e in x.device.chain.effects() {
-                // The constants hold the polynomial; the chain travels as protocol lines.
-                let vals: Vec<String> = e.params().iter().map(|v| format!("{v:e}")).collect();
-                rust.push_str(&format!(
-                    "// CH{} chain (not in these constants; load with the lines): model {} effect {} {}\n",
-                    ds.chamber,
-                    ds.chamber,
-                    e.kind().name(),
-                    vals.join(" ")
-                ));
-            }
-            continue;
+            lines.extend(e.lines);
+            rust.push_str(&e.rust);
         }
-        let e = model_for(ds, args.n, args.m, args.p, args.all_samples)?;
-        let (model, prov) = (e.model, e.prov.clone());
-        if let Some(w) = f32_warning(&e, ds) {
-            eprintln!("chamber {}: {w}", ds.chamber);
-            lines.push(format!("// chamber {}: {w}", ds.chamber));
-            if args.format == Format::Rust {
-                rust.push_str(&format!("// {w}\n"));
-            }
-        }
-        lines.extend(command_lines(ds.chamber, &model));
-        rust.push_str(&rust_constants(
-            ds.chamber,
-            &model,
-            &format!("{} ({prov})", data.path.display()),
-        ));
     }
     if matches!(args.format, Format::Lines | Format::Both) {
         for l in &lines {

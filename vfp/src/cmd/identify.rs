@@ -3,8 +3,6 @@
 
 use crate::opts::{family_parser, num, opt, LogInput, OutputOpts};
 use crate::Error;
-use serde::Serialize;
-use std::collections::BTreeMap;
 use sysid::identify::{self, ChamberReport, Family, ModelRow, Options};
 use sysid::metrics::CostWeights;
 use sysid::select::{BlockKind, Selection, Shape};
@@ -104,25 +102,6 @@ impl Args {
     }
 }
 
-/// A model row tagged with its chamber (top-level `models` of the JSON).
-#[derive(Serialize)]
-struct Tagged<'a> {
-    chamber: u8,
-    #[serde(flatten)]
-    row: &'a ModelRow,
-}
-
-/// The `--json` document.
-#[derive(Serialize)]
-struct Document<'a> {
-    file: String,
-    weights: CostWeights,
-    selected: Option<Tagged<'a>>,
-    models: Vec<Tagged<'a>>,
-    timing_s: BTreeMap<&'static str, f64>,
-    chambers: &'a [ChamberReport],
-}
-
 /// Runs `vfp identify`.
 pub fn run(args: &Args) -> Result<(), Error> {
     let options = args.options()?;
@@ -147,33 +126,8 @@ pub fn run(args: &Args) -> Result<(), Error> {
         }
     }
     if args.out.json {
-        let mut timing: BTreeMap<&'static str, f64> = BTreeMap::new();
-        for r in &reports {
-            for (k, v) in &r.timing_s {
-                *timing.entry(k).or_default() += v;
-            }
-        }
-        let doc = Document {
-            file: data.path.display().to_string(),
-            weights: options.weights,
-            selected: reports.first().and_then(|r| {
-                r.selected.as_ref().map(|row| Tagged {
-                    chamber: r.chamber,
-                    row,
-                })
-            }),
-            models: reports
-                .iter()
-                .flat_map(|r| {
-                    r.models.iter().map(move |row| Tagged {
-                        chamber: r.chamber,
-                        row,
-                    })
-                })
-                .collect(),
-            timing_s: timing,
-            chambers: &reports,
-        };
+        let doc =
+            identify::Document::new(data.path.display().to_string(), options.weights, &reports);
         let text = serde_json::to_string_pretty(&doc)
             .map_err(|e| Error::Msg(format!("cannot encode JSON: {e}")))?;
         println!("{text}");

@@ -8,7 +8,7 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use host_sim::plant::Drive;
-use host_sim::{simulate, Design, Protocol, Scenario, EFFECT_PRESETS};
+use host_sim::{simulate, PresetOptions, Scenario};
 
 use crate::Error;
 
@@ -79,78 +79,13 @@ pub fn scenario(args: &Args) -> Result<Scenario, Error> {
 }
 
 fn preset(args: &Args) -> Result<Scenario, Error> {
-    let (kind, value) = match args.preset.split_once(':') {
-        Some((k, v)) => (k, Some(v)),
-        None => (args.preset.as_str(), None),
+    let opts = PresetOptions {
+        cycles: args.cycles,
+        flows: args.flows.clone(),
+        force_peak_n: args.force_peak_n,
+        force_seconds: args.force_seconds,
     };
-    let protocol_for = |base: Scenario, proto: Protocol| -> Result<Scenario, Error> {
-        let mut proto = proto;
-        if let Some(c) = args.cycles {
-            if c == 0 {
-                return Err(Error::Msg("--cycles must be at least 1".into()));
-            }
-            proto.cycles = c;
-        }
-        if let Some(f) = &args.flows {
-            if f.is_empty() || f.iter().any(|x| !(x.is_finite() && *x > 0.0)) {
-                return Err(Error::Msg(format!(
-                    "--flows {f:?}: every flow must be a positive number of mm3/s"
-                )));
-            }
-            proto.flows = f.clone();
-        }
-        Ok(Scenario::protocol(&base.name, base.plant, &proto))
-    };
-    match (kind, value) {
-        ("paper", None) => protocol_for(Scenario::paper_protocol(), Protocol::paper()),
-        ("air", Some(v)) => {
-            let mm3: f64 = v
-                .parse()
-                .ok()
-                .filter(|x: &f64| x.is_finite() && *x >= 0.0)
-                .ok_or_else(|| {
-                    Error::Msg(format!(
-                        "--preset air:{v}: the air volume must be a number of mm3 >= 0"
-                    ))
-                })?;
-            protocol_for(Scenario::air_pocket(mm3), Protocol::paper())
-        }
-        ("design", Some(v)) => {
-            let design = Design::ALL
-                .into_iter()
-                .find(|d| d.name() == v.to_ascii_lowercase())
-                .ok_or_else(|| {
-                    Error::Msg(format!(
-                        "--preset design:{v}: unknown design (sba1, sba2, sba3 or sba4)"
-                    ))
-                })?;
-            protocol_for(Scenario::design(design), Protocol::for_design(design, 1.0))
-        }
-        ("effect", Some(v)) => {
-            let base = Scenario::effect(v).ok_or_else(|| {
-                Error::Msg(format!(
-                    "--preset effect:{v}: unknown effect (one of {})",
-                    EFFECT_PRESETS.join(", ")
-                ))
-            })?;
-            protocol_for(base, Protocol::paper())
-        }
-        ("force", None) => {
-            if !(args.force_peak_n.is_finite() && args.force_seconds > 0.0) {
-                return Err(Error::Msg(
-                    "--force-peak-n and --force-seconds must be finite, seconds > 0".into(),
-                ));
-            }
-            Ok(Scenario::force_pushes(
-                args.force_peak_n,
-                args.force_seconds,
-            ))
-        }
-        _ => Err(Error::Msg(format!(
-            "--preset {}: unknown preset (paper, air:MM3, design:sbaN, effect:NAME, force)",
-            args.preset
-        ))),
-    }
+    Scenario::preset(&args.preset, &opts).map_err(Error::Msg)
 }
 
 /// Runs `vfp simulate`.
