@@ -27,6 +27,7 @@ pub mod metrics;
 pub mod nn;
 pub mod poly;
 pub mod polyar;
+pub mod progress;
 pub mod record;
 pub mod residual;
 pub mod select;
