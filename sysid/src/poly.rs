@@ -460,8 +460,8 @@ fn sse_direct(data: Xy, sc: &Scaling, n: usize, m: usize, c: &DVector<f64>, cent
     let mut tx = [0.0; MAX_DEGREE + 1];
     let mut ty = [0.0; MAX_DEGREE + 1];
     let mut sse = 0.0;
-    for r in 0..data.p.len() {
-        let (a, b) = sc.apply(data.v[r], data.vdot[r]);
+    for ((&v, &q), &p) in data.v.iter().zip(data.vdot).zip(data.p) {
+        let (a, b) = sc.apply(v, q);
         chebyshev(a, &mut tx[..=n]);
         chebyshev(b, &mut ty[..=m]);
         let mut pred = 0.0;
@@ -470,7 +470,7 @@ fn sse_direct(data: Xy, sc: &Scaling, n: usize, m: usize, c: &DVector<f64>, cent
                 pred += c[i * (m + 1) + j] * tx[i] * ty[j];
             }
         }
-        sse += (data.p[r] - centre - pred).powi(2);
+        sse += (p - centre - pred).powi(2);
     }
     sse
 }
