@@ -296,12 +296,13 @@ pub fn parse_log_with(reader: impl Read, file: &str, opts: &ReadOptions) -> Resu
 /// let text = "# rig=A\ntime_s,volume_mm3,pressure_kpa,note\n0,0,0.5,x\n0.04,1.2,0.7,y\n";
 /// let mut rows = LogReader::new(text.as_bytes(), "mem.csv", &ReadOptions::default()).unwrap();
 /// assert_eq!(rows.extra_columns(), ["note"]);
-/// let mut volume = 0.0;
+/// let (mut volume, mut notes) = (0.0, String::new());
 /// while let Some(s) = rows.next_sample().unwrap() {
 ///     volume += s.volume_mm3;
+///     notes += rows.extra_cell(0);
 /// }
-/// assert_eq!(rows.extra_cell(0), "y");
-/// assert_eq!((volume, rows.into_comments()), (1.2, vec!["rig=A".to_string()]));
+/// assert_eq!((volume, notes.as_str()), (1.2, "xy"));
+/// assert_eq!(rows.into_comments(), ["rig=A"]);
 /// ```
 pub struct LogReader<R: BufRead> {
     csv: csv::Reader<Lines<R>>,
@@ -379,7 +380,8 @@ impl<R: BufRead> LogReader<R> {
         Ok(Some(sample))
     }
 
-    /// The current row's cell of extra column `k` (`""` before the first row or past the end).
+    /// The current row's cell of extra column `k` (`""` before the first row and once the rows
+    /// are exhausted).
     pub fn extra_cell(&self, k: usize) -> &str {
         self.cols
             .extra
