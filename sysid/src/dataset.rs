@@ -36,7 +36,7 @@
 //! dataset ([`Dataset::not_zeroed`] counts them, and the commands report it). A `flags` cell that
 //! is not an unsigned integer is an error naming the sample.
 
-use crate::log::{Log, LogError, MAX_CHAMBERS};
+use crate::log::{Log, LogError, Sample, MAX_CHAMBERS};
 use firmware::telemetry::Flags;
 use std::path::{Path, PathBuf};
 
@@ -222,75 +222,14 @@ impl Dataset {
             "chamber index {chamber} out of range"
         );
         let flags_col = log.extra_columns.iter().position(|c| c == "flags");
-        let mut rows = Vec::new();
-        let mut not_zeroed = 0;
+        let mut rows = ChamberRows::new(chamber);
         for (i, s) in log.samples.iter().enumerate() {
-            if s.chamber != chamber {
-                continue;
+            if s.chamber == chamber {
+                let flags = flags_col.and_then(|c| log.extra.get(i).and_then(|e| e.get(c)));
+                rows.push(s, flags.map(String::as_str));
             }
-            let cell = flags_col.and_then(|c| log.extra.get(i).and_then(|e| e.get(c)));
-            if let Some(cell) = cell.map(|c| c.trim()).filter(|c| !c.is_empty()) {
-                let bits: u32 = cell.parse().map_err(|_| DataError::BadFlags {
-                    chamber,
-                    time_s: s.time_s,
-                    cell: cell.to_string(),
-                })?;
-                if Flags(bits).has(Flags::NOT_ZEROED) {
-                    not_zeroed += 1;
-                    continue;
-                }
-            }
-            rows.push(s);
         }
-        if rows.is_empty() {
-            return Err(DataError::NoSamples(chamber));
-        }
-        if rows.len() < 3 {
-            return Err(DataError::TooFewSamples {
-                chamber,
-                n: rows.len(),
-                needed: 3,
-            });
-        }
-        let t: Vec<f64> = rows.iter().map(|s| s.time_s).collect();
-        let v: Vec<f64> = rows.iter().map(|s| s.volume_mm3).collect();
-        let p: Vec<f64> = rows.iter().map(|s| s.pressure_kpa).collect();
-        let logged_flow: Option<Vec<f64>> = if cfg.derive_flow {
-            None
-        } else {
-            rows.iter().map(|s| s.flow_mm3_s).collect()
-        };
-        let h = cfg.diff_half_width.max(1);
-        let (vdot, vddot, flow_source) = match logged_flow {
-            Some(f) => {
-                let (fd, _) = local_quadratic_derivatives(&t, &f, h);
-                (f, fd, FlowSource::Logged)
-            }
-            None => {
-                let (d1, d2) = local_quadratic_derivatives(&t, &v, h);
-                (d1, d2, FlowSource::Derived { half_width: h })
-            }
-        };
-        let force: Option<Vec<f64>> = rows.iter().map(|s| s.force_n).collect();
-        let (cycle, deadband) = cycles(&t, &v, &vdot, cfg);
-        let n_cycles = cycle.last().map_or(0, |c| c + 1);
-        let (heldout, split) = holdout_mask(&cycle, n_cycles, cfg.holdout_every);
-        Ok(Dataset {
-            chamber,
-            t,
-            v,
-            vdot,
-            vddot,
-            p,
-            force,
-            cycle,
-            heldout,
-            flow_source,
-            split,
-            n_cycles,
-            deadband,
-            not_zeroed,
-        })
+        rows.into_dataset(cfg)
     }
 
     /// Builds a dataset from columns directly (flow given), e.g. for simulated data in tests.
@@ -379,16 +318,203 @@ impl Dataset {
     }
 }
 
+/// One chamber's rows as they are read, as columns (no per-row records are kept): what
+/// [`Dataset::from_log`] and the streaming [`LogData::read_with`] collect before building the
+/// dataset, the rows the firmware flagged `NOT_ZEROED` left out (module docs).
+#[derive(Debug, Clone)]
+struct ChamberRows {
+    chamber: u8,
+    t: Vec<f64>,
+    v: Vec<f64>,
+    p: Vec<f64>,
+    /// Logged flow, `None` once a row lacks it.
+    flow: Option<Vec<f64>>,
+    /// Reference force, `None` once a row lacks it.
+    force: Option<Vec<f64>>,
+    not_zeroed: usize,
+    /// The first bad `flags` cell, reported when the dataset is built (after the whole log has
+    /// been read, so a malformed row anywhere is reported first, as for a log read whole).
+    bad: Option<DataError>,
+}
+
+impl ChamberRows {
+    fn new(chamber: u8) -> Self {
+        Self {
+            chamber,
+            t: Vec::new(),
+            v: Vec::new(),
+            p: Vec::new(),
+            flow: Some(Vec::new()),
+            force: Some(Vec::new()),
+            not_zeroed: 0,
+            bad: None,
+        }
+    }
+
+    /// Adds one sample of this chamber with its `flags` cell, if the log has that column.
+    fn push(&mut self, s: &Sample, flags: Option<&str>) {
+        if self.bad.is_some() {
+            return;
+        }
+        if let Some(cell) = flags.map(str::trim).filter(|c| !c.is_empty()) {
+            let Ok(bits) = cell.parse::<u32>() else {
+                self.bad = Some(DataError::BadFlags {
+                    chamber: self.chamber,
+                    time_s: s.time_s,
+                    cell: cell.to_string(),
+                });
+                return;
+            };
+            if Flags(bits).has(Flags::NOT_ZEROED) {
+                self.not_zeroed += 1;
+                return;
+            }
+        }
+        self.t.push(s.time_s);
+        self.v.push(s.volume_mm3);
+        self.p.push(s.pressure_kpa);
+        for (col, x) in [(&mut self.flow, s.flow_mm3_s), (&mut self.force, s.force_n)] {
+            match (col.as_mut(), x) {
+                (Some(c), Some(x)) => c.push(x),
+                (Some(_), None) => *col = None,
+                (None, _) => {}
+            }
+        }
+    }
+
+    /// The dataset: flow logged or derived, v̈, cycles and the split (module docs).
+    fn into_dataset(self, cfg: &DatasetConfig) -> Result<Dataset, DataError> {
+        let chamber = self.chamber;
+        if let Some(e) = self.bad {
+            return Err(e);
+        }
+        if self.t.is_empty() {
+            return Err(DataError::NoSamples(chamber));
+        }
+        if self.t.len() < 3 {
+            return Err(DataError::TooFewSamples {
+                chamber,
+                n: self.t.len(),
+                needed: 3,
+            });
+        }
+        let (t, v, p) = (self.t, self.v, self.p);
+        let logged_flow = self.flow.filter(|_| !cfg.derive_flow);
+        let h = cfg.diff_half_width.max(1);
+        let (vdot, vddot, flow_source) = match logged_flow {
+            Some(f) => {
+                let (fd, _) = local_quadratic_derivatives(&t, &f, h);
+                (f, fd, FlowSource::Logged)
+            }
+            None => {
+                let (d1, d2) = local_quadratic_derivatives(&t, &v, h);
+                (d1, d2, FlowSource::Derived { half_width: h })
+            }
+        };
+        let (cycle, deadband) = cycles(&t, &v, &vdot, cfg);
+        let n_cycles = cycle.last().map_or(0, |c| c + 1);
+        let (heldout, split) = holdout_mask(&cycle, n_cycles, cfg.holdout_every);
+        Ok(Dataset {
+            chamber,
+            t,
+            v,
+            vdot,
+            vddot,
+            p,
+            force: self.force,
+            cycle,
+            heldout,
+            flow_source,
+            split,
+            n_cycles,
+            deadband,
+            not_zeroed: self.not_zeroed,
+        })
+    }
+}
+
+/// The rows of the requested chambers as a log passes (the one per-row step of both ways into
+/// [`LogData`]), and the chambers present.
+struct Collect {
+    path: PathBuf,
+    want: Option<u8>,
+    present: [bool; MAX_CHAMBERS as usize],
+    rows: [Option<ChamberRows>; MAX_CHAMBERS as usize],
+}
+
+impl Collect {
+    fn new(path: &Path, want: Option<u8>, cfg: &DatasetConfig) -> Result<Self, LoadError> {
+        if let Some(d) = cfg.deadband {
+            if !(d.is_finite() && d >= 0.0) {
+                return Err(LoadError::BadDeadband(d));
+            }
+        }
+        if let Some(c) = want.filter(|&c| c >= MAX_CHAMBERS) {
+            return Err(LoadError::BadChamber { chamber: c });
+        }
+        Ok(Self {
+            path: path.to_path_buf(),
+            want,
+            present: [false; MAX_CHAMBERS as usize],
+            rows: [None, None, None],
+        })
+    }
+
+    fn push(&mut self, s: &Sample, flags: Option<&str>) {
+        let c = s.chamber;
+        self.present[c as usize] = true;
+        if self.want.is_none_or(|w| w == c) {
+            self.rows[c as usize]
+                .get_or_insert_with(|| ChamberRows::new(c))
+                .push(s, flags);
+        }
+    }
+
+    fn finish(self, comments: Vec<String>, cfg: &DatasetConfig) -> Result<LogData, LoadError> {
+        let present: Vec<u8> = (0..MAX_CHAMBERS)
+            .filter(|&c| self.present[c as usize])
+            .collect();
+        let path = self.path;
+        if let Some(c) = self.want.filter(|c| !present.contains(c)) {
+            return Err(LoadError::NoChamber {
+                path,
+                chamber: c,
+                present,
+            });
+        }
+        let datasets = self
+            .rows
+            .into_iter()
+            .flatten()
+            .map(|r| r.into_dataset(cfg))
+            .collect::<Result<Vec<_>, _>>()
+            .map_err(|source| LoadError::Data {
+                path: path.clone(),
+                source,
+            })?;
+        if datasets.is_empty() {
+            return Err(LoadError::Empty { path });
+        }
+        Ok(LogData {
+            path,
+            comments,
+            datasets,
+        })
+    }
+}
+
 /// A log file read and turned into the datasets of the requested chambers: the one way from a log
 /// to datasets that every analysis and every `vfp` command takes (flags handling, the `NOT_ZEROED`
-/// count, flow source, deadband and training / held-out split all come from
-/// [`Dataset::from_log`] with one [`DatasetConfig`]).
+/// count, flow source, deadband and training / held-out split all come from one per-chamber
+/// collection of rows, as [`Dataset::from_log`] does, with one [`DatasetConfig`]). A file is
+/// read row by row ([`crate::log::LogReader`]) straight into the requested chambers' columns: the
+/// rows themselves and the other chambers are not kept.
 #[derive(Clone, Debug)]
 pub struct LogData {
     /// Where the log came from (as given; reports name it so).
     pub path: PathBuf,
-    /// The log as read (comments, metadata, rows).
-    pub log: Log,
+    /// The log's comment lines, with its `key=value` metadata ([`LogData::meta`]).
+    pub comments: Vec<String>,
     /// The requested chambers' datasets, in chamber order; never empty.
     pub datasets: Vec<Dataset>,
 }
@@ -453,8 +579,18 @@ impl LogData {
         cfg: &DatasetConfig,
         opts: &crate::log::ReadOptions,
     ) -> Result<LogData, LoadError> {
-        let log = crate::log::read_log_with(path, opts)?;
-        Self::from_log(path, log, chamber, cfg)
+        let mut collect = Collect::new(path, chamber, cfg)?;
+        let file = path.display().to_string();
+        let f = std::fs::File::open(path).map_err(|source| LogError::Io {
+            file: file.clone(),
+            source,
+        })?;
+        let mut rows = crate::log::LogReader::new(std::io::BufReader::new(f), &file, opts)?;
+        let flags_col = rows.extra_columns().iter().position(|c| c == "flags");
+        while let Some(s) = rows.next_sample()? {
+            collect.push(&s, flags_col.map(|k| rows.extra_cell(k)));
+        }
+        collect.finish(rows.into_comments(), cfg)
     }
 
     /// The same for a log already parsed (`path` names it in messages and reports).
@@ -464,38 +600,13 @@ impl LogData {
         chamber: Option<u8>,
         cfg: &DatasetConfig,
     ) -> Result<LogData, LoadError> {
-        if let Some(d) = cfg.deadband {
-            if !(d.is_finite() && d >= 0.0) {
-                return Err(LoadError::BadDeadband(d));
-            }
+        let mut collect = Collect::new(path, chamber, cfg)?;
+        let flags_col = log.extra_columns.iter().position(|c| c == "flags");
+        for (i, s) in log.samples.iter().enumerate() {
+            let flags = flags_col.and_then(|c| log.extra.get(i).and_then(|e| e.get(c)));
+            collect.push(s, flags.map(String::as_str));
         }
-        let present = log.chambers();
-        let data = |source| LoadError::Data {
-            path: path.to_path_buf(),
-            source,
-        };
-        let datasets = match chamber {
-            Some(c) if c >= MAX_CHAMBERS => return Err(LoadError::BadChamber { chamber: c }),
-            Some(c) if !present.contains(&c) => {
-                return Err(LoadError::NoChamber {
-                    path: path.to_path_buf(),
-                    chamber: c,
-                    present,
-                })
-            }
-            Some(c) => vec![Dataset::from_log(&log, c, cfg).map_err(data)?],
-            None => Dataset::all_from_log(&log, cfg).map_err(data)?,
-        };
-        if datasets.is_empty() {
-            return Err(LoadError::Empty {
-                path: path.to_path_buf(),
-            });
-        }
-        Ok(LogData {
-            path: path.to_path_buf(),
-            log,
-            datasets,
-        })
+        collect.finish(log.comments, cfg)
     }
 
     /// The first requested chamber's dataset (the requested one, else the lowest in the log).
@@ -518,7 +629,7 @@ impl LogData {
 
     /// `# key=value` metadata of the log.
     pub fn meta(&self, key: &str) -> Option<&str> {
-        self.log.metadata(key)
+        crate::log::metadata(&self.comments, key)
     }
 
     /// A short label: the file stem.

@@ -29,6 +29,7 @@ pub mod nn;
 pub mod packets;
 pub mod poly;
 pub mod polyar;
+pub mod progress;
 pub mod record;
 pub mod replay;
 pub mod residual;

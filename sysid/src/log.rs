@@ -21,7 +21,7 @@
 //! ```
 
 use std::fmt;
-use std::io::{Read, Write};
+use std::io::{BufRead, Read, Write};
 use std::path::{Path, PathBuf};
 
 pub use crate::columns::ReadOptions;
@@ -77,10 +77,7 @@ pub struct Log {
 impl Log {
     /// The value of the first `# key=value` comment with this key.
     pub fn metadata(&self, key: &str) -> Option<&str> {
-        self.comments.iter().find_map(|c| {
-            let (k, v) = c.split_once('=')?;
-            (k.trim() == key).then(|| v.trim())
-        })
+        metadata(&self.comments, key)
     }
 
     /// Sets `# key=value` (replacing an existing entry with that key).
@@ -113,6 +110,14 @@ impl Log {
                 .push(vec![String::new(); self.extra_columns.len()]);
         }
     }
+}
+
+/// The value of the first `key=value` line among `comments` (a log's comment lines).
+pub fn metadata<'a>(comments: &'a [String], key: &str) -> Option<&'a str> {
+    comments.iter().find_map(|c| {
+        let (k, v) = c.split_once('=')?;
+        (k.trim() == key).then(|| v.trim())
+    })
 }
 
 /// What went wrong reading or writing a log, with the place.
@@ -261,63 +266,23 @@ pub fn parse_log(reader: impl Read, file: &str) -> Result<Log, LogError> {
 }
 
 /// [`parse_log`] with a column map and chamber numbering.
-pub fn parse_log_with(
-    mut reader: impl Read,
-    file: &str,
-    opts: &ReadOptions,
-) -> Result<Log, LogError> {
-    let mut bytes = Vec::new();
-    reader
-        .read_to_end(&mut bytes)
-        .map_err(|source| LogError::Io {
-            file: file.into(),
-            source,
-        })?;
-    let text = utf8(&bytes, file)?;
-    let text = text.strip_prefix('\u{feff}').unwrap_or(text);
+pub fn parse_log_with(reader: impl Read, file: &str, opts: &ReadOptions) -> Result<Log, LogError> {
+    let mut rows = LogReader::new(std::io::BufReader::new(reader), file, opts)?;
     let mut log = Log {
-        comments: comment_lines(text),
+        extra_columns: rows.extra_columns().to_vec(),
         ..Log::default()
     };
-    let mut rdr = csv::ReaderBuilder::new()
-        .has_headers(false)
-        .delimiter(detect_delimiter(text))
-        .comment(Some(b'#'))
-        .trim(csv::Trim::All)
-        .flexible(false)
-        .from_reader(text.as_bytes());
-    let mut records = rdr.records();
-    let (names, header_line) = header(&mut records, file)?;
-    let cols = Columns::find(&names, header_line, file, opts)?;
-    log.extra_columns = cols.extra.iter().map(|&i| names[i].clone()).collect();
-    let mut last_time = [f64::NEG_INFINITY; MAX_CHAMBERS as usize];
-    for rec in records {
-        let rec = rec.map_err(|e| malformed(e, file))?;
-        let sample = cols.sample(&rec, file)?;
-        let c = sample.chamber as usize;
-        if sample.time_s <= last_time[c] {
-            return Err(LogError::TimeNotIncreasing {
-                file: file.into(),
-                line: line_of(&rec),
-                chamber: sample.chamber,
-                time: sample.time_s,
-                previous: last_time[c],
-            });
-        }
-        last_time[c] = sample.time_s;
+    while let Some(sample) = rows.next_sample()? {
         log.samples.push(sample);
-        if !cols.extra.is_empty() {
-            let cell = |i: usize| rec.get(i).unwrap_or("").to_string();
-            log.extra
-                .push(cols.extra.iter().map(|&i| cell(i)).collect());
+        if !log.extra_columns.is_empty() {
+            log.extra.push(
+                (0..log.extra_columns.len())
+                    .map(|k| rows.extra_cell(k).to_string())
+                    .collect(),
+            );
         }
     }
-    if log.samples.is_empty() {
-        return Err(LogError::Empty {
-            file: file.into(),
-            what: "no data rows",
-        });
-    }
+    log.comments = rows.into_comments();
     Ok(log)
 }
 
@@ -390,31 +355,222 @@ pub fn log_from_table(
     parse_log_with(&text[..], name, opts)
 }
 
-fn utf8<'a>(bytes: &'a [u8], file: &str) -> Result<&'a str, LogError> {
-    std::str::from_utf8(bytes).map_err(|e| {
-        let line = 1 + bytes[..e.valid_up_to()]
-            .iter()
-            .filter(|&&b| b == b'\n')
-            .count() as u64;
-        LogError::Malformed {
-            file: file.into(),
-            line,
-            message: "invalid UTF-8".into(),
-        }
-    })
+/// A log read one row at a time: the file is never held whole, only the row being parsed (a
+/// 190 MB log is read in the memory of one line). The rules and errors are those of
+/// [`parse_log`], which is this reader collecting every row; `# comment` lines anywhere in the
+/// file are collected as they pass ([`LogReader::into_comments`]).
+///
+/// ```
+/// use sysid::log::{LogReader, ReadOptions};
+/// let text = "# rig=A\ntime_s,volume_mm3,pressure_kpa,note\n0,0,0.5,x\n0.04,1.2,0.7,y\n";
+/// let mut rows = LogReader::new(text.as_bytes(), "mem.csv", &ReadOptions::default()).unwrap();
+/// assert_eq!(rows.extra_columns(), ["note"]);
+/// let (mut volume, mut notes) = (0.0, String::new());
+/// while let Some(s) = rows.next_sample().unwrap() {
+///     volume += s.volume_mm3;
+///     notes += rows.extra_cell(0);
+/// }
+/// assert_eq!((volume, notes.as_str()), (1.2, "xy"));
+/// assert_eq!(rows.into_comments(), ["rig=A"]);
+/// ```
+pub struct LogReader<R: BufRead> {
+    csv: csv::Reader<Lines<R>>,
+    cols: Columns,
+    extra_columns: Vec<String>,
+    rec: csv::StringRecord,
+    last_time: [f64; MAX_CHAMBERS as usize],
+    rows: usize,
+    file: String,
 }
 
-/// The comment lines without `#` (and one following space).
-fn comment_lines(text: &str) -> Vec<String> {
-    text.lines()
-        .filter_map(|l| l.trim_start().strip_prefix('#'))
-        .map(|c| {
-            c.strip_prefix(' ')
-                .unwrap_or(c)
-                .trim_end_matches('\r')
-                .to_string()
+impl<R: BufRead> LogReader<R> {
+    /// Reads up to and including the header row (comments before it collected, delimiter
+    /// detected from it, columns found by name). Errors: no header, a missing or repeated column.
+    pub fn new(reader: R, file: &str, opts: &ReadOptions) -> Result<Self, LogError> {
+        let mut lines = Lines::new(reader, file);
+        let delimiter = lines.find_header()?;
+        let mut csv = csv::ReaderBuilder::new()
+            .has_headers(false)
+            .delimiter(delimiter)
+            .comment(Some(b'#'))
+            .trim(csv::Trim::All)
+            .flexible(false)
+            .from_reader(lines);
+        let (names, header_line) = header(&mut csv, file)?;
+        let cols = Columns::find(&names, header_line, file, opts)?;
+        Ok(Self {
+            extra_columns: cols.extra.iter().map(|&i| names[i].clone()).collect(),
+            csv,
+            cols,
+            rec: csv::StringRecord::new(),
+            last_time: [f64::NEG_INFINITY; MAX_CHAMBERS as usize],
+            rows: 0,
+            file: file.into(),
         })
-        .collect()
+    }
+
+    /// Names of the columns this crate does not interpret, in file order.
+    pub fn extra_columns(&self) -> &[String] {
+        &self.extra_columns
+    }
+
+    /// The next row, checked (numbers, chamber, time increasing within its chamber); `None` at
+    /// the end of the file, an [`LogError::Empty`] there when the file had no data row.
+    pub fn next_sample(&mut self) -> Result<Option<Sample>, LogError> {
+        let more = match self.csv.read_record(&mut self.rec) {
+            Ok(more) => more,
+            Err(e) => return Err(self.csv.get_mut().take_error(e)),
+        };
+        if !more {
+            if let Some(e) = self.csv.get_mut().error.take() {
+                return Err(e);
+            }
+            if self.rows == 0 {
+                return Err(LogError::Empty {
+                    file: self.file.clone(),
+                    what: "no data rows",
+                });
+            }
+            return Ok(None);
+        }
+        let sample = self.cols.sample(&self.rec, &self.file)?;
+        let c = sample.chamber as usize;
+        if sample.time_s <= self.last_time[c] {
+            return Err(LogError::TimeNotIncreasing {
+                file: self.file.clone(),
+                line: line_of(&self.rec),
+                chamber: sample.chamber,
+                time: sample.time_s,
+                previous: self.last_time[c],
+            });
+        }
+        self.last_time[c] = sample.time_s;
+        self.rows += 1;
+        Ok(Some(sample))
+    }
+
+    /// The current row's cell of extra column `k` (`""` before the first row and once the rows
+    /// are exhausted).
+    pub fn extra_cell(&self, k: usize) -> &str {
+        self.cols
+            .extra
+            .get(k)
+            .and_then(|&i| self.rec.get(i))
+            .unwrap_or("")
+    }
+
+    /// The comment lines read so far (every one once the rows are exhausted), without `#` and one
+    /// following space, in file order.
+    pub fn into_comments(self) -> Vec<String> {
+        self.csv.into_inner().comments
+    }
+}
+
+/// The file's lines on their way to the CSV reader: checked for UTF-8 one line at a time (an
+/// error names the line), a leading byte-order mark dropped, and each `#` comment line's text
+/// kept as it passes.
+struct Lines<R> {
+    inner: R,
+    file: String,
+    /// Bytes of the current line not yet handed on.
+    line: Vec<u8>,
+    at: usize,
+    number: u64,
+    comments: Vec<String>,
+    /// The first error met (the CSV reader sees an I/O error; [`LogReader`] reports this).
+    error: Option<LogError>,
+}
+
+impl<R: BufRead> Lines<R> {
+    fn new(inner: R, file: &str) -> Self {
+        Self {
+            inner,
+            file: file.into(),
+            line: Vec::new(),
+            at: 0,
+            number: 0,
+            comments: Vec::new(),
+            error: None,
+        }
+    }
+
+    /// Loads the next line into `line` (empty at the end of the input).
+    fn next_line(&mut self) -> Result<(), LogError> {
+        self.line.clear();
+        self.at = 0;
+        self.inner
+            .read_until(b'\n', &mut self.line)
+            .map_err(|source| LogError::Io {
+                file: self.file.clone(),
+                source,
+            })?;
+        if self.line.is_empty() {
+            return Ok(());
+        }
+        self.number += 1;
+        if self.number == 1 && self.line.starts_with("\u{feff}".as_bytes()) {
+            self.line.drain(..3);
+        }
+        let text = std::str::from_utf8(&self.line).map_err(|_| LogError::Malformed {
+            file: self.file.clone(),
+            line: self.number,
+            message: "invalid UTF-8".into(),
+        })?;
+        if let Some(c) = text.trim_start().strip_prefix('#') {
+            let c = c.trim_end_matches('\n').trim_end_matches('\r');
+            // Passed on as it is: the CSV reader skips (and counts) a line starting with `#`.
+            self.comments
+                .push(c.strip_prefix(' ').unwrap_or(c).to_string());
+        }
+        Ok(())
+    }
+
+    /// Reads lines until the header row (the first neither blank nor a comment), which stays
+    /// loaded for the CSV reader, and returns the delimiter detected from it.
+    /// The lines before it stay loaded too, so the CSV reader counts them.
+    fn find_header(&mut self) -> Result<u8, LogError> {
+        let mut before = Vec::new();
+        let delimiter = loop {
+            self.next_line()?;
+            if self.line.is_empty() {
+                break b',';
+            }
+            let text = String::from_utf8_lossy(&self.line);
+            let t = text.trim();
+            if !t.is_empty() && !t.starts_with('#') {
+                break detect_delimiter(&text);
+            }
+            before.extend_from_slice(&self.line);
+        };
+        before.extend_from_slice(&self.line);
+        self.line = before;
+        Ok(delimiter)
+    }
+
+    /// The error behind a CSV reader's failure: ours when we stopped it, else the CSV reader's.
+    fn take_error(&mut self, e: csv::Error) -> LogError {
+        self.error
+            .take()
+            .unwrap_or_else(|| malformed(e, &self.file))
+    }
+}
+
+impl<R: BufRead> Read for Lines<R> {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        if self.error.is_some() {
+            return Err(std::io::Error::other("stopped at an earlier error"));
+        }
+        if self.at == self.line.len() {
+            if let Err(e) = self.next_line() {
+                self.error = Some(e);
+                return Err(std::io::Error::other("stopped at an error"));
+            }
+        }
+        let n = buf.len().min(self.line.len() - self.at);
+        buf[..n].copy_from_slice(&self.line[self.at..self.at + n]);
+        self.at += n;
+        Ok(n)
+    }
 }
 
 /// The field delimiter: whichever of `,` `;` and tab occurs most often (outside quotes) in the
@@ -467,23 +623,30 @@ fn malformed(e: csv::Error, file: &str) -> LogError {
 }
 
 /// The header row's names and line; an error when there is none or a name repeats.
-fn header(
-    records: &mut csv::StringRecordsIter<&[u8]>,
+fn header<R: BufRead>(
+    csv: &mut csv::Reader<Lines<R>>,
     file: &str,
 ) -> Result<(Vec<String>, u64), LogError> {
-    let header = loop {
-        let Some(r) = records.next() else {
-            return Err(LogError::Empty {
-                file: file.into(),
-                what: "no header row",
-            });
-        };
-        let r = r.map_err(|e| malformed(e, file))?;
-        // Blank lines are skipped by the reader; a header of one empty field is not a header.
-        if r.iter().any(|f| !f.is_empty()) {
-            break r;
+    let mut header = csv::StringRecord::new();
+    loop {
+        match csv.read_record(&mut header) {
+            Ok(true) => {}
+            Ok(false) => {
+                if let Some(e) = csv.get_mut().error.take() {
+                    return Err(e);
+                }
+                return Err(LogError::Empty {
+                    file: file.into(),
+                    what: "no header row",
+                });
+            }
+            Err(e) => return Err(csv.get_mut().take_error(e)),
         }
-    };
+        // Blank lines are skipped by the reader; a header of one empty field is not a header.
+        if header.iter().any(|f| !f.is_empty()) {
+            break;
+        }
+    }
     let line = header.position().map_or(1, |p| p.line());
     let names: Vec<String> = header.iter().map(str::to_string).collect();
     for (i, n) in names.iter().enumerate() {

@@ -398,8 +398,17 @@ fn power_to_raw_1d(deg: usize, offset: f64, scale: f64) -> Vec<Vec<f64>> {
     b
 }
 
-/// Fits the full (n, m) model to `data` by QR in the Chebyshev basis; `scaling` defaults to the
-/// data's own ([`Scaling::from_data`]).
+/// Fits the full (n, m) model to `data` in the Chebyshev basis; `scaling` defaults to the data's
+/// own ([`Scaling::from_data`]).
+///
+/// The fit comes from one pass of Chebyshev moments, without a design matrix: the coefficients
+/// solve the Jacobi-scaled Gram system by Cholesky (as the sweep's, [`solve_chebyshev`]), the
+/// covariance is σ̂² D Gs⁻¹ D, and σ̂² comes from the residuals computed directly (a second pass,
+/// no cancellation). Normal equations square the condition number, so this route is taken only
+/// when the scaled Gram's 1-norm condition number κ₁(Gs) = ‖Gs‖₁‖Gs⁻¹‖₁ is at most
+/// [`MAX_GRAM_CONDITION`] (the coefficients then keep at least ten significant digits against
+/// the QR's); otherwise, and when the Gram is not positive definite, the design is built and
+/// factored by Householder QR ([`linreg::lstsq`]), whose errors name the dependent term.
 pub fn fit(data: Xy, n: usize, m: usize, scaling: Option<Scaling>) -> Result<PolyFit, PolyError> {
     data.check()?;
     if n > MAX_DEGREE || m > MAX_DEGREE {
@@ -409,6 +418,71 @@ pub fn fit(data: Xy, n: usize, m: usize, scaling: Option<Scaling>) -> Result<Pol
         Some(s) => s,
         None => Scaling::from_data(data.v, data.vdot)?,
     };
+    let centre = data.p.iter().sum::<f64>() / data.p.len() as f64;
+    let mt = Moments::gather(data, &scaling, centre);
+    let (c, xtx_inv, sse) = match Restricted::new(&mt, n, m, &scaling, centre)
+        .ok()
+        .and_then(|g| g.inverse_if_conditioned())
+    {
+        Some((mut c, xtx_inv)) => {
+            let sse = sse_direct(data, &scaling, n, m, &c, centre);
+            c[0] += centre;
+            (c, xtx_inv, sse)
+        }
+        None => fit_qr(data, n, m, &scaling)?,
+    };
+    let nu = (n + 1) * (m + 1);
+    let dof = data.p.len() - nu;
+    let sigma2 = sse / dof as f64;
+    let (a_of_c, raw_of_c) = chebyshev_maps(n, m, &scaling);
+    let power: Vec<f64> = (&a_of_c * &c).iter().copied().collect();
+    let raw = &raw_of_c * &c;
+    let cov_raw = &raw_of_c * (xtx_inv * sigma2) * raw_of_c.transpose();
+    let raw_stats = linreg::coef_stats(raw.as_slice(), &cov_raw, dof);
+    finish(
+        data,
+        n,
+        m,
+        scaling,
+        power,
+        raw_stats,
+        vec![true; nu],
+        sigma2,
+    )
+}
+
+/// Largest 1-norm condition number of the Jacobi-scaled Gram matrix for which [`fit`] solves the
+/// normal equations (relative error ≲ κ·ε ≈ 2·10⁻¹⁰); above it, QR.
+pub const MAX_GRAM_CONDITION: f64 = 1e6;
+
+/// SSE of the centred Chebyshev coefficients `c` on `data`, from the residuals themselves.
+fn sse_direct(data: Xy, sc: &Scaling, n: usize, m: usize, c: &DVector<f64>, centre: f64) -> f64 {
+    let mut tx = [0.0; MAX_DEGREE + 1];
+    let mut ty = [0.0; MAX_DEGREE + 1];
+    let mut sse = 0.0;
+    for ((&v, &q), &p) in data.v.iter().zip(data.vdot).zip(data.p) {
+        let (a, b) = sc.apply(v, q);
+        chebyshev(a, &mut tx[..=n]);
+        chebyshev(b, &mut ty[..=m]);
+        let mut pred = 0.0;
+        for i in 0..=n {
+            for j in 0..=m {
+                pred += c[i * (m + 1) + j] * tx[i] * ty[j];
+            }
+        }
+        sse += (p - centre - pred).powi(2);
+    }
+    sse
+}
+
+/// The (n, m) fit by Householder QR of the design (uncentred Chebyshev coefficients, (XᵀX)⁻¹
+/// and SSE): [`fit`]'s route when the Gram is ill-conditioned.
+fn fit_qr(
+    data: Xy,
+    n: usize,
+    m: usize,
+    scaling: &Scaling,
+) -> Result<(DVector<f64>, DMatrix<f64>, f64), PolyError> {
     let nu = (n + 1) * (m + 1);
     let rows = data.p.len();
     let mut x = DMatrix::zeros(rows, nu);
@@ -428,23 +502,7 @@ pub fn fit(data: Xy, n: usize, m: usize, scaling: Option<Scaling>) -> Result<Pol
         .flat_map(|i| (0..=m).map(move |j| format!("T{i}(x)T{j}(y)")))
         .collect();
     let lf = linreg::lstsq(x, data.p, &names).map_err(|source| PolyError::Fit { n, m, source })?;
-
-    let (a_of_c, raw_of_c) = chebyshev_maps(n, m, &scaling);
-    let c = DVector::from_column_slice(&lf.coef);
-    let power: Vec<f64> = (&a_of_c * &c).iter().copied().collect();
-    let raw = &raw_of_c * &c;
-    let cov_raw = &raw_of_c * lf.cov() * raw_of_c.transpose();
-    let raw_stats = linreg::coef_stats(raw.as_slice(), &cov_raw, lf.dof());
-    finish(
-        data,
-        n,
-        m,
-        scaling,
-        power,
-        raw_stats,
-        vec![true; nu],
-        lf.sigma2(),
-    )
+    Ok((DVector::from_column_slice(&lf.coef), lf.xtx_inv, lf.sse))
 }
 
 /// The linear maps from the (n, m) model's Chebyshev coefficients c (index i·(m+1)+j) to its
@@ -987,6 +1045,27 @@ impl Restricted {
         term_name(k / (self.m + 1), k % (self.m + 1))
     }
 
+    /// The centred coefficients and (XᵀX)⁻¹ = D Gs⁻¹ D, when κ₁(Gs) ≤ [`MAX_GRAM_CONDITION`].
+    fn inverse_if_conditioned(&self) -> Option<(DVector<f64>, DMatrix<f64>)> {
+        let inv = self.chol.inverse();
+        let l = self.chol.l_dirty();
+        // Gs = L Lᵀ (the factor's upper triangle is not cleared: only its lower one is read).
+        let gs = DMatrix::from_fn(self.nu, self.nu, |i, j| {
+            (0..=i.min(j)).map(|k| l[(i, k)] * l[(j, k)]).sum::<f64>()
+        });
+        let norm1 = |a: &DMatrix<f64>| {
+            a.column_iter()
+                .map(|c| c.iter().map(|x| x.abs()).sum::<f64>())
+                .fold(0.0, f64::max)
+        };
+        let kappa = norm1(&gs) * norm1(&inv);
+        (kappa.is_finite() && kappa <= MAX_GRAM_CONDITION).then(|| {
+            let xtx_inv =
+                DMatrix::from_fn(self.nu, self.nu, |i, j| inv[(i, j)] * self.d[i] * self.d[j]);
+            (self.c.clone(), xtx_inv)
+        })
+    }
+
     /// Z = L⁻¹ D W_Sᵀ, so that W_S G⁻¹ W_Sᵀ = ZᵀZ.
     fn z(&self, set: &[usize]) -> DMatrix<f64> {
         let mut z = DMatrix::from_fn(self.nu, set.len(), |i, s| {
@@ -1056,5 +1135,91 @@ impl Restricted {
         }
         let c = DVector::from_fn(self.nu, |i, _| self.c[i] - self.d[i] * u[i]);
         Some((c, self.sse + dsse))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Two incommensurate tones (so (v, v̇) fills an area) and a pressure of degree (3, 2) plus a
+    /// deterministic pseudo-noise; `squeeze` < 1 crowds the flow towards one value.
+    fn data(len: usize, squeeze: f64) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
+        let t: Vec<f64> = (0..len).map(|k| 0.04 * k as f64).collect();
+        let v: Vec<f64> = t
+            .iter()
+            .map(|&t| 275.0 + 150.0 * (0.3 * t).sin() + 80.0 * (0.71 * t).sin())
+            .collect();
+        let f: Vec<f64> = t
+            .iter()
+            .map(|&t| {
+                let q = 45.0 * (0.3 * t).cos() + 56.8 * (0.71 * t).cos();
+                q.signum() * (q.abs() / 102.0).powf(1.0 / squeeze) * 102.0
+            })
+            .collect();
+        let p: Vec<f64> = (0..len)
+            .map(|k| {
+                let (x, q) = (v[k] / 100.0, f[k] / 100.0);
+                2.0 + 0.5 * x - 0.2 * x * x
+                    + 0.03 * x * x * x
+                    + 0.4 * q
+                    + 0.1 * x * q * q
+                    + 0.01 * (k as f64 * 12.9898).sin()
+            })
+            .collect();
+        (v, f, p)
+    }
+
+    #[test]
+    fn gram_route_equals_the_qr_fit() {
+        // Identity: the moments' Cholesky and the design's Householder QR solve the same least
+        // squares problem; on a well-conditioned basis they agree to far below the standard errors.
+        let (v, f, p) = data(6000, 1.0);
+        let xy = Xy {
+            v: &v,
+            vdot: &f,
+            p: &p,
+        };
+        let sc = Scaling::from_data(&v, &f).unwrap();
+        for (n, m) in [(1, 1), (3, 2), (7, 7)] {
+            let g = fit(xy, n, m, Some(sc)).unwrap();
+            let (c, xtx_inv, sse) = fit_qr(xy, n, m, &sc).unwrap();
+            let sigma2 = sse / (p.len() - (n + 1) * (m + 1)) as f64;
+            assert!((g.sigma2 - sigma2).abs() <= 1e-9 * sigma2, "({n}, {m})");
+            let (_, raw_of_c) = chebyshev_maps(n, m, &sc);
+            let raw = &raw_of_c * &c;
+            let cov = &raw_of_c * (xtx_inv * sigma2) * raw_of_c.transpose();
+            for (k, s) in g.raw.iter().enumerate() {
+                let se = cov[(k, k)].sqrt();
+                assert!(
+                    (s.estimate - raw[k]).abs() <= 1e-8 * se,
+                    "({n}, {m}) term {k}"
+                );
+                assert!((s.se - se).abs() <= 1e-8 * se, "({n}, {m}) term {k}");
+            }
+        }
+    }
+
+    #[test]
+    fn an_ill_conditioned_gram_is_solved_by_qr() {
+        // Flow crowded towards zero: the scaled Gram of degree 7 in v̇ is far beyond the limit,
+        // so the fit is the QR's exactly.
+        let (v, f, p) = data(6000, 0.15);
+        let xy = Xy {
+            v: &v,
+            vdot: &f,
+            p: &p,
+        };
+        let sc = Scaling::from_data(&v, &f).unwrap();
+        let centre = p.iter().sum::<f64>() / p.len() as f64;
+        let mt = Moments::gather(xy, &sc, centre);
+        let g = Restricted::new(&mt, 3, 7, &sc, centre).unwrap();
+        assert!(g.inverse_if_conditioned().is_none());
+        let (c, _, sse) = fit_qr(xy, 3, 7, &sc).unwrap();
+        let f = fit(xy, 3, 7, Some(sc)).unwrap();
+        let (a_of_c, _) = chebyshev_maps(3, 7, &sc);
+        let power: Vec<f64> = (&a_of_c * &c).iter().copied().collect();
+        assert_eq!(f.power, power);
+        assert_eq!(f.sigma2, sse / (p.len() - 32) as f64);
     }
 }

@@ -241,3 +241,20 @@ fn frames_flagged_not_zeroed_are_left_out_and_bad_flags_are_named() {
     let msg = err.to_string();
     assert!(msg.contains("t = 0 s") && msg.contains("\"zero\""), "{msg}");
 }
+
+#[test]
+fn comments_anywhere_are_kept_and_lines_stay_the_files() {
+    // Read row by row, a comment after the header is still collected, and an error after it
+    // names the file's own line (the comment line counts).
+    let text = "\u{feff}# a=1\ntime_s,volume_mm3,pressure_kpa\n0,1,2\n# b=2\n0.1,1,2\n";
+    let log = parse(text).unwrap();
+    assert_eq!(log.comments, ["a=1", "b=2"]);
+    assert_eq!(log.samples.len(), 2);
+    let e = parse(&format!("{text}0.2,x,2\n")).unwrap_err();
+    assert!(matches!(e, LogError::BadValue { line: 6, .. }), "{e:?}");
+    let mut bytes = b"time_s,volume_mm3,pressure_kpa\n0,1,2\n0.1,".to_vec();
+    bytes.extend([0xff, 0xfe]);
+    bytes.extend(b",2\n");
+    let e = parse_log(&bytes[..], "bad.csv").unwrap_err();
+    assert_eq!(e.to_string(), "bad.csv:3: invalid UTF-8");
+}

@@ -11,6 +11,9 @@ use vfp::cmd;
 struct Cli {
     #[command(subcommand)]
     command: Command,
+    /// No progress on stderr (bars and stage lines); results and errors are still printed.
+    #[arg(long, short, global = true)]
+    quiet: bool,
 }
 
 #[derive(Subcommand)]
@@ -45,6 +48,7 @@ enum Command {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    vfp::progress::set_quiet(cli.quiet);
     let result = match &cli.command {
         Command::Demo(a) => cmd::demo::run(a),
         Command::Identify(a) => cmd::identify::run(a),

@@ -139,8 +139,46 @@ pub fn sse_fast(cols: &[Vec<f64>], y: &[f64], rows: &[usize]) -> f64 {
         return f64::INFINITY;
     }
     let mean = rows.iter().map(|&r| y[r]).sum::<f64>() / n as f64;
+    // Column p is the centred pressure. The Gram matrix XᵀX is a sum of matrix products over
+    // blocks of GRAM_BLOCK rows (`matrixmultiply`: register-blocked kernels on the CPU's vector
+    // units; splitting off the symmetric quarter saves less in the kernel than the extra packing
+    // of the operands costs). A block is a whole number of the kernel's own row chunks (its `kc`
+    // of 256), which it sums the same way, so the blocked sum equals one product of all rows to
+    // the bit; the copy it works on stays a block (≈ 2 MB at 65 columns) however long the log.
+    // That column-major copy lives in a per-thread buffer reused across calls: a fresh allocation
+    // per trial θ costs more in page faults than the copy itself.
+    let q = p + 1;
+    let mut gram = DMatrix::zeros(q, q);
+    GRAM_BUF.with_borrow_mut(|data| {
+        for (k, block) in rows.chunks(GRAM_BLOCK).enumerate() {
+            let runs = runs_of(block);
+            data.clear();
+            data.reserve(block.len() * q);
+            for c in 0..q {
+                for &(a, b) in &runs {
+                    if c < p {
+                        data.extend_from_slice(&cols[c][a..b]);
+                    } else {
+                        data.extend(y[a..b].iter().map(|&yv| yv - mean));
+                    }
+                }
+            }
+            at_b_into(data, block.len(), q, data, q, &mut gram, k > 0);
+        }
+    });
+    sse_from_gram(p, |i, j| gram[(i, j)])
+}
+
+/// Rows per block of [`sse_fast`]'s Gram sum: a multiple of `matrixmultiply`'s f64 `kc` (256).
+const GRAM_BLOCK: usize = 16 * 256;
+
+/// Sorted row indices as half-open runs of consecutive rows.
+fn runs_of(rows: &[usize]) -> Vec<(usize, usize)> {
     let mut runs: Vec<(usize, usize)> = Vec::new();
-    let (mut start, mut prev) = (rows[0], rows[0]);
+    let Some(&first) = rows.first() else {
+        return runs;
+    };
+    let (mut start, mut prev) = (first, first);
     for &r in &rows[1..] {
         if r != prev + 1 {
             runs.push((start, prev + 1));
@@ -149,27 +187,7 @@ pub fn sse_fast(cols: &[Vec<f64>], y: &[f64], rows: &[usize]) -> f64 {
         prev = r;
     }
     runs.push((start, prev + 1));
-    // Column p is the centred pressure. The Gram matrix XᵀX is one matrix product (`matrixmultiply`:
-    // register-blocked kernels on the CPU's vector units; splitting off the symmetric quarter saves
-    // less in the kernel than the extra packing of the operands costs). The column-major copy
-    // lives in a per-thread buffer reused across calls: a fresh 10 MB allocation per trial θ costs
-    // more in page faults than the copy itself.
-    let q = p + 1;
-    GRAM_BUF.with_borrow_mut(|data| {
-        data.clear();
-        data.reserve(n * q);
-        for c in 0..q {
-            for &(a, b) in &runs {
-                if c < p {
-                    data.extend_from_slice(&cols[c][a..b]);
-                } else {
-                    data.extend(y[a..b].iter().map(|&yv| yv - mean));
-                }
-            }
-        }
-        let gram = at_b(data, n, q, data, q);
-        sse_from_gram(p, |i, j| gram[(i, j)])
-    })
+    runs
 }
 
 thread_local! {
@@ -281,11 +299,25 @@ pub fn sse_fast_poly(
 /// `matrixmultiply` (register-blocked kernels on the CPU's vector units), reading `A` through
 /// strides, without a transposed copy.
 fn at_b(a: &[f64], len: usize, ka: usize, b: &[f64], kb: usize) -> DMatrix<f64> {
+    let mut c = DMatrix::zeros(ka, kb);
+    at_b_into(a, len, ka, b, kb, &mut c, false);
+    c
+}
+
+/// `C ← AᵀB` (or `C ← C + AᵀB` when `accumulate`) for [`at_b`]'s operands; `c` is ka × kb.
+fn at_b_into(
+    a: &[f64],
+    len: usize,
+    ka: usize,
+    b: &[f64],
+    kb: usize,
+    c: &mut DMatrix<f64>,
+    accumulate: bool,
+) {
     assert!(
-        a.len() >= len * ka && b.len() >= len * kb,
+        a.len() >= len * ka && b.len() >= len * kb && c.shape() == (ka, kb),
         "at_b: slices too short"
     );
-    let mut c = DMatrix::zeros(ka, kb);
     // SAFETY: Aᵀ (ka × len) has element (i, r) at a[i·len + r] (row stride len, column stride 1),
     // B (len × kb) has (r, j) at b[r + j·len], C (ka × kb, column-major, owned) has (i, j) at
     // i + j·ka; every index is within the slices, checked above, and C does not alias A or B.
@@ -301,13 +333,12 @@ fn at_b(a: &[f64], len: usize, ka: usize, b: &[f64], kb: usize) -> DMatrix<f64> 
             b.as_ptr(),
             1,
             len as isize,
-            0.0,
+            if accumulate { 1.0 } else { 0.0 },
             c.as_mut_ptr(),
             1,
             ka as isize,
         );
     }
-    c
 }
 
 /// Dot product with four independent accumulators (the chains overlap in the pipeline).

@@ -35,6 +35,7 @@ pub(crate) mod signal;
 use serde::Serialize;
 
 use crate::dataset::Dataset;
+use crate::progress::{tell, Progress};
 
 pub use analysis::{ResidualAnalysis, Signature};
 pub use basis::PolyBasis;
@@ -190,6 +191,9 @@ pub struct Config {
     pub max_effects: usize,
     /// Worker threads for the candidate searches.
     pub threads: usize,
+    /// Told as each stage starts (baseline, each round's searches, the final analysis) and as
+    /// each candidate's search finishes; `None`: silent.
+    pub progress: Option<crate::progress::ProgressFn>,
 }
 
 impl Default for Config {
@@ -205,6 +209,7 @@ impl Default for Config {
             threads: std::thread::available_parallelism()
                 .map_or(1, |n| n.get())
                 .min(4),
+            progress: None,
         }
     }
 }
@@ -420,6 +425,8 @@ pub fn diagnose(series: Series, cfg: &Config) -> Result<Diagnosis, DiagnoseError
             return Err(DiagnoseError::DuplicateEffect(k.name()));
         }
     }
+    let say = |what: &str| tell(cfg.progress, Progress::Stage { what, total: 0 });
+    say("baseline fit");
     let prep = effects::Prepared::new(series, cfg.n, cfg.m);
     let baseline = select::fit_stage(&prep, &[]).ok_or_else(|| {
         DiagnoseError::Degenerate(
@@ -428,7 +435,10 @@ pub fn diagnose(series: Series, cfg: &Config) -> Result<Diagnosis, DiagnoseError
         )
     })?;
     let selection = select_effects(&prep, &baseline, cfg);
-    Ok(report(&prep, cfg, &baseline, selection))
+    say("residual analysis");
+    let d = report(&prep, cfg, &baseline, selection);
+    tell(cfg.progress, Progress::Done);
+    Ok(d)
 }
 
 /// Forward selection (step 4, [`select`]): each round searches every candidate not yet in the
@@ -448,7 +458,11 @@ fn select_effects(prep: &effects::Prepared, baseline: &Stage, cfg: &Config) -> S
             .iter()
             .position(|r| r.passes && r.unphysical.is_none())
         {
-            Some(i) => keep(prep, &mut sel, round.swap_remove(i)),
+            Some(i) => {
+                let what = "re-tuning the effects kept";
+                tell(cfg.progress, Progress::Stage { what, total: 0 });
+                keep(prep, &mut sel, round.swap_remove(i));
+            }
             None => {
                 reject_round(&mut sel, &round);
                 break;
@@ -471,7 +485,19 @@ fn rank_round(
         .copied()
         .filter(|k| !cur.effects.iter().any(|e| e.kind == *k))
         .collect();
-    let mut ranked: Vec<Ranked> = search_all(prep, cur, &todo, cfg.threads, costs)
+    let what = format!(
+        "round {}: searching {} candidates",
+        cur.effects.len() + 1,
+        todo.len()
+    );
+    tell(
+        cfg.progress,
+        Progress::Stage {
+            what: &what,
+            total: todo.len(),
+        },
+    );
+    let mut ranked: Vec<Ranked> = search_all(prep, cur, &todo, cfg, costs)
         .into_iter()
         .map(|cand| {
             let test = select::nested_test(prep, cur, &cand.stage);
@@ -625,10 +651,11 @@ fn search_all(
     prep: &effects::Prepared,
     cur: &Stage,
     todo: &[EffectKind],
-    threads: usize,
+    cfg: &Config,
     costs: &mut std::collections::HashMap<EffectKind, f64>,
 ) -> Vec<select::Candidate> {
-    let threads = threads.max(1).min(todo.len().max(1));
+    let threads = cfg.threads.max(1).min(todo.len().max(1));
+    let finished = std::sync::atomic::AtomicUsize::new(0);
     let guess = |k: EffectKind| k.cost_guess();
     let mut order: Vec<usize> = (0..todo.len()).collect();
     // Stable sort: ties keep the library's order.
@@ -649,6 +676,9 @@ fn search_all(
                         let start = std::time::Instant::now();
                         let found = select::search(prep, cur, todo[i]);
                         mine.push((i, found, start.elapsed().as_secs_f64()));
+                        let done = 1 + finished.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                        let what = todo[i].name();
+                        tell(cfg.progress, Progress::Step { done, what });
                     }
                     mine
                 })

@@ -44,7 +44,9 @@ use super::lsq::{self, LsFit};
 pub struct Stage {
     /// Effects in the order added.
     pub effects: Vec<Effect>,
-    /// Its regressors.
+    /// Its regressors' labels and owners; the columns themselves are not kept (`cols` is empty:
+    /// a round holds a stage per candidate, and the columns over every sample would make memory
+    /// grow with candidates × columns × samples). [`Stage::columns`] rebuilds them.
     pub design: Design,
     /// Its least-squares fit on the training rows.
     pub fit: LsFit,
@@ -70,6 +72,12 @@ impl Stage {
                 .sum::<usize>()
     }
 
+    /// The design's columns over every sample, rebuilt ([`build`] is deterministic, so they are
+    /// the columns the stage was fitted on).
+    pub fn columns(&self, prep: &Prepared) -> Vec<Vec<f64>> {
+        build(prep, &self.effects).cols
+    }
+
     /// The design columns of effect `idx`, in order.
     pub fn owned_columns(&self, idx: usize) -> Vec<usize> {
         (0..self.design.owner.len())
@@ -84,9 +92,10 @@ fn rms(x: &[f64], rows: &[usize]) -> f64 {
 
 /// Fits the baseline augmented with `effects`; `None` if the design is rank-deficient.
 pub fn fit_stage(prep: &Prepared, effects: &[Effect]) -> Option<Stage> {
-    let design = build(prep, effects);
+    let mut design = build(prep, effects);
     let fit = lsq::fit(&design.cols, &prep.series.p, &prep.train_rows)?;
     let pred = lsq::predict(&design.cols, &fit.beta);
+    design.cols = Vec::new();
     let resid: Vec<f64> = prep
         .series
         .p

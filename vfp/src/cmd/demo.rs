@@ -24,7 +24,7 @@
 use std::fmt::Write as _;
 use std::io::Write as _;
 use std::path::{Path, PathBuf};
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
 use crate::figure::PlotFormat;
 use host_sim::{simulate, Effects, PlantConfig, Protocol, Scenario, SimRun, TimedCommand};
@@ -198,13 +198,9 @@ const STAGES: usize = 8;
 
 impl Stage {
     fn start(index: usize, name: &'static str, what: &str) -> Self {
-        let bar = ProgressBar::new_spinner();
-        if let Ok(s) = ProgressStyle::with_template("{prefix:.bold} {spinner} {msg} ({elapsed})") {
-            bar.set_style(s);
-        }
+        let bar = crate::progress::new_bar(0, "{prefix:.bold} {spinner} {msg} ({elapsed})");
         bar.set_prefix(format!("[{index}/{STAGES}] {name:<9}"));
         bar.set_message(what.to_string());
-        bar.enable_steady_tick(Duration::from_millis(120));
         Self {
             bar,
             name,
@@ -217,7 +213,9 @@ impl Stage {
         let seconds = self.t0.elapsed().as_secs_f64();
         let line = format!("{summary} ({seconds:.1} s)");
         if self.bar.is_hidden() {
-            eprintln!("[{}/{STAGES}] {:<9} {line}", self.index, self.name);
+            if !crate::progress::quiet() {
+                eprintln!("[{}/{STAGES}] {:<9} {line}", self.index, self.name);
+            }
         } else {
             self.bar.set_style(
                 ProgressStyle::with_template("{prefix:.bold} ✓ {msg}")

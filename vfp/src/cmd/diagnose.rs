@@ -78,6 +78,8 @@ pub fn run(args: &Args) -> Result<(), Error> {
         m,
         alpha: args.alpha,
         min_gain: args.min_gain,
+        progress: crate::progress::shown()
+            .then_some(crate::progress::stages as sysid::progress::ProgressFn),
         ..Config::default()
     };
     if !args.effects.is_empty() {

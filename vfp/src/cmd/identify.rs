@@ -95,7 +95,7 @@ impl Args {
             exp_k_max: self.exp_k_max,
             nn_ar_max: self.nn_ar_max,
             prune_k: self.prune,
-            progress: (!self.out.json || std::io::IsTerminal::is_terminal(&std::io::stderr()))
+            progress: crate::progress::shown()
                 .then_some(crate::progress::spinner as identify::ProgressFn),
             ..Options::default()
         })

@@ -87,26 +87,14 @@ pub struct Prepared {
     pub train_rows: Vec<usize>,
     /// Held-out row indices.
     pub held_rows: Vec<usize>,
-    /// The baseline columns on the untransformed inputs, with the basis they were built with (a
-    /// candidate search rebuilds the design hundreds of times; most candidates leave the inputs
-    /// alone). Rebuilt whenever `basis` has been changed since.
-    base_cols: std::sync::OnceLock<(PolyBasis, Vec<Vec<f64>>)>,
 }
 
 impl Prepared {
-    /// Baseline columns on the raw inputs (cached for the current basis).
+    /// Baseline columns on the raw inputs. Computed afresh each time (products of Chebyshev
+    /// values, as cheap as copying them): a cached copy would hold another (n+1)(m+1) numbers per
+    /// sample for the whole run.
     fn raw_columns(&self) -> Vec<Vec<f64>> {
-        let (basis, cols) = self.base_cols.get_or_init(|| {
-            (
-                self.basis.clone(),
-                self.basis.columns(&self.series.v, &self.series.vdot),
-            )
-        });
-        if *basis == self.basis {
-            cols.clone()
-        } else {
-            self.basis.columns(&self.series.v, &self.series.vdot)
-        }
+        self.basis.columns(&self.series.v, &self.series.vdot)
     }
 }
 
@@ -149,7 +137,6 @@ impl Prepared {
             train_rows,
             held_rows,
             series,
-            base_cols: std::sync::OnceLock::new(),
         }
     }
 }

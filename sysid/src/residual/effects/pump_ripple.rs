@@ -444,7 +444,7 @@ fn count_lag_gauss_newton(prep: &Prepared, base: &[Effect], mut stage: Stage) ->
         };
         let ab = pump_ripple_error(&stage, last);
         let extra = count_lag_columns(&prep.subframe, k, c, e.theta, ab, &e.count_lag);
-        let mut cols = stage.design.cols.clone();
+        let mut cols = stage.columns(prep);
         let p0 = cols.len();
         cols.extend(extra);
         let Some(fit) = lsq::fit(&cols, &prep.series.p, &prep.train_rows) else {

@@ -47,7 +47,7 @@ impl EffectModel for SensorLag {
         if cur.effects.iter().any(|e| e.kind == me) {
             return None;
         }
-        let lb = LagBase::new(prep, &cur.design.cols);
+        let lb = LagBase::new(prep, &cur.columns(prep));
         Some(Box::new(move |tau| lb.sse(prep, tau)))
     }
 
