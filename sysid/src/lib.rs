@@ -33,6 +33,6 @@ pub mod progress;
 pub mod record;
 pub mod replay;
 pub mod residual;
-pub mod sequence;
 pub mod select;
+pub mod sequence;
 pub mod synth;
