@@ -458,16 +458,18 @@ pub(crate) const LONGEST_F32: [f32; 7] = [
 ];
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use proptest::prelude::*;
 
-    fn any_f32() -> impl Strategy<Value = f32> {
+    /// Any f32 bit pattern (also used by the wire codec's tests).
+    pub(crate) fn any_f32() -> impl Strategy<Value = f32> {
         // Every bit pattern: normal, subnormal, ±0, ±inf, NaN payloads.
         any::<u32>().prop_map(f32::from_bits)
     }
 
-    fn chamber() -> impl Strategy<Value = ChamberFrame> {
+    /// A chamber frame of arbitrary f32 bit patterns (also used by the wire codec's tests).
+    pub(crate) fn chamber() -> impl Strategy<Value = ChamberFrame> {
         proptest::array::uniform7(any_f32()).prop_map(|a| ChamberFrame {
             v: a[0],
             vdot: a[1],

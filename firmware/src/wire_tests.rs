@@ -31,36 +31,19 @@ fn frame_bits(f: &Frame) -> std::vec::Vec<u64> {
 }
 
 fn any_frame() -> impl Strategy<Value = Frame> {
+    use crate::telemetry::tests::{any_f32, chamber};
     (
-        any::<u32>(),
-        any::<u64>(),
-        any::<u32>(),
-        any::<u32>(),
-        proptest::collection::vec(any::<u32>(), 22),
+        (any::<u32>(), any::<u64>(), any::<u32>(), any::<u32>()),
+        any_f32(),
+        [chamber(), chamber(), chamber()],
     )
-        .prop_map(|(seq, t_us, flags, drops, x)| {
-            let x: std::vec::Vec<f32> = x.into_iter().map(f32::from_bits).collect();
-            let mut f = Frame {
-                seq,
-                t_us,
-                flags: Flags(flags),
-                force_n: x[0],
-                drops,
-                ..Frame::default()
-            };
-            for (i, c) in f.chambers.iter_mut().enumerate() {
-                let a = &x[1 + 7 * i..8 + 7 * i];
-                *c = ChamberFrame {
-                    v: a[0],
-                    vdot: a[1],
-                    p: a[2],
-                    p_hat: a[3],
-                    residual: a[4],
-                    k: a[5],
-                    c: a[6],
-                };
-            }
-            f
+        .prop_map(|((seq, t_us, flags, drops), force_n, chambers)| Frame {
+            seq,
+            t_us,
+            flags: Flags(flags),
+            force_n,
+            drops,
+            chambers,
         })
 }
 

@@ -3,31 +3,13 @@
 //! interleaved with two more chambers and a text column (a counting global allocator measures it;
 //! this file holds one test so no other test allocates meanwhile). The file itself is never held.
 
-use std::alloc::{GlobalAlloc, Layout, System};
 use std::io::Write;
-use std::sync::atomic::{AtomicUsize, Ordering::Relaxed};
 use sysid::dataset::{DatasetConfig, LogData};
 
-struct Counting;
-
-static LIVE: AtomicUsize = AtomicUsize::new(0);
-static PEAK: AtomicUsize = AtomicUsize::new(0);
-
-// SAFETY: every call is forwarded to the system allocator unchanged; only counters are added.
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        let now = LIVE.fetch_add(layout.size(), Relaxed) + layout.size();
-        PEAK.fetch_max(now, Relaxed);
-        unsafe { System.alloc(layout) }
-    }
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        LIVE.fetch_sub(layout.size(), Relaxed);
-        unsafe { System.dealloc(ptr, layout) }
-    }
-}
+mod heap;
 
 #[global_allocator]
-static A: Counting = Counting;
+static A: heap::Counting = heap::Counting;
 
 /// Writes `frames` frames of a triangle-wave protocol, chamber 0 only or all three chambers with
 /// a `note` column, and returns the peak live heap (above the start) of reading chamber 0.
@@ -58,10 +40,9 @@ fn peak_reading(frames: usize, crowded: bool, dir: &std::path::Path) -> (usize, 
         }
     }
     drop(w);
-    let base = LIVE.load(Relaxed);
-    PEAK.store(base, Relaxed);
+    let base = heap::start();
     let data = LogData::read(&path, Some(0), &DatasetConfig::default()).unwrap();
-    let peak = PEAK.load(Relaxed) - base;
+    let peak = heap::peak_since(base);
     (peak, data.first().len())
 }
 

@@ -4,35 +4,16 @@
 //! dropped and one line in 50 is garbled, so the gap and bad-line bookkeeping is exercised too.
 
 use firmware::telemetry::{ChamberFrame, Frame};
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::sync::atomic::{AtomicUsize, Ordering::Relaxed};
 use sysid::record::Recorder;
 
-struct Counting;
-
-static LIVE: AtomicUsize = AtomicUsize::new(0);
-static PEAK: AtomicUsize = AtomicUsize::new(0);
-
-// SAFETY: every call is forwarded to the system allocator unchanged; only counters are added.
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        let now = LIVE.fetch_add(layout.size(), Relaxed) + layout.size();
-        PEAK.fetch_max(now, Relaxed);
-        unsafe { System.alloc(layout) }
-    }
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        LIVE.fetch_sub(layout.size(), Relaxed);
-        unsafe { System.dealloc(ptr, layout) }
-    }
-}
+mod heap;
 
 #[global_allocator]
-static A: Counting = Counting;
+static A: heap::Counting = heap::Counting;
 
 /// Peak live heap bytes above the start while streaming `n` frames into a sink.
 fn peak_while_streaming(n: u32) -> (usize, usize, u64) {
-    let base = LIVE.load(Relaxed);
-    PEAK.store(base, Relaxed);
+    let base = heap::start();
     let mut rec = Recorder::new(std::io::sink(), "mem").expect("sink");
     let mut line = String::new();
     for seq in (0..n).filter(|s| s % 100 != 98) {
@@ -58,7 +39,7 @@ fn peak_while_streaming(n: u32) -> (usize, usize, u64) {
             .expect("sink");
     }
     let (summary, _) = rec.finish("end of input").expect("sink");
-    let peak = PEAK.load(Relaxed) - base;
+    let peak = heap::peak_since(base);
     (peak, summary.frames, summary.missing_frames())
 }
 
