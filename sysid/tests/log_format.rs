@@ -30,6 +30,14 @@ fn round_trip_keeps_values_metadata_and_unknown_columns() {
 }
 
 #[test]
+fn whitespace_around_fields_and_names_is_not_part_of_them() {
+    let tight = "time_s,chamber,volume_mm3,pressure_kpa,note\n0,0,1.5,2,a b\n0.04,1,2,3,c\n";
+    let loose = " time_s ,\tchamber, volume_mm3 ,pressure_kpa\u{a0},note\n \
+                 0 , 0 ,1.5\t, 2,  a b \n0.04 ,1\u{2009}, 2,3 , c\u{a0}\n";
+    assert_eq!(parse(loose).unwrap(), parse(tight).unwrap());
+}
+
+#[test]
 fn errors_name_file_line_and_column() {
     let head = "# comment\ntime_s,volume_mm3,pressure_kpa\n";
     let e = parse(&format!("{head}0,1,2\n0.1,x,3\n")).unwrap_err();
