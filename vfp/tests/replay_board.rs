@@ -129,19 +129,28 @@ fn replay_from(
 }
 
 /// `gap`: the largest relative excess of the board's held-out RMSE over the loop's. 2 % where the
-/// board's form is the loop's (hysteresis, leak, transport delay); the causal lags and the play
-/// on frame values are refitted in the loop's look-ahead form and carry a larger, stated gap (as
-/// measured on these logs: sensor lag +44 %, air +23 %, backlash +48 %; still far below the
-/// baseline), until the loop fits them in the board's form.
+/// board's form is the loop's (hysteresis, leak, transport delay). The export refits every chain
+/// effect in the board's form (θ re-searched there, `sysid::residual::export`), and the board's
+/// f32 error equals that f64 device-form fit's to 0.2 % for every effect; but the board's lags
+/// are causal (a straight line between frames) and its play acts on the frame values, where the
+/// loop's look one to two frames ahead (Akima slopes, sub-frame play on frame means), and that
+/// form alone costs, on these logs, sensor lag +40 %, air +21 %, backlash +48 % (still below the
+/// baseline): no θ or coefficient of the causal form reaches the loop's error, so those three
+/// carry their measured gap (plus a margin) until the board runs a look-ahead form.
 fn check(preset: &str, name: &str, seed: u64, gap: f64) {
     let (lines, rmse) = export(preset, name, seed);
     // The board's f32 causal chain on the held-out cycles, against the loop's f64 model.
     eprintln!(
-        "{preset}: held-out RMSE augmented {:.5} kPa, board (replay) {:.5} kPa, baseline {:.5} kPa",
-        rmse.augmented, rmse.device, rmse.baseline
+        "{preset}: held-out RMSE augmented {:.5} kPa, device form f64 {:.5} kPa, board (replay) {:.5} kPa, baseline {:.5} kPa",
+        rmse.augmented, rmse.device_f64, rmse.device, rmse.baseline
     );
     assert!(
         (rmse.device - rmse.augmented).abs() <= gap * rmse.augmented,
+        "{preset}: {rmse:?}"
+    );
+    // The board's f32 chain is the device-form f64 model the export fitted.
+    assert!(
+        (rmse.device - rmse.device_f64).abs() <= 0.002 * rmse.device_f64,
         "{preset}: {rmse:?}"
     );
     assert!(rmse.device < rmse.baseline, "{preset}: {rmse:?}");
@@ -192,7 +201,7 @@ fn hysteresis_runs_on_the_board_as_replayed() {
 
 #[test]
 fn sensor_lag_runs_on_the_board_as_replayed() {
-    check("sensor-lag", "sensor_lag", 12, 0.5);
+    check("sensor-lag", "sensor_lag", 12, 0.45);
 }
 
 #[test]
@@ -202,12 +211,12 @@ fn leak_runs_on_the_board_as_replayed() {
 
 #[test]
 fn backlash_runs_on_the_board_as_replayed() {
-    check("backlash", "backlash", 14, 0.6);
+    check("backlash", "backlash", 14, 0.55);
 }
 
 #[test]
 fn air_compliance_runs_on_the_board_as_replayed() {
-    check("air", "air_compliance", 15, 0.3);
+    check("air", "air_compliance", 15, 0.25);
 }
 
 #[test]

@@ -52,7 +52,7 @@
 use model_core::poly::PolyModel;
 
 use super::effects::{Effect, Inertance, Prepared};
-use super::select::{fit_stage, Stage};
+use super::select::{fit_stage, golden, sse_of, Stage};
 use super::{
     diagnose, Config, DiagnoseError, Diagnosis, EffectKind, EffectModel, PolyBasis, Series,
 };
@@ -369,6 +369,7 @@ pub fn device_model_with(
     };
     let mut effects: Vec<Effect> = carry.iter().map(|&k| Effect::new(k, 0.0)).collect();
     effects.extend(chain.iter().map(|e| from_row(e, k0)));
+    device_form(&prep, &mut effects, carry.len());
     let refit = fit_stage(&prep, &effects).ok_or_else(|| {
         ExportError::Degenerate(
             "its columns are linearly dependent on the training rows (is volume or flow constant?)"
@@ -415,6 +416,68 @@ pub fn device_model_with(
         refit,
         first_row,
     })
+}
+
+/// Puts the chain effects `effects[first..]` in the board's form and re-tunes their θ there.
+///
+/// The board takes each frame as an instant: its lags run on the straight line between frames
+/// (they cannot look at the next frame's slope), its play operator on the frames' volume, its
+/// delay on the volume's cubic Hermite ([`Effect::point_sampled`], the form the loop also fits
+/// point samples in). The loop may have kept the frame-mean form, whose θ is not the best
+/// device θ (a causal lag of the same τ trails further), so each θ is searched again in
+/// the device form around the loop's (golden section on ln θ over a factor e² either side),
+/// minimising the training SSE with the polynomial refitted at each trial, and the air pocket's
+/// damping schedule is taken from the device-form refit, at the chamber's volume, as the board
+/// takes it from its own polynomial (`model_core::chain`). A trial is kept only if it lowers
+/// the training SSE, so the device-form refit never fits worse than at the loop's θ.
+fn device_form(prep: &Prepared, effects: &mut [Effect], first: usize) {
+    for e in &mut effects[first..] {
+        e.point_sampled = true;
+    }
+    for i in first..effects.len() {
+        if effects[i].kind.needs().damping {
+            if let Some(d) = device_damping(prep, effects, i) {
+                effects[i].damping = Some(d);
+            }
+        }
+        let th = effects[i].theta;
+        if !effects[i].kind.has_nonlinear() || !(th > 0.0) {
+            continue;
+        }
+        let mut trial = effects.to_vec();
+        let mut sse = |x: f64| {
+            trial[i].theta = x.exp();
+            sse_of(prep, &trial)
+        };
+        let before = sse(th.ln());
+        let (u, after) = golden(th.ln() - 2.0, th.ln() + 2.0, 24, &mut sse);
+        if after < before {
+            effects[i].theta = u.exp();
+        }
+    }
+}
+
+/// The damping `c = ∂P/∂v̇` per sample of the polynomial refitted with `effects`, at the
+/// chamber's volume `v − V_a·p/(P_atm + p)` of the air pocket `effects[i]` (the board's
+/// schedule of its air lag, from its own polynomial).
+fn device_damping(
+    prep: &Prepared,
+    effects: &[Effect],
+    i: usize,
+) -> Option<std::sync::Arc<Vec<f64>>> {
+    let stage = fit_stage(prep, effects)?;
+    let beta = &stage.fit.beta[..prep.basis.len()];
+    let (se, va) = (&prep.series, effects[i].theta);
+    let p_atm = super::effects::P_ATM_KPA;
+    Some(std::sync::Arc::new(
+        (0..se.len())
+            .map(|k| {
+                let p = prep.p_sched[k].max(-0.9 * p_atm);
+                let v = se.v[k] - va * p / (p_atm + p);
+                prep.basis.damping(beta, v, se.vdot[k])
+            })
+            .collect(),
+    ))
 }
 
 /// `e` on the rows of a series from `k0` on (its per-sample data cut to match).

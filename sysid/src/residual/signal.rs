@@ -44,16 +44,17 @@ pub fn duhem(x: &[f64], w: f64) -> Vec<f64> {
 /// y_k = a·y_{k−1} + (1 − a)·x_{k−1} + (1 − g)·(x_k − x_{k−1}),   y_0 = x_0 (at rest).
 /// ```
 ///
-/// The library's lags use the cubic input of [`lag_cubic_coeffs`] instead (a straight line
+/// The loop's lags on frame means use the cubic input of [`lag_cubic_coeffs`] (a straight line
 /// between frames puts every corner of the motion at a frame instant); this first-order hold is
-/// kept as the tests' reference, which the cubic must reproduce when its slopes are the secants.
+/// the board's form (`model_core::chain`, which cannot look at the next frame's slope), the form
+/// the loop fits on point samples and the export refits in ([`lag_foh_apply_all`]), and the
+/// tests' reference, which the cubic must reproduce when its slopes are the secants.
 #[cfg(test)]
 pub fn lag_foh(t: &[f64], x: &[f64], tau: impl Fn(usize) -> f64) -> Vec<f64> {
     lag_apply(&lag_coeffs(t, tau), x)
 }
 
 /// Per-sample coefficients `(a, 1 − g)` of the first-order-hold lag (see [`lag_foh`]).
-#[cfg(test)]
 pub fn lag_coeffs(t: &[f64], tau: impl Fn(usize) -> f64) -> Vec<(f64, f64)> {
     per_interval(t, tau, (0.0, 1.0), |dt, tk| {
         let r = dt / tk;
@@ -98,8 +99,17 @@ fn per_interval<C: Copy>(
     c
 }
 
+/// The first-order-hold lag of [`lag_coeffs`] applied to every column in place, started at rest
+/// (`y_0 = x_0`): the board's causal lag (`model_core::chain`), on the design's columns.
+pub fn lag_foh_apply_all(coeffs: &[(f64, f64)], cols: &mut [Vec<f64>]) {
+    for c in cols.iter_mut() {
+        if c.len() == coeffs.len() {
+            *c = lag_apply(coeffs, c);
+        }
+    }
+}
+
 /// Applies precomputed lag coefficients: `y_k = a y_{k−1} + (1 − a) x_{k−1} + (1 − g)(x_k − x_{k−1})`.
-#[cfg(test)]
 pub fn lag_apply(coeffs: &[(f64, f64)], x: &[f64]) -> Vec<f64> {
     let mut y = Vec::with_capacity(x.len());
     if x.is_empty() {

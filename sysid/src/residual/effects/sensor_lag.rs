@@ -55,8 +55,14 @@ impl EffectModel for SensorLag {
         Some(10)
     }
 
+    /// On frame means the lag of each column's Akima cubic; on point samples (the board's form,
+    /// which only has the past) the lag of the straight line between them (`signal::lag_foh`).
     fn filter(&self, e: &Effect, prep: &Prepared, cols: &mut [Vec<f64>]) {
         let t = &prep.series.t;
+        if e.point_sampled {
+            signal::lag_foh_apply_all(&signal::lag_coeffs(t, |_| e.theta), cols);
+            return;
+        }
         let coeffs = signal::lag_cubic_coeffs(t, |_| e.theta);
         signal::lag_cubic_apply_all(t, &coeffs, cols);
     }
