@@ -418,42 +418,86 @@ pub fn device_model_with(
     })
 }
 
-/// Puts the chain effects `effects[first..]` in the board's form and re-tunes their θ there.
+/// The chain effects whose θ the export searches again in the board's form: the lags, whose
+/// causal form trails further than the loop's at the same τ. (The play and the delay are the
+/// loop's own point-sample forms; the play's error is discontinuous in its width, and a search
+/// would put the width on an edge where f32 and f64 may fall on different sides.)
+const RETUNED: [&str; 3] = ["sensor_lag", "delivery_lag", "air_compliance"];
+
+/// Puts the chain effects `effects[first..]` in the board's form and re-tunes the lags' θ there.
 ///
 /// The board takes each frame as an instant: its lags run on the straight line between frames
 /// (they cannot look at the next frame's slope), its play operator on the frames' volume, its
 /// delay on the volume's cubic Hermite ([`Effect::point_sampled`], the form the loop also fits
-/// point samples in). The loop may have kept the frame-mean form, whose θ is not the best
-/// device θ (a causal lag of the same τ trails further), so each θ is searched again in
-/// the device form around the loop's (golden section on ln θ over a factor e² either side),
-/// minimising the training SSE with the polynomial refitted at each trial, and the air pocket's
-/// damping schedule is taken from the device-form refit, at the chamber's volume, as the board
-/// takes it from its own polynomial (`model_core::chain`). A trial is kept only if it lowers
-/// the training SSE, so the device-form refit never fits worse than at the loop's θ.
+/// point samples in). The loop may have kept the frame-mean form, whose τ is not the best
+/// device τ, so each lag's τ ([`RETUNED`]) is searched again in the device form around the
+/// loop's (golden section on ln τ over a factor e² either side, within the effect's search
+/// range), minimising the training SSE with the polynomial refitted at each trial; a trial is
+/// kept only if it lowers that SSE, so the device-form refit never fits worse than at the loop's
+/// θ. The air pocket's damping schedule is taken from the device-form refit, at the chamber's
+/// volume, as the board takes it from its own polynomial (`model_core::chain`), before and after
+/// the search. Every θ is finally rounded to the `f32` the board stores.
 fn device_form(prep: &Prepared, effects: &mut [Effect], first: usize) {
     for e in &mut effects[first..] {
         e.point_sampled = true;
     }
     for i in first..effects.len() {
-        if effects[i].kind.needs().damping {
-            if let Some(d) = device_damping(prep, effects, i) {
-                effects[i].damping = Some(d);
+        let kind = effects[i].kind;
+        let th = effects[i].theta;
+        if RETUNED.contains(&kind.name()) && th > 0.0 {
+            set_damping(prep, effects, i);
+            let (lo, hi) = match kind.search(&prep.scales) {
+                super::effects::Search::Log(lo, hi) => (lo.ln(), hi.ln()),
+                _ => (f64::NEG_INFINITY, f64::INFINITY),
+            };
+            let mut trial = effects.to_vec();
+            let mut sse = |x: f64| {
+                trial[i].theta = x.exp();
+                sse_of(prep, &trial)
+            };
+            let before = sse(th.ln());
+            let (a, b) = ((th.ln() - 2.0).max(lo), (th.ln() + 2.0).min(hi));
+            if a < b {
+                let (u, after) = golden(a, b, 24, &mut sse);
+                if after < before {
+                    effects[i].theta = u.exp();
+                }
             }
         }
-        let th = effects[i].theta;
-        if !effects[i].kind.has_nonlinear() || !(th > 0.0) {
-            continue;
-        }
-        let mut trial = effects.to_vec();
-        let mut sse = |x: f64| {
-            trial[i].theta = x.exp();
-            sse_of(prep, &trial)
+        effects[i].theta = f64::from(effects[i].theta as f32);
+        set_damping(prep, effects, i);
+    }
+}
+
+/// Sets the damping schedule of `effects[i]` when it needs one ([`device_damping`]), to its
+/// fixed point: the board takes the damping from the polynomial it runs, which is the one fitted
+/// with that schedule, so the schedule `d` is iterated, `d ← d + ½(c(d) − d)` with `c(d)` the
+/// damping of the polynomial fitted with `d` (the half step damps the oscillation a long air
+/// lag causes), until `c(d)` is `d` to 10⁻⁹ of its largest value (at most 200 passes; should it
+/// not converge, the board's own error, measured by replay, shows the cost).
+fn set_damping(prep: &Prepared, effects: &mut [Effect], i: usize) {
+    if !effects[i].kind.needs().damping {
+        return;
+    }
+    for _ in 0..200 {
+        let Some(c) = device_damping(prep, effects, i) else {
+            return;
         };
-        let before = sse(th.ln());
-        let (u, after) = golden(th.ln() - 2.0, th.ln() + 2.0, 24, &mut sse);
-        if after < before {
-            effects[i].theta = u.exp();
+        let Some(d) = effects[i].damping.clone() else {
+            effects[i].damping = Some(c);
+            continue;
+        };
+        let scale = c.iter().fold(0.0f64, |m, x| m.max(x.abs()));
+        let moved = d
+            .iter()
+            .zip(c.iter())
+            .fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
+        if moved <= 1e-9 * scale {
+            effects[i].damping = Some(c);
+            return;
         }
+        let next = d.iter().zip(c.iter()).map(|(a, b)| a + 0.5 * (b - a));
+        effects[i].damping = Some(std::sync::Arc::new(next.collect()));
     }
 }
 
