@@ -19,7 +19,7 @@
 //! | effect | parameters | equation per frame k | state |
 //! | --- | --- | --- | --- |
 //! | `hysteresis` | w mm³ (> 0), H₀ kPa, H₁ kPa | `h_k = s + (h_{k−1} − s)·e^{−│v_k − v_{k−1}│/w}`, `s = sign(v_k − v_{k−1})` (unchanged when v is); `P_in += (H₀ + H₁·x)·h_k` | h, v_{k−1} |
-//! | `sensor_lag` | τ s (≥ 0) | `τ Ṗ_m + P_m = P` over a straight line between frames: `P̂_k = a P̂_{k−1} + (1−a) P_{k−1} + (1−g)(P_k − P_{k−1})`, `a = e^{−Δt/τ}`, `g = (τ/Δt)(1−a)` | P̂_{k−1}, P_{k−1} |
+//! | `sensor_lag` | τ s (≥ 0) | `τ Ṗ_m + P_m = P` over the cubic between frames whose slopes are the backward differences `m_k = d_k + ½(d_k − d_{k−1})`, `d_k = (P_k − P_{k−1})/Δt` (a frame mean's slope from the past only; the secant on the second frame, 0 on the first): `P̂_k = a P̂_{k−1} + w₀ P_{k−1} + w₁ P_k + Δt(m₀ m_{k−1} + m₁ m_k)` (weights below) | P̂_{k−1}, P_{k−1}, P_{k−2}, m_{k−1} |
 //! | `delivery_lag` | τ s (≥ 0) | two stages of `τ ẏ + y = u` on v and on v̇; each stage: v by the cubic whose slopes are the flows, `y_k = a y_{k−1} + w₀ u_{k−1} + w₁ u_k + Δt(m₀ u̇_{k−1} + m₁ u̇_k)` (weights below), v̇ by the straight line (as `sensor_lag`) | per stage: output v, v̇ and input v, v̇ of the last frame |
 //! | `transport_delay` | d s (0 ≤ d ≤ [`MAX_DELAY_FRAMES`] − 2 frames) | `(v′, v̇′)` at `t_k − d` on the cubic Hermite through the stored frames (slopes = flows), flow = that cubic's derivative; before the first frame: the first frame | the last [`MAX_DELAY_FRAMES`] frames of its input |
 //! | `backlash` | b mm³ (≥ 0) | play operator `z_k = clamp(z_{k−1}, v_k − b/2, v_k + b/2)`; `v′ = z_k`, `v̇′ = v̇` while the nut bears on the plunger (`│v_k − z_k│ = b/2` and `(v_k − z_k)·v̇ > 0`), else 0 | z |
@@ -215,8 +215,8 @@ impl Effect {
 /// Per-frame constants of an effect, derived once from its parameters and the frame period.
 #[derive(Clone, Copy, Debug, PartialEq, Default)]
 struct Derived {
-    /// Lags: `a` in slot 0, the cubic weights `w₀, w₁, Δt·m₀, Δt·m₁` in slots 1–4 (delivery lag
-    /// only) and the straight line's `(1 − a) − (1 − g)`, `1 − g` in slots 5 and 6. Delay: the
+    /// Lags: `a` in slot 0, the cubic weights `w₀, w₁, Δt·m₀, Δt·m₁` in slots 1–4 (delivery and
+    /// sensor lag) and the straight line's `(1 − a) − (1 − g)`, `1 − g` in slots 5 and 6. Delay: the
     /// Hermite weights.
     w: [f32; 8],
     /// Transport delay: whole frames back to the interval's later end.
@@ -296,17 +296,9 @@ impl Derived {
         let mut w = [0.0f32; 8];
         match e.kind {
             EffectKind::SensorLag => {
-                // Only the straight line: a = e^{−r}, g = (1 − a)/r in closed form.
-                if p0 > 1e-9 * dtf {
-                    let r = dtf / p0;
-                    let one_minus_a = -libm::expm1(-r);
-                    let g = one_minus_a / r;
-                    let a = 1.0 - one_minus_a;
-                    w[0] = a as f32;
-                    (w[5], w[6]) = ((g - a) as f32, (1.0 - g) as f32);
-                } else {
-                    w[6] = 1.0;
-                }
+                // The cubic whose slopes are the backward three-point differences.
+                let [a, w0, w1, m0, m1] = lag_weights(dtf, p0);
+                w = [a, w0, w1, m0 * dtf, m1 * dtf, 0.0, 0.0, 0.0].map(|x| x as f32);
             }
             EffectKind::DeliveryLag => {
                 let [a, w0, w1, m0, m1] = lag_weights(dtf, p0);
@@ -429,6 +421,26 @@ impl ChainState {
     }
 }
 
+/// The sensor lag's step (module table): the lag of the cubic through the last two inputs whose
+/// slopes are the backward differences `m_k = d_k + ½(d_k − d_{k−1})`, `d_k = (x_k − x_{k−1})/Δt`
+/// (the secant while only one earlier input is known, 0 on the first frame: at rest). State:
+/// `[y, x_{k−1}, x_{k−2}, m_{k−1}, inputs seen (0, 1, 2)]`.
+fn sensor_lag(w: &[f32; 8], s: &mut [f32; 6], primed: bool, dt: f32, x: f32) -> f32 {
+    if !primed {
+        *s = [x, x, x, 0.0, 1.0, 0.0];
+        return x;
+    }
+    let d = (x - s[1]) / dt;
+    let m = if s[4] >= 2.0 {
+        d + 0.5 * (d - (s[1] - s[2]) / dt)
+    } else {
+        d
+    };
+    let y = w[0] * s[0] + w[1] * s[1] + w[2] * x + w[3] * s[3] + w[4] * m;
+    *s = [y, x, s[1], m, 2.0, 0.0];
+    y
+}
+
 /// One first-order lag step over a straight line between frames: `y = a y₀ + c0 x₀ + c1 x`.
 #[inline]
 fn foh(a: f32, c0: f32, c1: f32, y0: f32, x0: f32, x: f32) -> f32 {
@@ -547,14 +559,7 @@ impl Chain {
             p = self.air_lag(&mut slot[i], primed, inp.dt, e.c.max(0.0) * spring, p);
         }
         if let Some(i) = self.position(EffectKind::SensorLag) {
-            let (w, s) = (&state.derived[i].w, &mut slot[i]);
-            let y = if primed {
-                foh(w[0], w[5], w[6], s[0], s[1], p)
-            } else {
-                p
-            };
-            (s[0], s[1]) = (y, p);
-            p = y;
+            p = sensor_lag(&state.derived[i].w, &mut slot[i], primed, inp.dt, p);
         }
         if k_air != 0.0 {
             // The gas spring in series with the chamber's own stiffness.

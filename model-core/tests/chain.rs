@@ -249,7 +249,17 @@ mod reference {
             out = lag_varying(dt, &tau, &out);
         }
         if let Some(p) = get(EffectKind::SensorLag) {
-            out = lag(dt, p[0], &out, None);
+            // The cubic with backward-difference slopes (0 on the first frame, the secant on the
+            // second).
+            let d = |k: usize| (out[k] - out[k - 1]) / dt;
+            let m: Vec<f64> = (0..n)
+                .map(|k| match k {
+                    0 => 0.0,
+                    1 => d(1),
+                    _ => 1.5 * d(k) - 0.5 * d(k - 1),
+                })
+                .collect();
+            out = lag(dt, p[0], &out, Some(&m));
         }
         (out, edge)
     }

@@ -109,6 +109,36 @@ pub fn lag_foh_apply_all(coeffs: &[(f64, f64)], cols: &mut [Vec<f64>]) {
     }
 }
 
+/// Slopes of a signal from its past only: `m_k = d_k + ½(d_k − d_{k−1})`, `d_k = (x_k − x_{k−1})/Δt_k`
+/// (the three-point backward difference on a uniform grid), the secant `d_1` at the second
+/// sample and 0 at the first (at rest). The board's sensor lag runs on the cubic with these
+/// slopes (`model_core::chain`): unlike Akima's ([`akima_slopes`]) they need no later frame.
+pub fn backward_slopes(t: &[f64], x: &[f64]) -> Vec<f64> {
+    let mut m = Vec::with_capacity(x.len());
+    let mut prev = 0.0;
+    for k in 0..x.len() {
+        if k == 0 {
+            m.push(0.0);
+            continue;
+        }
+        let d = (x[k] - x[k - 1]) / (t[k] - t[k - 1]);
+        m.push(if k == 1 { d } else { d + 0.5 * (d - prev) });
+        prev = d;
+    }
+    m
+}
+
+/// The lag of [`lag_cubic_coeffs`] applied to every column in place, each column reconstructed
+/// between samples by the cubic with [`backward_slopes`] (causal: the board's sensor lag),
+/// started at rest.
+pub fn lag_causal_apply_all(t: &[f64], coeffs: &[[f64; 5]], cols: &mut [Vec<f64>]) {
+    if cols.iter().any(|c| c.len() != t.len()) {
+        return;
+    }
+    let slopes: Vec<Vec<f64>> = cols.iter().map(|c| backward_slopes(t, c)).collect();
+    lag_cubic_apply_with(coeffs, cols, &slopes);
+}
+
 /// Applies precomputed lag coefficients: `y_k = a y_{k−1} + (1 − a) x_{k−1} + (1 − g)(x_k − x_{k−1})`.
 pub fn lag_apply(coeffs: &[(f64, f64)], x: &[f64]) -> Vec<f64> {
     let mut y = Vec::with_capacity(x.len());
