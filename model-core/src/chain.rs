@@ -25,7 +25,7 @@
 //! | `backlash` | b mm³ (≥ 0) | play operator `z_k = clamp(z_{k−1}, v_k − b/2, v_k + b/2)`; `v′ = z_k`, `v̇′ = v̇` while the nut bears on the plunger (`│v_k − z_k│ = b/2` and `(v_k − z_k)·v̇ > 0`), else 0 | z |
 //! | `inertance` | L kPa·s²/mm³ | `P_in += L·v̈_k`, `v̈_k = (−6(v_k − v_{k−1}) + 2Δt v̇_{k−1} + 4Δt v̇_k)/Δt²` (the end slope of the last interval's cubic Hermite; 0 on the first frame) | v_{k−1}, v̇_{k−1} |
 //! | `pump_ripple` | Λ mm³ (> 0), a mm³, b mm³ | volume error `δ = a sin φ + b cos φ`, `φ = 2π (v mod Λ)/Λ`, `δ̇ = (2π/Λ) v̇ (a cos φ − b sin φ)`; `P_in += k_poly δ + c_poly δ̇` | none |
-//! | `air_compliance` | V_a mm³ (≥ 0) | static: `v′ −= V_a·p̃/(P_atm + p̃)`, `p̃ = max(p, −0.9 P_atm)` (Boyle); dynamic: `τ_k P_air' + P_air = P_in` with `τ_k = max(c_poly, 0)·V_a·P_atm/(P_atm + p̃)²`, over each frame the mean of its ends' τ, as `sensor_lag` | P_air, P_in, τ of the last frame |
+//! | `air_compliance` | V_a mm³ (≥ 0) | static: `v′ −= V_a·p̃/(P_atm + p̃)`, `p̃ = max(p, −0.9 P_atm)` (Boyle); dynamic: `τ_k P_air' + P_air = P_in` with `τ_k = max(c_poly, 0)·V_a·P_atm/(P_atm + p̃)²`, over each frame the mean of its ends' τ, over the cubic with backward-difference slopes as `sensor_lag` (its weights computed per frame in f32) | P_air, P_in, P_in before, its slope, τ of the last frame |
 //! | `leak` | λ mm³/(kPa·s) (≥ 0) | `I_k = I_{k−1} + ½(p_k + p_{k−1})Δt` (trapezoid, `I_0 = 0`, summed with Kahan's compensation); `v′ −= λ I_k`, `v̇′ −= λ p_k` (the lost volume λI is the state) | I (and its compensation), p_{k−1} |
 //!
 //! `delivery_lag`'s cubic weights are the exact response of the lag over one frame to a cubic
@@ -728,36 +728,63 @@ impl Chain {
         )
     }
 
-    /// Air compliance's output lag, time constant τ(p) averaged over the frame's ends.
-    /// Slots: 0 output, 1 input, 2 τ of the last frame.
+    /// Air compliance's output lag, time constant τ(p) averaged over the frame's ends, over the
+    /// cubic with backward-difference slopes (as `sensor_lag`), its weights computed per frame
+    /// ([`lag_weights_f32`]). Slots: 0 output, 1 input, 2 τ of the last frame, 3 the input
+    /// before, 4 its slope, 5 inputs seen (1, 2).
     fn air_lag(&self, s: &mut [f32; 6], primed: bool, dt: f32, tau: f32, x: f32) -> f32 {
-        let y = if primed {
-            let t = 0.5 * (tau + s[2]);
-            if t <= 1e-9 * dt {
-                x
-            } else {
-                let r = dt / t;
-                let one_minus_a = -libm::expm1f(-r);
-                let g = if r < 1e-3 {
-                    1.0 - 0.5 * r
-                } else {
-                    one_minus_a / r
-                };
-                foh(
-                    1.0 - one_minus_a,
-                    g - (1.0 - one_minus_a),
-                    1.0 - g,
-                    s[0],
-                    s[1],
-                    x,
-                )
-            }
+        if !primed {
+            *s = [x, x, tau, x, 0.0, 1.0];
+            return x;
+        }
+        let d = (x - s[1]) / dt;
+        let m = if s[5] >= 2.0 {
+            d + 0.5 * (d - (s[1] - s[3]) / dt)
         } else {
-            x
+            d
         };
-        (s[0], s[1], s[2]) = (y, x, tau);
+        let [a, w0, w1, m0, m1] = lag_weights_f32(dt, 0.5 * (tau + s[2]));
+        let y = a * s[0] + w0 * s[1] + w1 * x + dt * (m0 * s[4] + m1 * m);
+        *s = [y, x, tau, s[1], m, 2.0];
         y
     }
+}
+
+/// [`lag_weights`] in `f32`, for a time constant that changes every frame (air compliance):
+/// `I_q` by its power series while r < 2 (at most 24 terms, each at most half the last), by the
+/// recurrence above (whose error grows by at most q/r ≤ 1.5 per step).
+fn lag_weights_f32(dt: f32, tau: f32) -> [f32; 5] {
+    if tau <= 1e-9 * dt {
+        return [0.0, 0.0, 1.0, 0.0, 0.0];
+    }
+    let r = dt / tau;
+    let mut i = [0.0f32; 4];
+    if r >= 2.0 {
+        i[0] = -libm::expm1f(-r);
+        for q in 1..4 {
+            i[q] = 1.0 - (q as f32 / r) * i[q - 1];
+        }
+    } else {
+        for (q, iq) in i.iter_mut().enumerate() {
+            let mut term = r / (q as f32 + 1.0);
+            let mut sum = 0.0f32;
+            for j in 0..24 {
+                sum += term;
+                if libm::fabsf(term) <= 1e-8 * libm::fabsf(sum) {
+                    break;
+                }
+                term *= -r / (q as f32 + j as f32 + 2.0);
+            }
+            *iq = sum;
+        }
+    }
+    [
+        libm::expf(-r),
+        2.0 * i[3] - 3.0 * i[2] + i[0],
+        3.0 * i[2] - 2.0 * i[3],
+        i[3] - 2.0 * i[2] + i[1],
+        i[3] - i[2],
+    ]
 }
 
 /// Delivery lag: two stages, each lagging v (slopes: the flows) and v̇ (straight line).

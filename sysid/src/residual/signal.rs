@@ -46,9 +46,9 @@ pub fn duhem(x: &[f64], w: f64) -> Vec<f64> {
 ///
 /// The loop's lags on frame means use the cubic input of [`lag_cubic_coeffs`] (a straight line
 /// between frames puts every corner of the motion at a frame instant); this first-order hold is
-/// the board's form (`model_core::chain`, which cannot look at the next frame's slope), the form
-/// the loop fits on point samples and the export refits in ([`lag_foh_apply_all`]), and the
-/// tests' reference, which the cubic must reproduce when its slopes are the secants.
+/// the form of the delivery lag's flow on point samples (the board's, which cannot look at the
+/// next frame's slope), and the tests' reference, which the cubic must reproduce when its slopes
+/// are the secants.
 #[cfg(test)]
 pub fn lag_foh(t: &[f64], x: &[f64], tau: impl Fn(usize) -> f64) -> Vec<f64> {
     lag_apply(&lag_coeffs(t, tau), x)
@@ -97,16 +97,6 @@ fn per_interval<C: Copy>(
         c.push(ck);
     }
     c
-}
-
-/// The first-order-hold lag of [`lag_coeffs`] applied to every column in place, started at rest
-/// (`y_0 = x_0`): the board's causal lag (`model_core::chain`), on the design's columns.
-pub fn lag_foh_apply_all(coeffs: &[(f64, f64)], cols: &mut [Vec<f64>]) {
-    for c in cols.iter_mut() {
-        if c.len() == coeffs.len() {
-            *c = lag_apply(coeffs, c);
-        }
-    }
 }
 
 /// Slopes of a signal from its past only: `m_k = d_k + ½(d_k − d_{k−1})`, `d_k = (x_k − x_{k−1})/Δt_k`
