@@ -20,7 +20,7 @@
 //! | --- | --- | --- | --- |
 //! | `hysteresis` | w mm³ (> 0), H₀ kPa, H₁ kPa | `h_k = s + (h_{k−1} − s)·e^{−│v_k − v_{k−1}│/w}`, `s = sign(v_k − v_{k−1})` (unchanged when v is); `P_in += (H₀ + H₁·x)·h_k` | h, v_{k−1} |
 //! | `sensor_lag` | τ s (≥ 0) | `τ Ṗ_m + P_m = P` over the cubic between frames whose slopes are the backward differences `m_k = d_k + ½(d_k − d_{k−1})`, `d_k = (P_k − P_{k−1})/Δt` (a frame mean's slope from the past only; the secant on the second frame, 0 on the first): `P̂_k = a P̂_{k−1} + w₀ P_{k−1} + w₁ P_k + Δt(m₀ m_{k−1} + m₁ m_k)` (weights below) | P̂_{k−1}, P_{k−1}, P_{k−2}, m_{k−1} |
-//! | `delivery_lag` | τ s (≥ 0) | two stages of `τ ẏ + y = u` on v and on v̇; each stage: v by the cubic whose slopes are the flows, `y_k = a y_{k−1} + w₀ u_{k−1} + w₁ u_k + Δt(m₀ u̇_{k−1} + m₁ u̇_k)` (weights below), v̇ by the straight line (as `sensor_lag`) | per stage: output v, v̇ and input v, v̇ of the last frame |
+//! | `delivery_lag` | τ s (≥ 0) | two stages of `τ ẏ + y = u` on v and on v̇; each stage: v by the cubic whose slopes are the flows, `y_k = a y_{k−1} + w₀ u_{k−1} + w₁ u_k + Δt(m₀ u̇_{k−1} + m₁ u̇_k)` (weights below), v̇ by the straight line (`y_k = a y_{k−1} + (1−a) u_{k−1} + (1−g)(u_k − u_{k−1})`, `a = e^{−Δt/τ}`, `g = (τ/Δt)(1−a)`) | per stage: output v, v̇ and input v, v̇ of the last frame |
 //! | `transport_delay` | d s (0 ≤ d ≤ [`MAX_DELAY_FRAMES`] − 2 frames) | `(v′, v̇′)` at `t_k − d` on the cubic Hermite through the stored frames (slopes = flows), flow = that cubic's derivative; before the first frame: the first frame | the last [`MAX_DELAY_FRAMES`] frames of its input |
 //! | `backlash` | b mm³ (≥ 0) | play operator `z_k = clamp(z_{k−1}, v_k − b/2, v_k + b/2)`; `v′ = z_k`, `v̇′ = v̇` while the nut bears on the plunger (`│v_k − z_k│ = b/2` and `(v_k − z_k)·v̇ > 0`), else 0 | z |
 //! | `inertance` | L kPa·s²/mm³ | `P_in += L·v̈_k`, `v̈_k = (−6(v_k − v_{k−1}) + 2Δt v̇_{k−1} + 4Δt v̇_k)/Δt²` (the end slope of the last interval's cubic Hermite; 0 on the first frame) | v_{k−1}, v̇_{k−1} |
@@ -216,7 +216,8 @@ impl Effect {
 #[derive(Clone, Copy, Debug, PartialEq, Default)]
 struct Derived {
     /// Lags: `a` in slot 0, the cubic weights `w₀, w₁, Δt·m₀, Δt·m₁` in slots 1–4 (delivery and
-    /// sensor lag) and the straight line's `(1 − a) − (1 − g)`, `1 − g` in slots 5 and 6. Delay: the
+    /// sensor lag) and the straight line's `(1 − a) − (1 − g)`, `1 − g` in slots 5 and 6 (delivery
+    /// lag's flow). Delay: the
     /// Hermite weights.
     w: [f32; 8],
     /// Transport delay: whole frames back to the interval's later end.
@@ -890,6 +891,17 @@ mod tests {
             let g = (tau / dt) * (1.0 - a);
             assert!((w0 - (m0 + m1) - (g - a)).abs() < 1e-12, "{r}");
             assert!((w1 + (m0 + m1) - (1.0 - g)).abs() < 1e-12, "{r}");
+        }
+        // The f32 weights the air lag computes per frame are the f64 ones to f32 precision.
+        for tau in [0.002, 0.01, 0.02, 0.05, 0.3, 5.0, 100.0] {
+            let x = lag_weights(0.04, tau);
+            let y = lag_weights_f32(0.04, tau as f32);
+            for (a, b) in x.iter().zip(&y) {
+                assert!(
+                    (a - *b as f64).abs() <= 2e-6 * x[0].max(x[2]),
+                    "{tau}: {x:?} {y:?}"
+                );
+            }
         }
         // Series (r < ½) and recurrence (r ≥ ½) agree at the switch.
         let (x, y) = (lag_weights(0.04, 0.04 / 0.4999999), lag_weights(0.04, 0.08));

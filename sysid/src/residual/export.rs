@@ -20,13 +20,14 @@
 //! and volume drift) and pump ripple stay on the host and are listed by name with the reason.
 //!
 //! # The chain's effects
-//! The device model is refitted with the kept chain effects at the θ the loop found (same
-//! design, the polynomial's scaling rounded to `f32` first), so the polynomial and the effects'
+//! The device model is refitted with the kept chain effects in the board's form (same design,
+//! the polynomial's scaling rounded to `f32` first), so the polynomial and the effects'
 //! coefficients (the hysteresis gap) are fitted together; the chain then carries θ and those
-//! coefficients. The chain's lags and delay are causal where the loop's look one frame ahead
-//! (their cubic between frames uses the next frame's slope): the exported model's error is
-//! therefore measured as the board computes it, by running the firmware's estimator over the
-//! log ([`crate::replay`]), and reported next to the loop's.
+//! coefficients. The chain's effects are causal where the loop's may look a frame or two ahead
+//! (Akima slopes, sub-frame play on frame means), so the lags' τ is searched again in the
+//! board's form (`device_form`); the exported model's error is measured as the board computes
+//! it, by running the firmware's estimator over the log ([`crate::replay`]), and reported next
+//! to the loop's.
 //!
 //! # Inertance as an AR(1) term
 //! The loop's inertance term is `L·v̈` with v̈ a smoothed (Hermite or three-point) derivative, which
@@ -426,8 +427,10 @@ const RETUNED: [&str; 3] = ["sensor_lag", "delivery_lag", "air_compliance"];
 
 /// Puts the chain effects `effects[first..]` in the board's form and re-tunes the lags' θ there.
 ///
-/// The board takes each frame as an instant: its lags run on the straight line between frames
-/// (they cannot look at the next frame's slope), its play operator on the frames' volume, its
+/// The board has only the past: its sensor and air lags run on the cubic between frames with
+/// backward-difference slopes (`signal::backward_slopes`, where the loop's Akima slopes need the
+/// next frames), the delivery lag's flow on the straight line, its play operator on the frames'
+/// volume, its
 /// delay on the volume's cubic Hermite ([`Effect::point_sampled`], the form the loop also fits
 /// point samples in). The loop may have kept the frame-mean form, whose τ is not the best
 /// device τ, so each lag's τ ([`RETUNED`]) is searched again in the device form around the
