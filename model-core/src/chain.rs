@@ -19,13 +19,13 @@
 //! | effect | parameters | equation per frame k | state |
 //! | --- | --- | --- | --- |
 //! | `hysteresis` | w mm³ (> 0), H₀ kPa, H₁ kPa | `h_k = s + (h_{k−1} − s)·e^{−│v_k − v_{k−1}│/w}`, `s = sign(v_k − v_{k−1})` (unchanged when v is); `P_in += (H₀ + H₁·x)·h_k` | h, v_{k−1} |
-//! | `sensor_lag` | τ s (≥ 0) | `τ Ṗ_m + P_m = P` over a straight line between frames: `P̂_k = a P̂_{k−1} + (1−a) P_{k−1} + (1−g)(P_k − P_{k−1})`, `a = e^{−Δt/τ}`, `g = (τ/Δt)(1−a)` | P̂_{k−1}, P_{k−1} |
-//! | `delivery_lag` | τ s (≥ 0) | two stages of `τ ẏ + y = u` on v and on v̇; each stage: v by the cubic whose slopes are the flows, `y_k = a y_{k−1} + w₀ u_{k−1} + w₁ u_k + Δt(m₀ u̇_{k−1} + m₁ u̇_k)` (weights below), v̇ by the straight line (as `sensor_lag`) | per stage: output v, v̇ and input v, v̇ of the last frame |
+//! | `sensor_lag` | τ s (≥ 0) | `τ Ṗ_m + P_m = P` over the cubic between frames whose slopes are the backward differences `m_k = d_k + ½(d_k − d_{k−1})`, `d_k = (P_k − P_{k−1})/Δt` (a frame mean's slope from the past only; the secant on the second frame, 0 on the first): `P̂_k = a P̂_{k−1} + w₀ P_{k−1} + w₁ P_k + Δt(m₀ m_{k−1} + m₁ m_k)` (weights below) | P̂_{k−1}, P_{k−1}, P_{k−2}, m_{k−1} |
+//! | `delivery_lag` | τ s (≥ 0) | two stages of `τ ẏ + y = u` on v and on v̇; each stage: v by the cubic whose slopes are the flows, `y_k = a y_{k−1} + w₀ u_{k−1} + w₁ u_k + Δt(m₀ u̇_{k−1} + m₁ u̇_k)` (weights below), v̇ by the straight line (`y_k = a y_{k−1} + (1−a) u_{k−1} + (1−g)(u_k − u_{k−1})`, `a = e^{−Δt/τ}`, `g = (τ/Δt)(1−a)`) | per stage: output v, v̇ and input v, v̇ of the last frame |
 //! | `transport_delay` | d s (0 ≤ d ≤ [`MAX_DELAY_FRAMES`] − 2 frames) | `(v′, v̇′)` at `t_k − d` on the cubic Hermite through the stored frames (slopes = flows), flow = that cubic's derivative; before the first frame: the first frame | the last [`MAX_DELAY_FRAMES`] frames of its input |
 //! | `backlash` | b mm³ (≥ 0) | play operator `z_k = clamp(z_{k−1}, v_k − b/2, v_k + b/2)`; `v′ = z_k`, `v̇′ = v̇` while the nut bears on the plunger (`│v_k − z_k│ = b/2` and `(v_k − z_k)·v̇ > 0`), else 0 | z |
 //! | `inertance` | L kPa·s²/mm³ | `P_in += L·v̈_k`, `v̈_k = (−6(v_k − v_{k−1}) + 2Δt v̇_{k−1} + 4Δt v̇_k)/Δt²` (the end slope of the last interval's cubic Hermite; 0 on the first frame) | v_{k−1}, v̇_{k−1} |
 //! | `pump_ripple` | Λ mm³ (> 0), a mm³, b mm³ | volume error `δ = a sin φ + b cos φ`, `φ = 2π (v mod Λ)/Λ`, `δ̇ = (2π/Λ) v̇ (a cos φ − b sin φ)`; `P_in += k_poly δ + c_poly δ̇` | none |
-//! | `air_compliance` | V_a mm³ (≥ 0) | static: `v′ −= V_a·p̃/(P_atm + p̃)`, `p̃ = max(p, −0.9 P_atm)` (Boyle); dynamic: `τ_k P_air' + P_air = P_in` with `τ_k = max(c_poly, 0)·V_a·P_atm/(P_atm + p̃)²`, over each frame the mean of its ends' τ, as `sensor_lag` | P_air, P_in, τ of the last frame |
+//! | `air_compliance` | V_a mm³ (≥ 0) | static: `v′ −= V_a·p̃/(P_atm + p̃)`, `p̃ = max(p, −0.9 P_atm)` (Boyle); dynamic: `τ_k P_air' + P_air = P_in` with `τ_k = max(c_poly, 0)·V_a·P_atm/(P_atm + p̃)²`, over each frame the mean of its ends' τ, over the cubic with backward-difference slopes as `sensor_lag` (its weights computed per frame in f32) | P_air, P_in, P_in before, its slope, τ of the last frame |
 //! | `leak` | λ mm³/(kPa·s) (≥ 0) | `I_k = I_{k−1} + ½(p_k + p_{k−1})Δt` (trapezoid, `I_0 = 0`, summed with Kahan's compensation); `v′ −= λ I_k`, `v̇′ −= λ p_k` (the lost volume λI is the state) | I (and its compensation), p_{k−1} |
 //!
 //! `delivery_lag`'s cubic weights are the exact response of the lag over one frame to a cubic
@@ -215,8 +215,9 @@ impl Effect {
 /// Per-frame constants of an effect, derived once from its parameters and the frame period.
 #[derive(Clone, Copy, Debug, PartialEq, Default)]
 struct Derived {
-    /// Lags: `a` in slot 0, the cubic weights `w₀, w₁, Δt·m₀, Δt·m₁` in slots 1–4 (delivery lag
-    /// only) and the straight line's `(1 − a) − (1 − g)`, `1 − g` in slots 5 and 6. Delay: the
+    /// Lags: `a` in slot 0, the cubic weights `w₀, w₁, Δt·m₀, Δt·m₁` in slots 1–4 (delivery and
+    /// sensor lag) and the straight line's `(1 − a) − (1 − g)`, `1 − g` in slots 5 and 6 (delivery
+    /// lag's flow). Delay: the
     /// Hermite weights.
     w: [f32; 8],
     /// Transport delay: whole frames back to the interval's later end.
@@ -296,17 +297,9 @@ impl Derived {
         let mut w = [0.0f32; 8];
         match e.kind {
             EffectKind::SensorLag => {
-                // Only the straight line: a = e^{−r}, g = (1 − a)/r in closed form.
-                if p0 > 1e-9 * dtf {
-                    let r = dtf / p0;
-                    let one_minus_a = -libm::expm1(-r);
-                    let g = one_minus_a / r;
-                    let a = 1.0 - one_minus_a;
-                    w[0] = a as f32;
-                    (w[5], w[6]) = ((g - a) as f32, (1.0 - g) as f32);
-                } else {
-                    w[6] = 1.0;
-                }
+                // The cubic whose slopes are the backward three-point differences.
+                let [a, w0, w1, m0, m1] = lag_weights(dtf, p0);
+                w = [a, w0, w1, m0 * dtf, m1 * dtf, 0.0, 0.0, 0.0].map(|x| x as f32);
             }
             EffectKind::DeliveryLag => {
                 let [a, w0, w1, m0, m1] = lag_weights(dtf, p0);
@@ -429,6 +422,26 @@ impl ChainState {
     }
 }
 
+/// The sensor lag's step (module table): the lag of the cubic through the last two inputs whose
+/// slopes are the backward differences `m_k = d_k + ½(d_k − d_{k−1})`, `d_k = (x_k − x_{k−1})/Δt`
+/// (the secant while only one earlier input is known, 0 on the first frame: at rest). State:
+/// `[y, x_{k−1}, x_{k−2}, m_{k−1}, inputs seen (0, 1, 2)]`.
+fn sensor_lag(w: &[f32; 8], s: &mut [f32; 6], primed: bool, dt: f32, x: f32) -> f32 {
+    if !primed {
+        *s = [x, x, x, 0.0, 1.0, 0.0];
+        return x;
+    }
+    let d = (x - s[1]) / dt;
+    let m = if s[4] >= 2.0 {
+        d + 0.5 * (d - (s[1] - s[2]) / dt)
+    } else {
+        d
+    };
+    let y = w[0] * s[0] + w[1] * s[1] + w[2] * x + w[3] * s[3] + w[4] * m;
+    *s = [y, x, s[1], m, 2.0, 0.0];
+    y
+}
+
 /// One first-order lag step over a straight line between frames: `y = a y₀ + c0 x₀ + c1 x`.
 #[inline]
 fn foh(a: f32, c0: f32, c1: f32, y0: f32, x0: f32, x: f32) -> f32 {
@@ -547,14 +560,7 @@ impl Chain {
             p = self.air_lag(&mut slot[i], primed, inp.dt, e.c.max(0.0) * spring, p);
         }
         if let Some(i) = self.position(EffectKind::SensorLag) {
-            let (w, s) = (&state.derived[i].w, &mut slot[i]);
-            let y = if primed {
-                foh(w[0], w[5], w[6], s[0], s[1], p)
-            } else {
-                p
-            };
-            (s[0], s[1]) = (y, p);
-            p = y;
+            p = sensor_lag(&state.derived[i].w, &mut slot[i], primed, inp.dt, p);
         }
         if k_air != 0.0 {
             // The gas spring in series with the chamber's own stiffness.
@@ -723,36 +729,63 @@ impl Chain {
         )
     }
 
-    /// Air compliance's output lag, time constant τ(p) averaged over the frame's ends.
-    /// Slots: 0 output, 1 input, 2 τ of the last frame.
+    /// Air compliance's output lag, time constant τ(p) averaged over the frame's ends, over the
+    /// cubic with backward-difference slopes (as `sensor_lag`), its weights computed per frame
+    /// ([`lag_weights_f32`]). Slots: 0 output, 1 input, 2 τ of the last frame, 3 the input
+    /// before, 4 its slope, 5 inputs seen (1, 2).
     fn air_lag(&self, s: &mut [f32; 6], primed: bool, dt: f32, tau: f32, x: f32) -> f32 {
-        let y = if primed {
-            let t = 0.5 * (tau + s[2]);
-            if t <= 1e-9 * dt {
-                x
-            } else {
-                let r = dt / t;
-                let one_minus_a = -libm::expm1f(-r);
-                let g = if r < 1e-3 {
-                    1.0 - 0.5 * r
-                } else {
-                    one_minus_a / r
-                };
-                foh(
-                    1.0 - one_minus_a,
-                    g - (1.0 - one_minus_a),
-                    1.0 - g,
-                    s[0],
-                    s[1],
-                    x,
-                )
-            }
+        if !primed {
+            *s = [x, x, tau, x, 0.0, 1.0];
+            return x;
+        }
+        let d = (x - s[1]) / dt;
+        let m = if s[5] >= 2.0 {
+            d + 0.5 * (d - (s[1] - s[3]) / dt)
         } else {
-            x
+            d
         };
-        (s[0], s[1], s[2]) = (y, x, tau);
+        let [a, w0, w1, m0, m1] = lag_weights_f32(dt, 0.5 * (tau + s[2]));
+        let y = a * s[0] + w0 * s[1] + w1 * x + dt * (m0 * s[4] + m1 * m);
+        *s = [y, x, tau, s[1], m, 2.0];
         y
     }
+}
+
+/// [`lag_weights`] in `f32`, for a time constant that changes every frame (air compliance):
+/// `I_q` by its power series while r < 2 (at most 24 terms, each at most half the last), by the
+/// recurrence above (whose error grows by at most q/r ≤ 1.5 per step).
+fn lag_weights_f32(dt: f32, tau: f32) -> [f32; 5] {
+    if tau <= 1e-9 * dt {
+        return [0.0, 0.0, 1.0, 0.0, 0.0];
+    }
+    let r = dt / tau;
+    let mut i = [0.0f32; 4];
+    if r >= 2.0 {
+        i[0] = -libm::expm1f(-r);
+        for q in 1..4 {
+            i[q] = 1.0 - (q as f32 / r) * i[q - 1];
+        }
+    } else {
+        for (q, iq) in i.iter_mut().enumerate() {
+            let mut term = r / (q as f32 + 1.0);
+            let mut sum = 0.0f32;
+            for j in 0..24 {
+                sum += term;
+                if libm::fabsf(term) <= 1e-8 * libm::fabsf(sum) {
+                    break;
+                }
+                term *= -r / (q as f32 + j as f32 + 2.0);
+            }
+            *iq = sum;
+        }
+    }
+    [
+        libm::expf(-r),
+        2.0 * i[3] - 3.0 * i[2] + i[0],
+        3.0 * i[2] - 2.0 * i[3],
+        i[3] - 2.0 * i[2] + i[1],
+        i[3] - i[2],
+    ]
 }
 
 /// Delivery lag: two stages, each lagging v (slopes: the flows) and v̇ (straight line).
@@ -858,6 +891,17 @@ mod tests {
             let g = (tau / dt) * (1.0 - a);
             assert!((w0 - (m0 + m1) - (g - a)).abs() < 1e-12, "{r}");
             assert!((w1 + (m0 + m1) - (1.0 - g)).abs() < 1e-12, "{r}");
+        }
+        // The f32 weights the air lag computes per frame are the f64 ones to f32 precision.
+        for tau in [0.002, 0.01, 0.02, 0.05, 0.3, 5.0, 100.0] {
+            let x = lag_weights(0.04, tau);
+            let y = lag_weights_f32(0.04, tau as f32);
+            for (a, b) in x.iter().zip(&y) {
+                assert!(
+                    (a - *b as f64).abs() <= 2e-6 * x[0].max(x[2]),
+                    "{tau}: {x:?} {y:?}"
+                );
+            }
         }
         // Series (r < ½) and recurrence (r ≥ ½) agree at the switch.
         let (x, y) = (lag_weights(0.04, 0.04 / 0.4999999), lag_weights(0.04, 0.08));

@@ -126,15 +126,29 @@ mod reference {
         y
     }
 
-    /// The lag with a per-frame time constant (air compliance), over the straight line.
-    pub fn lag_varying(dt: f64, tau: &[f64], x: &[f64]) -> Vec<f64> {
+    /// The lag with a per-frame time constant (air compliance), over the cubic with slopes `m`.
+    pub fn lag_varying(dt: f64, tau: &[f64], x: &[f64], m: &[f64]) -> Vec<f64> {
         let mut y = vec![x[0]];
         for k in 1..x.len() {
             let t = 0.5 * (tau[k] + tau[k - 1]);
             let (x0, x1) = (x[k - 1], x[k]);
-            y.push(lag_step(dt, t, y[k - 1], |s| x0 + (x1 - x0) * s / dt));
+            y.push(lag_step(dt, t, y[k - 1], |s| {
+                hermite(dt, x0, m[k - 1], x1, m[k], s)
+            }));
         }
         y
+    }
+
+    /// Slopes from the past only: 0 on the first frame, the secant on the second, then the
+    /// three-point backward difference `(3x_k − 4x_{k−1} + x_{k−2})/(2Δt)`.
+    pub fn backward_slopes(dt: f64, x: &[f64]) -> Vec<f64> {
+        (0..x.len())
+            .map(|k| match k {
+                0 => 0.0,
+                1 => (x[1] - x[0]) / dt,
+                _ => (3.0 * x[k] - 4.0 * x[k - 1] + x[k - 2]) / (2.0 * dt),
+            })
+            .collect()
     }
 
     /// The whole chain over `seq` for SBA1 (the effects as in the module table).
@@ -246,10 +260,14 @@ mod reference {
             let tau: Vec<f64> = (0..n)
                 .map(|k| c_poly[k].max(0.0) * p[0] * atm / (atm + pt[k]).powi(2))
                 .collect();
-            out = lag_varying(dt, &tau, &out);
+            let m = backward_slopes(dt, &out);
+            out = lag_varying(dt, &tau, &out, &m);
         }
         if let Some(p) = get(EffectKind::SensorLag) {
-            out = lag(dt, p[0], &out, None);
+            // The cubic with backward-difference slopes (0 on the first frame, the secant on the
+            // second).
+            let m = backward_slopes(dt, &out);
+            out = lag(dt, p[0], &out, Some(&m));
         }
         (out, edge)
     }

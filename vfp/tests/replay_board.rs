@@ -128,20 +128,30 @@ fn replay_from(
         .collect()
 }
 
-/// `gap`: the largest relative excess of the board's held-out RMSE over the loop's. 2 % where the
-/// board's form is the loop's (hysteresis, leak, transport delay); the causal lags and the play
-/// on frame values are refitted in the loop's look-ahead form and carry a larger, stated gap (as
-/// measured on these logs: sensor lag +44 %, air +23 %, backlash +48 %; still far below the
-/// baseline), until the loop fits them in the board's form.
+/// `gap`: the largest relative excess of the board's held-out RMSE over the loop's: 2 %. The
+/// export refits every chain effect in the board's form (the lags' τ re-searched there,
+/// `sysid::residual::export`), and the board's f32 error equals that f64 device-form fit's to
+/// 0.2 % for every effect. The board's lags run on the cubic with backward-difference slopes
+/// (the loop's Akima slopes need the next frames): sensor lag +0.75 %, air −0.15 % on these
+/// logs. The board's play does not reach 2 % yet: it runs on the frame values, where the loop
+/// plays sub-frame instants rebuilt with the next frames too, and that costs +48 % here (still
+/// below the baseline); backlash carries that gap plus a margin. (A causal sub-frame play, eight
+/// instants over the half frame before each stamp on the volume's cubic Hermite, fitted 0.089
+/// kPa against the loop's 0.126 kPa on this log in a sysid-only trial: the board's next form.)
 fn check(preset: &str, name: &str, seed: u64, gap: f64) {
     let (lines, rmse) = export(preset, name, seed);
     // The board's f32 causal chain on the held-out cycles, against the loop's f64 model.
     eprintln!(
-        "{preset}: held-out RMSE augmented {:.5} kPa, board (replay) {:.5} kPa, baseline {:.5} kPa",
-        rmse.augmented, rmse.device, rmse.baseline
+        "{preset}: held-out RMSE augmented {:.5} kPa, device form f64 {:.5} kPa, board (replay) {:.5} kPa, baseline {:.5} kPa",
+        rmse.augmented, rmse.device_f64, rmse.device, rmse.baseline
     );
     assert!(
         (rmse.device - rmse.augmented).abs() <= gap * rmse.augmented,
+        "{preset}: {rmse:?}"
+    );
+    // The board's f32 chain is the device-form f64 model the export fitted.
+    assert!(
+        (rmse.device - rmse.device_f64).abs() <= 0.002 * rmse.device_f64,
         "{preset}: {rmse:?}"
     );
     assert!(rmse.device < rmse.baseline, "{preset}: {rmse:?}");
@@ -192,7 +202,7 @@ fn hysteresis_runs_on_the_board_as_replayed() {
 
 #[test]
 fn sensor_lag_runs_on_the_board_as_replayed() {
-    check("sensor-lag", "sensor_lag", 12, 0.5);
+    check("sensor-lag", "sensor_lag", 12, 0.02);
 }
 
 #[test]
@@ -202,12 +212,12 @@ fn leak_runs_on_the_board_as_replayed() {
 
 #[test]
 fn backlash_runs_on_the_board_as_replayed() {
-    check("backlash", "backlash", 14, 0.6);
+    check("backlash", "backlash", 14, 0.55);
 }
 
 #[test]
 fn air_compliance_runs_on_the_board_as_replayed() {
-    check("air", "air_compliance", 15, 0.3);
+    check("air", "air_compliance", 15, 0.02);
 }
 
 #[test]

@@ -122,7 +122,7 @@ pub struct Board {
     asm: LineAssembler,
     reply: heapless::String<{ REPLY_LEN + 8 }>,
     /// The host's side of the telemetry channel: a partial line carried over.
-    host_line: heapless::String<256>,
+    host_line: heapless::String<{ firmware::telemetry::MAX_LINE }>,
 }
 
 /// Take the estimator the way the tasks' `shared.est.lock().await` does: poll the lock future

@@ -20,13 +20,14 @@
 //! and volume drift) and pump ripple stay on the host and are listed by name with the reason.
 //!
 //! # The chain's effects
-//! The device model is refitted with the kept chain effects at the θ the loop found (same
-//! design, the polynomial's scaling rounded to `f32` first), so the polynomial and the effects'
+//! The device model is refitted with the kept chain effects in the board's form (same design,
+//! the polynomial's scaling rounded to `f32` first), so the polynomial and the effects'
 //! coefficients (the hysteresis gap) are fitted together; the chain then carries θ and those
-//! coefficients. The chain's lags and delay are causal where the loop's look one frame ahead
-//! (their cubic between frames uses the next frame's slope): the exported model's error is
-//! therefore measured as the board computes it, by running the firmware's estimator over the
-//! log ([`crate::replay`]), and reported next to the loop's.
+//! coefficients. The chain's effects are causal where the loop's may look a frame or two ahead
+//! (Akima slopes, sub-frame play on frame means), so the lags' τ is searched again in the
+//! board's form (`device_form`); the exported model's error is measured as the board computes
+//! it, by running the firmware's estimator over the log ([`crate::replay`]), and reported next
+//! to the loop's.
 //!
 //! # Inertance as an AR(1) term
 //! The loop's inertance term is `L·v̈` with v̈ a smoothed (Hermite or three-point) derivative, which
@@ -52,7 +53,7 @@
 use model_core::poly::PolyModel;
 
 use super::effects::{Effect, Inertance, Prepared};
-use super::select::{fit_stage, Stage};
+use super::select::{fit_stage, golden, sse_of, Stage};
 use super::{
     diagnose, Config, DiagnoseError, Diagnosis, EffectKind, EffectModel, PolyBasis, Series,
 };
@@ -369,6 +370,7 @@ pub fn device_model_with(
     };
     let mut effects: Vec<Effect> = carry.iter().map(|&k| Effect::new(k, 0.0)).collect();
     effects.extend(chain.iter().map(|e| from_row(e, k0)));
+    device_form(&prep, &mut effects, carry.len());
     let refit = fit_stage(&prep, &effects).ok_or_else(|| {
         ExportError::Degenerate(
             "its columns are linearly dependent on the training rows (is volume or flow constant?)"
@@ -415,6 +417,114 @@ pub fn device_model_with(
         refit,
         first_row,
     })
+}
+
+/// The chain effects whose θ the export searches again in the board's form: the lags, whose
+/// causal form trails further than the loop's at the same τ. (The play and the delay are the
+/// loop's own point-sample forms; the play's error is discontinuous in its width, and a search
+/// would put the width on an edge where f32 and f64 may fall on different sides.)
+const RETUNED: [&str; 3] = ["sensor_lag", "delivery_lag", "air_compliance"];
+
+/// Puts the chain effects `effects[first..]` in the board's form and re-tunes the lags' θ there.
+///
+/// The board has only the past: its sensor and air lags run on the cubic between frames with
+/// backward-difference slopes (`signal::backward_slopes`, where the loop's Akima slopes need the
+/// next frames), the delivery lag's flow on the straight line, its play operator on the frames'
+/// volume, its
+/// delay on the volume's cubic Hermite ([`Effect::point_sampled`], the form the loop also fits
+/// point samples in). The loop may have kept the frame-mean form, whose τ is not the best
+/// device τ, so each lag's τ ([`RETUNED`]) is searched again in the device form around the
+/// loop's (golden section on ln τ over a factor e² either side, within the effect's search
+/// range), minimising the training SSE with the polynomial refitted at each trial; a trial is
+/// kept only if it lowers that SSE, so the device-form refit never fits worse than at the loop's
+/// θ. The air pocket's damping schedule is taken from the device-form refit, at the chamber's
+/// volume, as the board takes it from its own polynomial (`model_core::chain`), before and after
+/// the search. Every θ is finally rounded to the `f32` the board stores.
+fn device_form(prep: &Prepared, effects: &mut [Effect], first: usize) {
+    for e in &mut effects[first..] {
+        e.point_sampled = true;
+    }
+    for i in first..effects.len() {
+        let kind = effects[i].kind;
+        let th = effects[i].theta;
+        if RETUNED.contains(&kind.name()) && th > 0.0 {
+            set_damping(prep, effects, i);
+            let (lo, hi) = match kind.search(&prep.scales) {
+                super::effects::Search::Log(lo, hi) => (lo.ln(), hi.ln()),
+                _ => (f64::NEG_INFINITY, f64::INFINITY),
+            };
+            let mut trial = effects.to_vec();
+            let mut sse = |x: f64| {
+                trial[i].theta = x.exp();
+                sse_of(prep, &trial)
+            };
+            let before = sse(th.ln());
+            let (a, b) = ((th.ln() - 2.0).max(lo), (th.ln() + 2.0).min(hi));
+            if a < b {
+                let (u, after) = golden(a, b, 24, &mut sse);
+                if after < before {
+                    effects[i].theta = u.exp();
+                }
+            }
+        }
+        effects[i].theta = f64::from(effects[i].theta as f32);
+        set_damping(prep, effects, i);
+    }
+}
+
+/// Sets the damping schedule of `effects[i]` when it needs one ([`device_damping`]), to its
+/// fixed point: the board takes the damping from the polynomial it runs, which is the one fitted
+/// with that schedule, so the schedule `d` is iterated, `d ← d + ½(c(d) − d)` with `c(d)` the
+/// damping of the polynomial fitted with `d` (the half step damps the oscillation a long air
+/// lag causes), until `c(d)` is `d` to 10⁻⁹ of its largest value (at most 200 passes; should it
+/// not converge, the board's own error, measured by replay, shows the cost).
+fn set_damping(prep: &Prepared, effects: &mut [Effect], i: usize) {
+    if !effects[i].kind.needs().damping {
+        return;
+    }
+    for _ in 0..200 {
+        let Some(c) = device_damping(prep, effects, i) else {
+            return;
+        };
+        let Some(d) = effects[i].damping.clone() else {
+            effects[i].damping = Some(c);
+            continue;
+        };
+        let scale = c.iter().fold(0.0f64, |m, x| m.max(x.abs()));
+        let moved = d
+            .iter()
+            .zip(c.iter())
+            .fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
+        if moved <= 1e-9 * scale {
+            effects[i].damping = Some(c);
+            return;
+        }
+        let next = d.iter().zip(c.iter()).map(|(a, b)| a + 0.5 * (b - a));
+        effects[i].damping = Some(std::sync::Arc::new(next.collect()));
+    }
+}
+
+/// The damping `c = ∂P/∂v̇` per sample of the polynomial refitted with `effects`, at the
+/// chamber's volume `v − V_a·p/(P_atm + p)` of the air pocket `effects[i]` (the board's
+/// schedule of its air lag, from its own polynomial).
+fn device_damping(
+    prep: &Prepared,
+    effects: &[Effect],
+    i: usize,
+) -> Option<std::sync::Arc<Vec<f64>>> {
+    let stage = fit_stage(prep, effects)?;
+    let beta = &stage.fit.beta[..prep.basis.len()];
+    let (se, va) = (&prep.series, effects[i].theta);
+    let p_atm = super::effects::P_ATM_KPA;
+    Some(std::sync::Arc::new(
+        (0..se.len())
+            .map(|k| {
+                let p = prep.p_sched[k].max(-0.9 * p_atm);
+                let v = se.v[k] - va * p / (p_atm + p);
+                prep.basis.damping(beta, v, se.vdot[k])
+            })
+            .collect(),
+    ))
 }
 
 /// `e` on the rows of a series from `k0` on (its per-sample data cut to match).

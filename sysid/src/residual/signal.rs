@@ -44,16 +44,17 @@ pub fn duhem(x: &[f64], w: f64) -> Vec<f64> {
 /// y_k = a·y_{k−1} + (1 − a)·x_{k−1} + (1 − g)·(x_k − x_{k−1}),   y_0 = x_0 (at rest).
 /// ```
 ///
-/// The library's lags use the cubic input of [`lag_cubic_coeffs`] instead (a straight line
+/// The loop's lags on frame means use the cubic input of [`lag_cubic_coeffs`] (a straight line
 /// between frames puts every corner of the motion at a frame instant); this first-order hold is
-/// kept as the tests' reference, which the cubic must reproduce when its slopes are the secants.
+/// the form of the delivery lag's flow on point samples (the board's, which cannot look at the
+/// next frame's slope), and the tests' reference, which the cubic must reproduce when its slopes
+/// are the secants.
 #[cfg(test)]
 pub fn lag_foh(t: &[f64], x: &[f64], tau: impl Fn(usize) -> f64) -> Vec<f64> {
     lag_apply(&lag_coeffs(t, tau), x)
 }
 
 /// Per-sample coefficients `(a, 1 − g)` of the first-order-hold lag (see [`lag_foh`]).
-#[cfg(test)]
 pub fn lag_coeffs(t: &[f64], tau: impl Fn(usize) -> f64) -> Vec<(f64, f64)> {
     per_interval(t, tau, (0.0, 1.0), |dt, tk| {
         let r = dt / tk;
@@ -98,8 +99,37 @@ fn per_interval<C: Copy>(
     c
 }
 
+/// Slopes of a signal from its past only: `m_k = d_k + ½(d_k − d_{k−1})`, `d_k = (x_k − x_{k−1})/Δt_k`
+/// (the three-point backward difference on a uniform grid), the secant `d_1` at the second
+/// sample and 0 at the first (at rest). The board's sensor lag runs on the cubic with these
+/// slopes (`model_core::chain`): unlike Akima's ([`akima_slopes`]) they need no later frame.
+pub fn backward_slopes(t: &[f64], x: &[f64]) -> Vec<f64> {
+    let mut m = Vec::with_capacity(x.len());
+    let mut prev = 0.0;
+    for k in 0..x.len() {
+        if k == 0 {
+            m.push(0.0);
+            continue;
+        }
+        let d = (x[k] - x[k - 1]) / (t[k] - t[k - 1]);
+        m.push(if k == 1 { d } else { d + 0.5 * (d - prev) });
+        prev = d;
+    }
+    m
+}
+
+/// The lag of [`lag_cubic_coeffs`] applied to every column in place, each column reconstructed
+/// between samples by the cubic with [`backward_slopes`] (causal: the board's sensor lag),
+/// started at rest.
+pub fn lag_causal_apply_all(t: &[f64], coeffs: &[[f64; 5]], cols: &mut [Vec<f64>]) {
+    if cols.iter().any(|c| c.len() != t.len()) {
+        return;
+    }
+    let slopes: Vec<Vec<f64>> = cols.iter().map(|c| backward_slopes(t, c)).collect();
+    lag_cubic_apply_with(coeffs, cols, &slopes);
+}
+
 /// Applies precomputed lag coefficients: `y_k = a y_{k−1} + (1 − a) x_{k−1} + (1 − g)(x_k − x_{k−1})`.
-#[cfg(test)]
 pub fn lag_apply(coeffs: &[(f64, f64)], x: &[f64]) -> Vec<f64> {
     let mut y = Vec::with_capacity(x.len());
     if x.is_empty() {

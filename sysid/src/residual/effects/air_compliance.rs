@@ -109,7 +109,13 @@ impl EffectModel for AirCompliance {
             .collect();
         // Over each interval the time constant at its midpoint (the mean of its ends): second-order
         // accurate where τ changes fast, at the reversals.
-        let coeffs = signal::lag_cubic_coeffs(t, |k| 0.5 * (tau[k] + tau[k.saturating_sub(1)]));
+        let mid = |k: usize| 0.5 * (tau[k] + tau[k.saturating_sub(1)]);
+        let coeffs = signal::lag_cubic_coeffs(t, mid);
+        if e.point_sampled {
+            // The board's form: slopes from the past only (`signal::backward_slopes`).
+            signal::lag_causal_apply_all(t, &coeffs, cols);
+            return;
+        }
         signal::lag_cubic_apply_all(t, &coeffs, cols);
     }
 

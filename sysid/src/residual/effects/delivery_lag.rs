@@ -32,13 +32,18 @@ impl EffectModel for DeliveryLag {
     }
 
     /// Each stage lags the volume with the flow as its exact slopes (the lag of a derivative is
-    /// the derivative of the lag), the flow with Akima slopes.
+    /// the derivative of the lag), the flow with Akima slopes; on point samples (the board's
+    /// form, which only has the past) the flow by the straight line between samples.
     fn transform_inputs(&self, e: &Effect, prep: &Prepared, inputs: &mut Inputs) {
         let t = &prep.series.t;
         let c = signal::lag_cubic_coeffs(t, |_| e.theta);
+        let foh = e.point_sampled.then(|| signal::lag_coeffs(t, |_| e.theta));
         for _ in 0..2 {
             let f = &inputs.f;
-            let fv = signal::lag_cubic(&c, f, &signal::akima_slopes(t, f));
+            let fv = match &foh {
+                Some(l) => signal::lag_apply(l, f),
+                None => signal::lag_cubic(&c, f, &signal::akima_slopes(t, f)),
+            };
             inputs.v = signal::lag_cubic(&c, &inputs.v, f);
             inputs.f = fv;
         }

@@ -55,10 +55,17 @@ impl EffectModel for SensorLag {
         Some(10)
     }
 
+    /// The lag of each column's cubic between samples: Akima's slopes on frame means; in the
+    /// board's form ([`Effect::point_sampled`]), which only has the past, the backward
+    /// differences (`signal::backward_slopes`).
     fn filter(&self, e: &Effect, prep: &Prepared, cols: &mut [Vec<f64>]) {
         let t = &prep.series.t;
         let coeffs = signal::lag_cubic_coeffs(t, |_| e.theta);
-        signal::lag_cubic_apply_all(t, &coeffs, cols);
+        if e.point_sampled {
+            signal::lag_causal_apply_all(t, &coeffs, cols);
+        } else {
+            signal::lag_cubic_apply_all(t, &coeffs, cols);
+        }
     }
 
     fn params(&self, f: &Fitted) -> Vec<Param> {
@@ -72,7 +79,7 @@ impl EffectModel for SensorLag {
 
     fn device_support(&self) -> DeviceSupport {
         DeviceSupport::on_device(
-            "the board's chain lags P̂ by τ with a straight line between frames (`model <ch> effect sensor_lag <tau>`; the loop lags a cubic, the gap is bounded in sysid's tests)",
+            "the board's chain lags P̂ by τ over the cubic between frames with backward-difference slopes (`model <ch> effect sensor_lag <tau>`; the loop's Akima slopes look ahead, the export refits τ in the board's form)",
         )
     }
 }
