@@ -723,9 +723,13 @@ impl Chain {
         };
         let earlier = state.ring_get(n);
         let w = &d.w;
+        // In difference form (h00 = 1 − h01, and the flow's volume weights are ∓ the same): the
+        // volumes' difference is exact in f32 where the two weighted volumes, each of the size of
+        // the stroke, would round to about 10⁻⁴ of a small model's range.
+        let dv = later.0 - earlier.0;
         (
-            w[0] * earlier.0 + w[1] * earlier.1 + w[2] * later.0 + w[3] * later.1,
-            w[4] * earlier.0 + w[5] * earlier.1 + w[6] * later.0 + w[7] * later.1,
+            earlier.0 + w[2] * dv + w[1] * earlier.1 + w[3] * later.1,
+            w[6] * dv + w[5] * earlier.1 + w[7] * later.1,
         )
     }
 
