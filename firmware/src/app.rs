@@ -31,6 +31,7 @@
 use core::cell::{Cell, RefCell};
 use core::fmt::Write;
 
+use crate::rest_zero::{RestOutcome, RestZero, RestZeroConfig};
 use embassy_futures::select::{select, Either};
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::blocking_mutex::Mutex;
@@ -88,6 +89,9 @@ pub struct Config {
     pub oversample: u32,
     /// Frames averaged for the pressure zero.
     pub zero_frames: u32,
+    /// The zero's drift corrected at rest at the zero's volume ([`crate::rest_zero`]); `None`:
+    /// the zero moves only at boot and on `zero`.
+    pub rest_zero: Option<RestZeroConfig>,
     /// Per-channel safety limits.
     pub limits: [ChannelLimits; AXES],
     /// Largest plausible change between two conversions of one channel, kPa.
@@ -122,6 +126,7 @@ impl Default for Config {
             frame_hz: 25,
             oversample: 8,
             zero_frames: 25,
+            rest_zero: Some(RestZeroConfig::default()),
             limits: [ChannelLimits::default(); AXES],
             sensor_jump_kpa: 15.0,
             default_flow: 50.0,
@@ -774,6 +779,8 @@ pub struct Estimator {
     cfg: Config,
     zero_kpa: [f32; AXES],
     zeroing: Option<(u32, [f32; AXES])>,
+    /// Each chamber's correction of the zero at rest.
+    rest: [RestZero; AXES],
     /// Current (non-latching) warnings.
     warnings: u32,
     seq: u32,
@@ -788,6 +795,7 @@ impl Estimator {
         Self {
             zero_kpa: [0.0; AXES],
             zeroing: Some((cfg.zero_frames, [0.0; AXES])),
+            rest: [RestZero::default(); AXES],
             warnings: Flags::NOT_ZEROED,
             seq: 0,
             chambers: [chamber.clone(), chamber.clone(), chamber],
@@ -863,10 +871,55 @@ impl Estimator {
         // The frame that completes the zero is reported zeroed (its flags no longer say
         // NOT_ZEROED, so its pressure must not be raw).
         let new_zero = self.update_zero(raw_kpa, t_us, events);
+        if new_zero.is_some() {
+            for ch in 0..AXES {
+                self.rest[ch].anchor(chambers[ch].v);
+            }
+        }
         for ch in 0..AXES {
             chambers[ch].p = raw_kpa[ch] - self.zero_kpa[ch];
         }
-        (self.estimate_frame(chambers, t_us, events), new_zero)
+        let frame = self.estimate_frame(chambers, t_us, events);
+        // A correction at rest applies from the next frame on.
+        let rest_zero = match new_zero {
+            Some(_) => None,
+            None => self.rest_correction(&frame, t_us, events),
+        };
+        (frame, new_zero.or(rest_zero))
+    }
+
+    /// The zero's drift at rest ([`crate::rest_zero`]): each chamber's frame goes to its rest
+    /// state; a completed window within bounds moves that chamber's zero and posts a `zero`
+    /// event with all the offsets. Returns the new offsets when one moved.
+    fn rest_correction(
+        &mut self,
+        frame: &Frame,
+        t_us: u64,
+        events: &mut EventBuf,
+    ) -> Option<[f32; AXES]> {
+        let cfg = self.cfg.rest_zero?;
+        if self.zeroing.is_some() {
+            return None;
+        }
+        let mut moved = false;
+        for ch in 0..AXES {
+            let c = &frame.chambers[ch];
+            if let RestOutcome::Shift(d) = self.rest[ch].frame(&cfg, c.v, c.vdot, c.residual) {
+                self.zero_kpa[ch] += d;
+                moved = true;
+            }
+        }
+        if !moved {
+            return None;
+        }
+        push_event(
+            events,
+            t_us,
+            EventKind::Zeroed {
+                offset_kpa: self.zero_kpa,
+            },
+        );
+        Some(self.zero_kpa)
     }
 
     /// The estimation half of [`finish_frame`](Self::finish_frame) on a frame's means: each
@@ -1128,6 +1181,7 @@ impl Estimator {
 
     fn install(&mut self, ch: usize, model: Model, now_us: u64, events: &mut EventBuf) {
         self.chambers[ch] = Chamber::new(model, self.cfg.frame_dt());
+        self.rest[ch].new_model();
         self.warnings &=
             !(Flags::channel(Flags::RLS_ACTIVE, ch) | Flags::channel(Flags::DRIFT, ch));
         push_event(events, now_us, EventKind::ModelLoaded { ch: ch as u8 });
@@ -1674,6 +1728,7 @@ impl Shared {
                 for a in axes.iter() {
                     est.chambers[a].hist.clear();
                     est.chambers[a].reset_chain(cfg.frame_dt());
+                    est.rest[a].forget();
                 }
             }
             Command::Model {

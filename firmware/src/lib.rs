@@ -7,7 +7,7 @@
 //!   same frames and events as binary packets over the command UART.
 //! - [`board`]: pin map and pressure-sensor transfer function; [`hal`]: the hardware traits.
 //! - [`reset`]: why the board reset (reset flags + the crash record); [`store`]: the committed
-//!   models in flash.
+//!   models in flash; [`rest_zero`]: the zero's slow drift corrected at rest.
 #![cfg_attr(not(test), no_std)]
 #![forbid(unsafe_code)]
 // Channel loops index several parallel per-channel arrays at once.
@@ -20,6 +20,7 @@ pub mod hal;
 pub mod motion;
 pub mod protocol;
 pub mod reset;
+pub mod rest_zero;
 pub mod store;
 pub mod telemetry;
 pub mod wire;

@@ -55,8 +55,8 @@
 //! Effects tied to the log's own clock have no counterpart on the board: `ripple` (a sine in the
 //! log's time, whose phase the board does not share), `offset_drift` (Legendre polynomials of the
 //! time since the log began) and `volume_drift` (a volume error growing with that time). The
-//! board's sensor zero is taken at boot and on `zero`; a slow zero drift is handled there, not
-//! in the chain.
+//! board's sensor zero is taken at boot and on `zero`, and its slow drift is followed at rest at
+//! the zero's volume (`firmware::rest_zero`), not in the chain.
 //!
 //! # Stiffness and damping of the whole chain
 //! [`ChainEval::k`] and [`ChainEval::c`] are the chain's quasi-static sensitivities `∂P̂/∂v`,
