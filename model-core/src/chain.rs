@@ -22,7 +22,7 @@
 //! | `sensor_lag` | τ s (≥ 0) | `τ Ṗ_m + P_m = P` over the cubic between frames whose slopes are the backward differences `m_k = d_k + ½(d_k − d_{k−1})`, `d_k = (P_k − P_{k−1})/Δt` (a frame mean's slope from the past only; the secant on the second frame, 0 on the first): `P̂_k = a P̂_{k−1} + w₀ P_{k−1} + w₁ P_k + Δt(m₀ m_{k−1} + m₁ m_k)` (weights below) | P̂_{k−1}, P_{k−1}, P_{k−2}, m_{k−1} |
 //! | `delivery_lag` | τ s (≥ 0) | two stages of `τ ẏ + y = u` on v and on v̇; each stage: v by the cubic whose slopes are the flows, `y_k = a y_{k−1} + w₀ u_{k−1} + w₁ u_k + Δt(m₀ u̇_{k−1} + m₁ u̇_k)` (weights below), v̇ by the straight line (`y_k = a y_{k−1} + (1−a) u_{k−1} + (1−g)(u_k − u_{k−1})`, `a = e^{−Δt/τ}`, `g = (τ/Δt)(1−a)`) | per stage: output v, v̇ and input v, v̇ of the last frame |
 //! | `transport_delay` | d s (0 ≤ d ≤ [`MAX_DELAY_FRAMES`] − 2 frames) | `(v′, v̇′)` at `t_k − d` on the cubic Hermite through the stored frames (slopes = flows), flow = that cubic's derivative; before the first frame: the first frame | the last [`MAX_DELAY_FRAMES`] frames of its input |
-//! | `backlash` | b mm³ (≥ 0) | play operator `z_k = clamp(z_{k−1}, v_k − b/2, v_k + b/2)`; `v′ = z_k`, `v̇′ = v̇` while the nut bears on the plunger (`│v_k − z_k│ = b/2` and `(v_k − z_k)·v̇ > 0`), else 0 | z |
+//! | `backlash` | b mm³ (≥ 0) | play operator `z ← clamp(z, x_j − b/2, x_j + b/2)` on the nut's motion inside the frame rebuilt from the frame alone, `x_j = v_k + v̇_k Δt((j + ½)/8 − ½)`, j = 0…7 (the frame's mean volume is a mean over its interval, and the dead band after a reversal lasts a fraction of it); `v′` = the mean of z over the eight, `v̇′ = g·v̇` with g the fraction of them at which the nut bears on the plunger (`│x_j − z│ = b/2` and `(x_j − z)·v̇ > 0`) | z at the last sub-sample |
 //! | `inertance` | L kPa·s²/mm³ | `P_in += L·v̈_k`, `v̈_k = (−6(v_k − v_{k−1}) + 2Δt v̇_{k−1} + 4Δt v̇_k)/Δt²` (the end slope of the last interval's cubic Hermite; 0 on the first frame) | v_{k−1}, v̇_{k−1} |
 //! | `pump_ripple` | Λ mm³ (> 0), a mm³, b mm³ | volume error `δ = a sin φ + b cos φ`, `φ = 2π (v mod Λ)/Λ`, `δ̇ = (2π/Λ) v̇ (a cos φ − b sin φ)`; `P_in += k_poly δ + c_poly δ̇` | none |
 //! | `air_compliance` | V_a mm³ (≥ 0) | static: `v′ −= V_a·p̃/(P_atm + p̃)`, `p̃ = max(p, −0.9 P_atm)` (Boyle); dynamic: `τ_k P_air' + P_air = P_in` with `τ_k = max(c_poly, 0)·V_a·P_atm/(P_atm + p̃)²`, over each frame the mean of its ends' τ, over the cubic with backward-difference slopes as `sensor_lag` (its weights computed per frame in f32) | P_air, P_in, P_in before, its slope, τ of the last frame |
@@ -67,7 +67,8 @@
 //! k = g·k_poly/(1 + g·k_poly·V_a·P_atm/(P_atm + p̃)²) + k_hyst + k_ripple,   c = g·c_poly + c_ripple,
 //! ```
 //!
-//! with `g` = 1, or 0 while backlash holds the plunger in its dead band; the air term is the gas
+//! with `g` = 1, or with backlash the fraction of the frame in which the nut bears on the plunger
+//! (0 in its dead band); the air term is the gas
 //! spring in series with the chamber (`dv′/dv` when p is the pressure the model predicts); the
 //! leak moves v′ by what the pressure did, not by v, so it leaves k and c alone;
 //! `k_hyst = (H₁/v_scale)·h + (H₀ + H₁x)(1 − s h)/w` with `s = sign(v̇)` (the slope of the loop
@@ -259,6 +260,54 @@ fn lag_weights(dt: f64, tau: f64) -> [f64; 5] {
         i[3] - 2.0 * i[2] + i[1],
         i[3] - i[2],
     ]
+}
+
+/// Sub-samples of a frame at which backlash runs its play operator.
+pub const PLAY_SUBSAMPLES: usize = 8;
+
+/// What the play operator made of one frame.
+struct PlayFrame {
+    /// The plunger at the frame's last sub-sample (the state).
+    z: f32,
+    /// The plunger's mean over the frame.
+    v: f32,
+    /// Fraction of the sub-samples at which the nut bears on the plunger.
+    engaged: f32,
+}
+
+/// Backlash on one frame: the nut's motion inside the frame is rebuilt from the frame's own
+/// mean volume `v` and flow `f` alone (causal), `x_j = v + f·Δt·((j + ½)/8 − ½)` at
+/// [`PLAY_SUBSAMPLES`] instants centred on the frame, the play operator
+/// `z ← clamp(z, x_j − h, x_j + h)` runs over them from the last frame's `z` (from `x₀` on the
+/// first frame), and the plunger's mean and the engaged fraction (`|x_j − z| = h` and
+/// `(x_j − z)·f > 0`) come out. `h = 0` is no play (the frame passes unchanged).
+fn play_frame(z: f32, primed: bool, v: f32, f: f32, dt: f32, h: f32) -> PlayFrame {
+    if h == 0.0 {
+        return PlayFrame {
+            z: v,
+            v,
+            engaged: 1.0,
+        };
+    }
+    let n = PLAY_SUBSAMPLES as f32;
+    let x = |j: usize| v + f * dt * ((j as f32 + 0.5) / n - 0.5);
+    let mut z = if primed { z } else { x(0) };
+    let (mut sum, mut engaged) = (0.0f32, 0u32);
+    for j in 0..PLAY_SUBSAMPLES {
+        let xj = x(j);
+        z = z.clamp(xj - h, xj + h);
+        let gap = xj - z;
+        let tol = 4.0 * f32::EPSILON * (libm::fabsf(xj) + h);
+        if libm::fabsf(gap) >= h - tol && gap * f > 0.0 {
+            engaged += 1;
+        }
+        sum += z;
+    }
+    PlayFrame {
+        z,
+        v: sum / n,
+        engaged: engaged as f32 / n,
+    }
 }
 
 /// The transport delay's split `d = (n + 1 − s)·Δt` and the cubic Hermite weights at `s` of the
@@ -667,18 +716,8 @@ impl Chain {
                     (v, f) = self.delayed(i, state, v, f);
                 }
                 EffectKind::Backlash => {
-                    let h = 0.5 * p0;
-                    let z = if primed { s[0] } else { v };
-                    let z = z.clamp(v - h, v + h);
-                    let gap = v - z;
-                    let tol = 4.0 * f32::EPSILON * (libm::fabsf(v) + h);
-                    let engaged = h == 0.0 || (libm::fabsf(gap) >= h - tol && gap * f > 0.0);
-                    if !engaged {
-                        f = 0.0;
-                        gain = 0.0;
-                    }
-                    s[0] = z;
-                    v = z;
+                    let out = play_frame(s[0], primed, v, f, inp.dt, 0.5 * p0);
+                    (s[0], v, f, gain) = (out.z, out.v, f * out.engaged, gain * out.engaged);
                 }
                 EffectKind::Leak => {
                     let p = finite(inp.p)?;

@@ -186,19 +186,33 @@ mod reference {
         }
         if let Some(p) = get(EffectKind::Backlash) {
             let h = 0.5 * p[0];
-            let mut z = v[0];
+            let mut z = f64::NAN;
             for k in 0..n {
-                z = z.clamp(v[k] - h, v[k] + h);
-                let gap = v[k] - z;
-                let margin = gap.abs() - h;
-                // The device's tolerance (4 f32 ulps of the volume); frames within 10⁻³ mm³ of
-                // the engagement edge are left out of the comparison.
-                let tol = 4.0 * f32::EPSILON as f64 * (v[k].abs() + h);
-                edge[k] = h > 0.0 && margin.abs() < 1e-3 && gap * f[k] > 0.0;
-                if !(h == 0.0 || (margin >= -tol && gap * f[k] > 0.0)) {
-                    f[k] = 0.0;
+                if h == 0.0 {
+                    continue;
                 }
-                v[k] = z;
+                // The nut inside the frame from the frame alone, eight instants centred on it.
+                let (mut sum, mut engaged) = (0.0, 0.0);
+                for j in 0..8 {
+                    let x = v[k] + f[k] * dt * ((j as f64 + 0.5) / 8.0 - 0.5);
+                    if z.is_nan() {
+                        z = x;
+                    }
+                    // Frames where the clamp's engagement is within 10⁻³ mm³ of going either
+                    // way are left out of the comparison (f32 may decide otherwise).
+                    let slack = (x - z).abs() - h;
+                    edge[k] |= slack.abs() < 1e-3;
+                    z = z.clamp(x - h, x + h);
+                    let gap = x - z;
+                    // The device's tolerance (4 f32 ulps of the volume).
+                    let tol = 4.0 * f32::EPSILON as f64 * (x.abs() + h);
+                    if gap.abs() - h >= -tol && gap * f[k] > 0.0 {
+                        engaged += 1.0;
+                    }
+                    sum += z;
+                }
+                v[k] = sum / 8.0;
+                f[k] *= engaged / 8.0;
             }
         }
         if let Some(p) = get(EffectKind::Leak) {
@@ -413,12 +427,16 @@ fn hysteron_hand_values() {
 
 #[test]
 fn backlash_hand_values() {
-    // Play b = 2 on P = v: the plunger trails the nut by 1 once engaged, stands for 2 of nut
-    // travel after the reversal; the flow reaches the model only while engaged.
+    // Play b = 2 on P = v, frames of 1 mm³ at 25 mm³/s: inside a frame the nut runs from
+    // v − 7/16 to v + 7/16 in steps of 1/8. The first frame starts the plunger at the nut's first
+    // instant (499.5625) and the nut never reaches it; from the second on the plunger trails the
+    // nut by 1; after the reversal the nut's first instant (502.4375) is where the plunger
+    // stands, and the nut bears on its other side only from the next frame's first instant on.
+    // The flow reaches the model only while engaged.
     let model = linear(0.0, 1.0, 0.0);
     let c = chain(&[(EffectKind::Backlash, &[2.0])]);
     let nut = [500.0, 501.0, 502.0, 503.0, 502.0, 501.0, 500.0];
-    let q = [1.0, 1.0, 1.0, 1.0, -1.0, -1.0, -1.0];
+    let q = [25.0, 25.0, 25.0, 25.0, -25.0, -25.0, -25.0];
     let fr: Vec<ChainInput> = nut
         .iter()
         .zip(q)
@@ -429,14 +447,20 @@ fn backlash_hand_values() {
             dt: DT,
         })
         .collect();
-    assert_eq!(
+    let close = |got: Vec<f32>, want: &[f32]| {
+        assert!(
+            got.iter().zip(want).all(|(g, w)| (g - w).abs() < 1e-4),
+            "{got:?} vs {want:?}"
+        );
+    };
+    close(
         run(&c, &model, &fr),
-        vec![500.0, 500.0, 501.0, 502.0, 502.0, 502.0, 501.0]
+        &[499.5625, 500.0, 501.0, 502.0, 502.4375, 502.0, 501.0],
     );
     let flows = linear(0.0, 0.0, 1.0);
-    assert_eq!(
+    close(
         run(&c, &flows, &fr),
-        vec![0.0, 1.0, 1.0, 1.0, 0.0, -1.0, -1.0]
+        &[0.0, 25.0, 25.0, 25.0, 0.0, -25.0, -25.0],
     );
 }
 

@@ -333,6 +333,46 @@ pub fn play_frames(t: &[f64], v: &[f64], f: &[f64], w: f64) -> (Vec<f64>, Vec<f6
     play_instants(&frame_instants(t, v, f), w)
 }
 
+/// Lead-screw backlash of width `w` as the board runs it (`model_core::chain`, backlash): the
+/// nut's motion inside frame k is rebuilt from that frame alone (the board has no next frame),
+/// `x_j = v_k + f_k Δt_k ((j + ½)/S − ½)` at the [`SUB_SAMPLES`] instants `j` centred on the frame,
+/// `Δt_k` the interval to the previous frame (the first frame: to the next); the play operator
+/// runs over the instants (started at the first), and the plunger's mean and the nut's flow times
+/// the fraction of instants at which it bears on the plunger come out.
+pub fn play_frame_linear(t: &[f64], v: &[f64], f: &[f64], w: f64) -> (Vec<f64>, Vec<f64>) {
+    let h = 0.5 * w.max(0.0);
+    let n = v.len();
+    if h == 0.0 || n == 0 {
+        return (v.to_vec(), f.to_vec());
+    }
+    let s = SUB_SAMPLES as f64;
+    let mut z = f64::NAN;
+    let (mut vo, mut fo) = (Vec::with_capacity(n), Vec::with_capacity(n));
+    for k in 0..n {
+        let dt = match k {
+            0 if n > 1 => t[1] - t[0],
+            0 => 0.0,
+            _ => t[k] - t[k - 1],
+        };
+        let (mut sum, mut engaged) = (0.0, 0.0);
+        for j in 0..SUB_SAMPLES {
+            let x = v[k] + f[k] * dt * ((j as f64 + 0.5) / s - 0.5);
+            if z.is_nan() {
+                z = x;
+            }
+            z = z.clamp(x - h, x + h);
+            let gap = x - z;
+            if gap.abs() >= h - 1e-9 * (1.0 + h) && gap * f[k] > 0.0 {
+                engaged += 1.0;
+            }
+            sum += z;
+        }
+        vo.push(sum / s);
+        fo.push(f[k] * engaged / s);
+    }
+    (vo, fo)
+}
+
 /// [`play_frames`] on motion already rebuilt by [`frame_instants`] (it does not depend on the
 /// play, so a search computes it once).
 pub fn play_instants((x, q): &(Vec<f64>, Vec<f64>), w: f64) -> (Vec<f64>, Vec<f64>) {

@@ -2,7 +2,9 @@
 //! `v' = play_b(v)`: after each reversal the plunger waits b of nut travel, with zero flow
 //! meanwhile. With frame-mean samples the play operator runs on the nut's motion rebuilt at
 //! eight instants per frame and the plunger is averaged back (`signal::play_instants`,
-//! `signal::play_frames`); with point samples it runs on the samples themselves.
+//! `signal::play_frames`); with point samples it runs on the samples themselves. The board
+//! rebuilds the nut inside a frame from that frame alone (it has no next frame), the form the
+//! export fits ([`Effect::board_form`], `signal::play_frame_linear`).
 
 use super::{
     param, DeviceSupport, Effect, EffectModel, Fitted, Inputs, Param, Prepared, Scales, Search,
@@ -41,7 +43,9 @@ impl EffectModel for Backlash {
 
     fn transform_inputs(&self, e: &Effect, prep: &Prepared, inputs: &mut Inputs) {
         let Inputs { v, f, raw } = inputs;
-        if e.point_sampled {
+        if e.board_form {
+            (*v, *f) = signal::play_frame_linear(&prep.series.t, v, f, e.theta);
+        } else if e.point_sampled {
             let z = signal::play(v, e.theta);
             let h = 0.5 * e.theta;
             for k in 0..v.len() {
@@ -73,7 +77,7 @@ impl EffectModel for Backlash {
 
     fn device_support(&self) -> DeviceSupport {
         DeviceSupport::on_device(
-            "the board's chain runs the play operator on the frames' volume (`model <ch> effect backlash <b>`)",
+            "the board's chain runs the play operator on each frame's motion rebuilt from that frame (`model <ch> effect backlash <b>`)",
         )
     }
 }

@@ -40,6 +40,10 @@ pub struct Effect {
     /// the samples themselves, and a delayed flow is the volume interpolant's derivative. The
     /// search tries both and keeps the better fit.
     pub point_sampled: bool,
+    /// Set by the export ([`crate::residual::export`]): the effect in the form the board runs it,
+    /// where that differs from the point-sampled one. Backlash: the play operator on the nut's
+    /// motion inside each frame rebuilt from that frame alone (`signal::play_frame_linear`).
+    pub board_form: bool,
     /// Pump ripple: the volume error `(a, b)` (mm³) already applied exactly as an input
     /// transform, `u = v + a sin φ + b cos φ`; the two columns then fit the remaining correction
     /// to first order (the search iterates this Gauss–Newton step).
@@ -58,6 +62,7 @@ impl Effect {
             damping: None,
             stiffness: None,
             point_sampled: false,
+            board_form: false,
             ripple_offset: (0.0, 0.0),
             count_lag: CountLag::default(),
         }
