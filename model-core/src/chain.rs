@@ -20,9 +20,9 @@
 //! | --- | --- | --- | --- |
 //! | `hysteresis` | w mm³ (> 0), H₀ kPa, H₁ kPa | `h_k = s + (h_{k−1} − s)·e^{−│v_k − v_{k−1}│/w}`, `s = sign(v_k − v_{k−1})` (unchanged when v is); `P_in += (H₀ + H₁·x)·h_k` | h, v_{k−1} |
 //! | `sensor_lag` | τ s (≥ 0) | `τ Ṗ_m + P_m = P` over the cubic between frames whose slopes are the backward differences `m_k = d_k + ½(d_k − d_{k−1})`, `d_k = (P_k − P_{k−1})/Δt` (a frame mean's slope from the past only; the secant on the second frame, 0 on the first): `P̂_k = a P̂_{k−1} + w₀ P_{k−1} + w₁ P_k + Δt(m₀ m_{k−1} + m₁ m_k)` (weights below) | P̂_{k−1}, P_{k−1}, P_{k−2}, m_{k−1} |
-//! | `delivery_lag` | τ s (≥ 0) | two stages of `τ ẏ + y = u` on v and on v̇; each stage: v by the cubic whose slopes are the flows, `y_k = a y_{k−1} + w₀ u_{k−1} + w₁ u_k + Δt(m₀ u̇_{k−1} + m₁ u̇_k)` (weights below), v̇ by the straight line (`y_k = a y_{k−1} + (1−a) u_{k−1} + (1−g)(u_k − u_{k−1})`, `a = e^{−Δt/τ}`, `g = (τ/Δt)(1−a)`) | per stage: output v, v̇ and input v, v̇ of the last frame |
+//! | `delivery_lag` | τ s (≥ 0) | two stages of `τ ẏ + y = u` on v and on v̇; each stage: v by the cubic whose slopes are the flows, `y_k = a y_{k−1} + w₀ u_{k−1} + w₁ u_k + Δt(m₀ u̇_{k−1} + m₁ u̇_k)` (weights below), v̇ the same over the cubic whose slopes are the accelerations `ü_k = (−6(u_k − u_{k−1}) + 2Δt u̇_{k−1} + 4Δt u̇_k)/Δt²` (the end slope of the input volume's cubic over the frame: from the past only; 0 on the first frame) | per stage: output v, v̇, input v, v̇ and ü of the last frame |
 //! | `transport_delay` | d s (0 ≤ d ≤ [`MAX_DELAY_FRAMES`] − 2 frames) | `(v′, v̇′)` at `t_k − d` on the cubic Hermite through the stored frames (slopes = flows), flow = that cubic's derivative; before the first frame: the first frame | the last [`MAX_DELAY_FRAMES`] frames of its input |
-//! | `backlash` | b mm³ (≥ 0) | play operator `z ← clamp(z, x_j − b/2, x_j + b/2)` on the nut's motion inside the frame rebuilt from the frame alone, `x_j = v_k + v̇_k Δt((j + ½)/8 − ½)`, j = 0…7 (the frame's mean volume is a mean over its interval, and the dead band after a reversal lasts a fraction of it); `v′` = the mean of z over the eight, `v̇′ = g·v̇` with g the fraction of them at which the nut bears on the plunger (`│x_j − z│ = b/2` and `(x_j − z)·v̇ > 0`) | z at the last sub-sample |
+//! | `backlash` | b mm³ (≥ 0) | play operator `z ← clamp(z, x_j − b/2, x_j + b/2)` on the nut's motion inside the frame rebuilt from the frame alone, `x_j = v_k + v̇_k Δt((j + ½)/8 − ½)`, j = 0…7 (the frame's mean volume is a mean over its interval, and the dead band after a reversal lasts a fraction of it); `v′` = the mean of z over the eight, `v̇′ = g·v̇` with g the fraction of them at which the nut pushes the plunger (the clamp moves z in the direction of v̇) | z at the last sub-sample |
 //! | `inertance` | L kPa·s²/mm³ | `P_in += L·v̈_k`, `v̈_k = (−6(v_k − v_{k−1}) + 2Δt v̇_{k−1} + 4Δt v̇_k)/Δt²` (the end slope of the last interval's cubic Hermite; 0 on the first frame) | v_{k−1}, v̇_{k−1} |
 //! | `pump_ripple` | Λ mm³ (> 0), a mm³, b mm³ | volume error `δ = a sin φ + b cos φ`, `φ = 2π (v mod Λ)/Λ`, `δ̇ = (2π/Λ) v̇ (a cos φ − b sin φ)`; `P_in += k_poly δ + c_poly δ̇` | none |
 //! | `air_compliance` | V_a mm³ (≥ 0) | static: `v′ −= V_a·p̃/(P_atm + p̃)`, `p̃ = max(p, −0.9 P_atm)` (Boyle); dynamic: `τ_k P_air' + P_air = P_in` with `τ_k = max(c_poly, 0)·V_a·P_atm/(P_atm + p̃)²`, over each frame the mean of its ends' τ, over the cubic with backward-difference slopes as `sensor_lag` (its weights computed per frame in f32) | P_air, P_in, P_in before, its slope, τ of the last frame |
@@ -217,9 +217,7 @@ impl Effect {
 #[derive(Clone, Copy, Debug, PartialEq, Default)]
 struct Derived {
     /// Lags: `a` in slot 0, the cubic weights `w₀, w₁, Δt·m₀, Δt·m₁` in slots 1–4 (delivery and
-    /// sensor lag) and the straight line's `(1 − a) − (1 − g)`, `1 − g` in slots 5 and 6 (delivery
-    /// lag's flow). Delay: the
-    /// Hermite weights.
+    /// sensor lag). Delay: the Hermite weights.
     w: [f32; 8],
     /// Transport delay: whole frames back to the interval's later end.
     n: u8,
@@ -279,8 +277,8 @@ struct PlayFrame {
 /// mean volume `v` and flow `f` alone (causal), `x_j = v + f·Δt·((j + ½)/8 − ½)` at
 /// [`PLAY_SUBSAMPLES`] instants centred on the frame, the play operator
 /// `z ← clamp(z, x_j − h, x_j + h)` runs over them from the last frame's `z` (from `x₀` on the
-/// first frame), and the plunger's mean and the engaged fraction (`|x_j − z| = h` and
-/// `(x_j − z)·f > 0`) come out. `h = 0` is no play (the frame passes unchanged).
+/// first frame), and the plunger's mean and the engaged fraction (the sub-samples at which the
+/// clamp moves z along the flow's direction: the nut pushes the plunger) come out. `h = 0` is no play (the frame passes unchanged).
 fn play_frame(z: f32, primed: bool, v: f32, f: f32, dt: f32, h: f32) -> PlayFrame {
     if h == 0.0 {
         return PlayFrame {
@@ -295,10 +293,11 @@ fn play_frame(z: f32, primed: bool, v: f32, f: f32, dt: f32, h: f32) -> PlayFram
     let (mut sum, mut engaged) = (0.0f32, 0u32);
     for j in 0..PLAY_SUBSAMPLES {
         let xj = x(j);
+        let before = z;
         z = z.clamp(xj - h, xj + h);
-        let gap = xj - z;
-        let tol = 4.0 * f32::EPSILON * (libm::fabsf(xj) + h);
-        if libm::fabsf(gap) >= h - tol && gap * f > 0.0 {
+        // The nut bears on the plunger when it pushes it along its own motion (an exact
+        // comparison: no tolerance window where f32 and f64 could decide differently).
+        if (z - before) * f > 0.0 {
             engaged += 1;
         }
         sum += z;
@@ -352,9 +351,7 @@ impl Derived {
             }
             EffectKind::DeliveryLag => {
                 let [a, w0, w1, m0, m1] = lag_weights(dtf, p0);
-                // Straight line: both slopes the secant (x_k − x_{k−1})/Δt.
-                let (c0, c1) = (w0 - (m0 + m1), w1 + (m0 + m1));
-                w = [a, w0, w1, m0 * dtf, m1 * dtf, c0, c1, 0.0].map(|x| x as f32);
+                w = [a, w0, w1, m0 * dtf, m1 * dtf, 0.0, 0.0, 0.0].map(|x| x as f32);
             }
             EffectKind::TransportDelay => return delay_weights(dt, e.params[0]),
             _ => {}
@@ -408,7 +405,7 @@ pub struct ChainState {
     prepared: bool,
     /// Per-frame constants of each effect for the frame period, computed on the first frame.
     derived: [Derived; MAX_EFFECTS],
-    slot: [[f32; 6]; MAX_EFFECTS],
+    slot: [[f32; 8]; MAX_EFFECTS],
     ring: [(f32, f32); MAX_DELAY_FRAMES],
     head: u8,
     held: u8,
@@ -433,7 +430,7 @@ impl ChainState {
             primed: false,
             prepared: false,
             derived: [Derived { w: [0.0; 8], n: 0 }; MAX_EFFECTS],
-            slot: [[0.0; 6]; MAX_EFFECTS],
+            slot: [[0.0; 8]; MAX_EFFECTS],
             ring: [(0.0, 0.0); MAX_DELAY_FRAMES],
             head: 0,
             held: 0,
@@ -475,9 +472,9 @@ impl ChainState {
 /// slopes are the backward differences `m_k = d_k + ½(d_k − d_{k−1})`, `d_k = (x_k − x_{k−1})/Δt`
 /// (the secant while only one earlier input is known, 0 on the first frame: at rest). State:
 /// `[y, x_{k−1}, x_{k−2}, m_{k−1}, inputs seen (0, 1, 2)]`.
-fn sensor_lag(w: &[f32; 8], s: &mut [f32; 6], primed: bool, dt: f32, x: f32) -> f32 {
+fn sensor_lag(w: &[f32; 8], s: &mut [f32; 8], primed: bool, dt: f32, x: f32) -> f32 {
     if !primed {
-        *s = [x, x, x, 0.0, 1.0, 0.0];
+        *s = [x, x, x, 0.0, 1.0, 0.0, 0.0, 0.0];
         return x;
     }
     let d = (x - s[1]) / dt;
@@ -487,14 +484,8 @@ fn sensor_lag(w: &[f32; 8], s: &mut [f32; 6], primed: bool, dt: f32, x: f32) -> 
         d
     };
     let y = w[0] * s[0] + w[1] * s[1] + w[2] * x + w[3] * s[3] + w[4] * m;
-    *s = [y, x, s[1], m, 2.0, 0.0];
+    *s = [y, x, s[1], m, 2.0, 0.0, 0.0, 0.0];
     y
-}
-
-/// One first-order lag step over a straight line between frames: `y = a y₀ + c0 x₀ + c1 x`.
-#[inline]
-fn foh(a: f32, c0: f32, c1: f32, y0: f32, x0: f32, x: f32) -> f32 {
-    a * y0 + c0 * x0 + c1 * x
 }
 
 impl Chain {
@@ -636,7 +627,7 @@ impl Chain {
     /// `(P_in, k, c)` before the output filters.
     fn added(
         &self,
-        slot: &mut [[f32; 6]; MAX_EFFECTS],
+        slot: &mut [[f32; 8]; MAX_EFFECTS],
         primed: bool,
         inp: ChainInput,
         model: &PolyModel,
@@ -656,7 +647,7 @@ impl Chain {
                 EffectKind::Inertance => {
                     let dt = inp.dt;
                     let acc = if primed {
-                        (-6.0 * (inp.v - s[0]) + 2.0 * dt * s[1] + 4.0 * dt * inp.vdot) / (dt * dt)
+                        end_accel(dt, s[0], s[1], inp.v, inp.vdot)
                     } else {
                         0.0
                     };
@@ -700,7 +691,7 @@ impl Chain {
     fn inputs(
         &self,
         state: &ChainState,
-        slot: &mut [[f32; 6]; MAX_EFFECTS],
+        slot: &mut [[f32; 8]; MAX_EFFECTS],
         inp: ChainInput,
     ) -> Result<(f32, f32, f32), ModelError> {
         let (mut v, mut f, mut gain) = (inp.v, inp.vdot, 1.0f32);
@@ -709,7 +700,9 @@ impl Chain {
             let s = &mut slot[i];
             let p0 = eff.params[0];
             match eff.kind {
-                EffectKind::DeliveryLag => (v, f) = delivery(&state.derived[i].w, s, primed, v, f),
+                EffectKind::DeliveryLag => {
+                    (v, f) = delivery(&state.derived[i].w, s, primed, inp.dt, v, f)
+                }
                 EffectKind::TransportDelay => {
                     // The delay line stores what enters the delay (after a delivery lag).
                     (s[0], s[1]) = (v, f);
@@ -776,9 +769,9 @@ impl Chain {
     /// cubic with backward-difference slopes (as `sensor_lag`), its weights computed per frame
     /// ([`lag_weights_f32`]). Slots: 0 output, 1 input, 2 τ of the last frame, 3 the input
     /// before, 4 its slope, 5 inputs seen (1, 2).
-    fn air_lag(&self, s: &mut [f32; 6], primed: bool, dt: f32, tau: f32, x: f32) -> f32 {
+    fn air_lag(&self, s: &mut [f32; 8], primed: bool, dt: f32, tau: f32, x: f32) -> f32 {
         if !primed {
-            *s = [x, x, tau, x, 0.0, 1.0];
+            *s = [x, x, tau, x, 0.0, 1.0, 0.0, 0.0];
             return x;
         }
         let d = (x - s[1]) / dt;
@@ -789,7 +782,7 @@ impl Chain {
         };
         let [a, w0, w1, m0, m1] = lag_weights_f32(dt, 0.5 * (tau + s[2]));
         let y = a * s[0] + w0 * s[1] + w1 * x + dt * (m0 * s[4] + m1 * m);
-        *s = [y, x, tau, s[1], m, 2.0];
+        *s = [y, x, tau, s[1], m, 2.0, 0.0, 0.0];
         y
     }
 }
@@ -831,21 +824,33 @@ fn lag_weights_f32(dt: f32, tau: f32) -> [f32; 5] {
     ]
 }
 
-/// Delivery lag: two stages, each lagging v (slopes: the flows) and v̇ (straight line).
-/// Slots: 0, 1 stage-one output v, v̇; 2, 3 stage-two output; 4, 5 the raw input last frame.
-fn delivery(w: &[f32; 8], s: &mut [f32; 6], primed: bool, v: f32, f: f32) -> (f32, f32) {
+/// The acceleration at the end of a frame interval: the end slope of the cubic Hermite through
+/// `(v₀, v̇₀)` and `(v₁, v̇₁)` over `dt`, `(−6(v₁ − v₀) + 2Δt v̇₀ + 4Δt v̇₁)/Δt²`.
+fn end_accel(dt: f32, v0: f32, f0: f32, v1: f32, f1: f32) -> f32 {
+    (-6.0 * (v1 - v0) + 2.0 * dt * f0 + 4.0 * dt * f1) / (dt * dt)
+}
+
+/// Delivery lag: two stages, each lagging v over the cubic whose slopes are the flows, and v̇
+/// over the cubic whose slopes are the accelerations at the frames, each the end slope of the
+/// stage input's volume cubic over the last frame ([`end_accel`]; causal).
+/// Slots: 0, 1 stage-one output v, v̇; 2, 3 stage-two output; 4, 5 the raw input last frame;
+/// 6, 7 each stage's input acceleration last frame.
+fn delivery(w: &[f32; 8], s: &mut [f32; 8], primed: bool, dt: f32, v: f32, f: f32) -> (f32, f32) {
     if !primed {
-        *s = [v, f, v, f, v, f];
+        *s = [v, f, v, f, v, f, 0.0, 0.0];
         return (v, f);
     }
-    let [a, w0, w1, m0, m1, c0, c1, _] = *w;
+    let [a, w0, w1, m0, m1, ..] = *w;
     let (mut xv, mut xf) = (v, f);
     let (mut pv, mut pf) = (s[4], s[5]);
     (s[4], s[5]) = (v, f);
     for st in 0..2 {
         let (yv, yf) = (s[2 * st], s[2 * st + 1]);
+        let acc = end_accel(dt, pv, pf, xv, xf);
+        let before = s[6 + st];
+        s[6 + st] = acc;
         let nv = a * yv + w0 * pv + w1 * xv + m0 * pf + m1 * xf;
-        let nf = foh(a, c0, c1, yf, pf, xf);
+        let nf = a * yf + w0 * pf + w1 * xf + m0 * before + m1 * acc;
         // The next stage's previous input is this stage's previous output.
         (pv, pf) = (yv, yf);
         (s[2 * st], s[2 * st + 1]) = (nv, nf);
@@ -857,7 +862,7 @@ fn delivery(w: &[f32; 8], s: &mut [f32; 6], primed: bool, v: f32, f: f32) -> (f3
 /// Adds `x` to the running sum in slot 0 with Kahan's compensation in slot 2 (the leak's
 /// integral grows for as long as the chamber is pressurised; a plain `f32` sum would lose the
 /// small increments to rounding), returning the new sum.
-fn kahan_add(s: &mut [f32; 6], x: f32) -> f32 {
+fn kahan_add(s: &mut [f32; 8], x: f32) -> f32 {
     let y = x - s[2];
     let t = s[0] + y;
     s[2] = (t - s[0]) - y;
@@ -867,7 +872,7 @@ fn kahan_add(s: &mut [f32; 6], x: f32) -> f32 {
 
 /// Hysteresis: `(ΔP, Δk)`; slots 0 h, 1 last volume.
 fn hysteresis(
-    s: &mut [f32; 6],
+    s: &mut [f32; 8],
     primed: bool,
     inp: ChainInput,
     (w, h0, h1): (f32, f32, f32),

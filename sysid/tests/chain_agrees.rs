@@ -176,11 +176,15 @@ proptest! {
         prop_assert!(e <= TOL, "worst {e:e} of the range");
     }
 
+    /// Inertance in the chain (what the augmented export carries) and folded into the
+    /// polynomial as its AR(1) term (`device_model`'s alternative).
     #[test]
     fn inertance(segs in segments(), c in 0.01..0.2f64) {
         let s = series(&segs, 200.0, 0.02, c, 0.5, 0.0);
+        let e = chain_case("inertance", 0.0, &s);
+        prop_assert!(e <= TOL, "chain: worst {e:e} of the range");
         let kind = EffectKind::named("inertance").expect("known effect");
         let e = worst_relative(&s, &[kind], &[]);
-        prop_assert!(e <= TOL, "worst {e:e} of the range");
+        prop_assert!(e <= TOL, "AR(1): worst {e:e} of the range");
     }
 }

@@ -153,13 +153,18 @@ fn inertance_runs_on_the_device_and_drift_is_named_as_not() {
     kept.sort_unstable();
     assert_eq!(kept, ["inertance", "offset_drift"], "loop kept {kept:?}");
 
-    // Inertance is carried, with the plant's L (to 10 %: the device refit leaves the drift out,
-    // and what of it correlates with v̈ moves L; without drift it is recovered to 2 %, below).
+    // Inertance is carried in the board's chain, with the plant's L to 25 %. This plant's
+    // inertance is L times the backward difference of its sampled flow (the AR(1) form, which
+    // `device_model` folds, below: L to 2 %); the chain takes v̈ from the volume's cubic, and this
+    // plant's volume is point-sampled whole motor steps (0.04 mm³, 150 mm³/s² of v̈ noise at
+    // 25 Hz), which pulls the fitted L down: 1.22e-3 here. (On host-sim, whose frames average the
+    // steps as the board does, the chain's L is 9 % low and its held-out error within 0.4 % of
+    // the loop's: `replay_board`.)
     assert_eq!(x.carried.len(), 1);
     assert_eq!(x.carried[0].name, "inertance");
     let l = x.carried[0].value;
     assert!(
-        (l - l_true).abs() < 0.1 * l_true,
+        (l - l_true).abs() < 0.25 * l_true,
         "device L {l:.4e} vs plant {l_true:.4e}"
     );
     // The drift is named with the library's reason.
@@ -171,21 +176,23 @@ fn inertance_runs_on_the_device_and_drift_is_named_as_not() {
     );
     assert!(!x.nothing_carried());
 
-    // The exported form: AR(1) on the flow only, γ = L·f_s/Δt.
+    // The exported form: the board's chain adds `inertance L`; the polynomial has no AR term.
     let dm = &x.device;
-    assert_eq!(dm.model.shape().p, 1);
-    let gamma = l * dm.host.basis.f_scale / DT;
-    assert_eq!(dm.model.ar()[0][0], 0.0);
-    assert!((f64::from(dm.model.ar()[0][1]) + gamma).abs() < 1e-6 * gamma);
-    assert!((dm.host.dt - DT).abs() < 1e-12);
-    assert_algebra(dm, &series);
-    let (worst, _) = max_gap(&dm.model, &series, |k| {
-        (k > 0).then(|| {
-            dm.host
-                .predict(series.v[k], series.vdot[k], Some(series.vdot[k - 1]))
-        })?
-    });
-    assert!(worst <= f32_bound(&dm.model), "host model: {worst:.3e}");
+    assert_eq!(dm.model.shape().p, 0);
+    let chain: Vec<(&str, f32)> = dm
+        .chain
+        .effects()
+        .iter()
+        .map(|e| (e.kind().name(), e.params()[0]))
+        .collect();
+    assert_eq!(chain, [("inertance", l as f32)]);
+    assert!(dm.host.inertance.is_none());
+    // The board (the firmware's estimator, replayed) runs the device-form refit.
+    let r = x.rmse;
+    assert!(
+        (r.device - r.device_f64).abs() <= 0.002 * r.device_f64,
+        "{r:?}"
+    );
 
     // What is lost: the device cannot follow the drift, the baseline lacks the inertance too.
     let r = x.rmse;
@@ -458,9 +465,10 @@ fn cli_exports_the_augmented_model_and_states_what_is_lost() {
         err.contains("NOT on the device: offset_drift"),
         "stderr: {err}"
     );
-    // `vfp deploy` reads the output as it is (comments skipped) into the firmware.
+    // `vfp deploy` reads the output as it is (comments skipped) into the firmware: shape and
+    // scaling, 12 coefficients, the chain effect (its kind and L).
     let ups = parse_lines(&out, "stdout").expect("deployable");
-    assert_eq!((ups.len(), ups[0].shape), (1, [3, 2, 1]));
+    assert_eq!((ups.len(), ups[0].shape), (1, [3, 2, 0]));
     let r = deploy(&mut FirmwarePort::new(), &ups).expect("deploys");
     assert_eq!(r[0].readback, Readback::Verified { values: 7 + 12 + 2 });
 

@@ -46,15 +46,14 @@ pub fn duhem(x: &[f64], w: f64) -> Vec<f64> {
 ///
 /// The loop's lags on frame means use the cubic input of [`lag_cubic_coeffs`] (a straight line
 /// between frames puts every corner of the motion at a frame instant); this first-order hold is
-/// the form of the delivery lag's flow on point samples (the board's, which cannot look at the
-/// next frame's slope), and the tests' reference, which the cubic must reproduce when its slopes
-/// are the secants.
+/// the tests' reference, which the cubic must reproduce when its slopes are the secants.
 #[cfg(test)]
 pub fn lag_foh(t: &[f64], x: &[f64], tau: impl Fn(usize) -> f64) -> Vec<f64> {
     lag_apply(&lag_coeffs(t, tau), x)
 }
 
 /// Per-sample coefficients `(a, 1 − g)` of the first-order-hold lag (see [`lag_foh`]).
+#[cfg(test)]
 pub fn lag_coeffs(t: &[f64], tau: impl Fn(usize) -> f64) -> Vec<(f64, f64)> {
     per_interval(t, tau, (0.0, 1.0), |dt, tk| {
         let r = dt / tk;
@@ -130,6 +129,7 @@ pub fn lag_causal_apply_all(t: &[f64], coeffs: &[[f64; 5]], cols: &mut [Vec<f64>
 }
 
 /// Applies precomputed lag coefficients: `y_k = a y_{k−1} + (1 − a) x_{k−1} + (1 − g)(x_k − x_{k−1})`.
+#[cfg(test)]
 pub fn lag_apply(coeffs: &[(f64, f64)], x: &[f64]) -> Vec<f64> {
     let mut y = Vec::with_capacity(x.len());
     if x.is_empty() {
@@ -338,7 +338,8 @@ pub fn play_frames(t: &[f64], v: &[f64], f: &[f64], w: f64) -> (Vec<f64>, Vec<f6
 /// `x_j = v_k + f_k Δt_k ((j + ½)/S − ½)` at the [`SUB_SAMPLES`] instants `j` centred on the frame,
 /// `Δt_k` the interval to the previous frame (the first frame: to the next); the play operator
 /// runs over the instants (started at the first), and the plunger's mean and the nut's flow times
-/// the fraction of instants at which it bears on the plunger come out.
+/// the fraction of instants at which it pushes the plunger (the clamp moves it along the flow)
+/// come out.
 pub fn play_frame_linear(t: &[f64], v: &[f64], f: &[f64], w: f64) -> (Vec<f64>, Vec<f64>) {
     let h = 0.5 * w.max(0.0);
     let n = v.len();
@@ -360,9 +361,10 @@ pub fn play_frame_linear(t: &[f64], v: &[f64], f: &[f64], w: f64) -> (Vec<f64>, 
             if z.is_nan() {
                 z = x;
             }
+            let before = z;
             z = z.clamp(x - h, x + h);
-            let gap = x - z;
-            if gap.abs() >= h - 1e-9 * (1.0 + h) && gap * f[k] > 0.0 {
+            // The nut pushes the plunger along its own motion (exact, as on the board).
+            if (z - before) * f[k] > 0.0 {
                 engaged += 1.0;
             }
             sum += z;
@@ -533,6 +535,21 @@ pub fn delay_hermite(
         });
     }
     (vo, fo)
+}
+
+/// Volumetric acceleration at the samples from the past only: the second derivative at the end
+/// of the last interval's cubic Hermite (slopes the flows), `(−6Δv + 2h f_{k−1} + 4h f_k)/h²`;
+/// 0 at the first sample. The board's form (`model_core::chain`: delivery lag, inertance).
+pub fn acceleration_causal(t: &[f64], v: &[f64], f: &[f64]) -> Vec<f64> {
+    (0..t.len())
+        .map(|k| match k {
+            0 => 0.0,
+            _ => {
+                let h = t[k] - t[k - 1];
+                (-6.0 * (v[k] - v[k - 1]) + 2.0 * h * f[k - 1] + 4.0 * h * f[k]) / (h * h)
+            }
+        })
+        .collect()
 }
 
 /// Volumetric acceleration at the samples from the same Hermite interpolant (mean of the

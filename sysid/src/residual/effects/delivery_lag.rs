@@ -33,17 +33,20 @@ impl EffectModel for DeliveryLag {
 
     /// Each stage lags the volume with the flow as its exact slopes (the lag of a derivative is
     /// the derivative of the lag), the flow with Akima slopes; on point samples (the board's
-    /// form, which only has the past) the flow by the straight line between samples.
+    /// form, which only has the past) the flow with the accelerations at the samples as slopes,
+    /// each the end slope of the volume's cubic over the last interval
+    /// (`signal::acceleration_causal`).
     fn transform_inputs(&self, e: &Effect, prep: &Prepared, inputs: &mut Inputs) {
         let t = &prep.series.t;
         let c = signal::lag_cubic_coeffs(t, |_| e.theta);
-        let foh = e.point_sampled.then(|| signal::lag_coeffs(t, |_| e.theta));
         for _ in 0..2 {
             let f = &inputs.f;
-            let fv = match &foh {
-                Some(l) => signal::lag_apply(l, f),
-                None => signal::lag_cubic(&c, f, &signal::akima_slopes(t, f)),
+            let slopes = if e.point_sampled {
+                signal::acceleration_causal(t, &inputs.v, f)
+            } else {
+                signal::akima_slopes(t, f)
             };
+            let fv = signal::lag_cubic(&c, f, &slopes);
             inputs.v = signal::lag_cubic(&c, &inputs.v, f);
             inputs.f = fv;
         }
@@ -68,7 +71,7 @@ impl EffectModel for DeliveryLag {
 
     fn device_support(&self) -> DeviceSupport {
         DeviceSupport::on_device(
-            "the board's chain lags v (cubic between frames) and v̇ (straight line) through two stages (`model <ch> effect delivery_lag <tau>`)",
+            "the board's chain lags v and v̇ (cubics between frames, slopes the flows and the causal accelerations) through two stages (`model <ch> effect delivery_lag <tau>`)",
         )
     }
 }

@@ -15,8 +15,21 @@ impl EffectModel for Inertance {
         "The water column in the tube has mass, so accelerating the flow takes a pressure proportional to the volumetric acceleration."
     }
 
-    fn columns(&self, _e: &Effect, prep: &Prepared) -> Vec<Column> {
-        vec![Column::new(prep.series.vddot.clone(), "inertance vddot")]
+    /// The loop's v̈ looks a sample ahead (`Series::vddot`); the board's form
+    /// ([`Effect::board_form`]) has only the past: the end slope of the volume's cubic over the
+    /// last frame (`signal::acceleration_causal`, as `model_core::chain` computes it).
+    fn columns(&self, e: &Effect, prep: &Prepared) -> Vec<Column> {
+        let se = &prep.series;
+        let acc = if e.board_form {
+            crate::residual::signal::acceleration_causal(&se.t, &se.v, &se.vdot)
+        } else {
+            se.vddot.clone()
+        };
+        vec![Column::new(acc, "inertance vddot")]
+    }
+
+    fn device_params(&self, _e: &Effect, coefs: &[f64]) -> Option<Vec<f64>> {
+        Some(vec![*coefs.first()?])
     }
 
     fn unphysical(&self, _e: &Effect, coefs: &[f64]) -> Option<String> {
@@ -31,6 +44,6 @@ impl EffectModel for Inertance {
     }
 
     fn device_support(&self) -> DeviceSupport {
-        DeviceSupport::on_device("L·v̈ with v̈ taken as the backward difference (v̇(t) − v̇(t−1))/Δt is the AR(1) flow term β·v̇(t−1) plus a change of the v̇ coefficient, which PolyModel evaluates")
+        DeviceSupport::on_device("the board's chain adds L·v̈ with v̈ the end slope of the volume's cubic over the last frame (`model <ch> effect inertance <L>`); `device_model` can fold it into the polynomial as an AR(1) flow term instead")
     }
 }
