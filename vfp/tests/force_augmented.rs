@@ -234,7 +234,10 @@ fn augmented_board_is_no_worse_without_planted_effects() {
         b.bare.std_error_n.unwrap(),
         b.aug.force.std_error_n.unwrap(),
     );
-    assert!(aug <= 1.1 * bare, "std error: augmented {aug} N, bare {bare} N");
+    assert!(
+        aug <= 1.1 * bare,
+        "std error: augmented {aug} N, bare {bare} N"
+    );
     assert_eq!(b.aug.force.samples + b.aug.no_estimate, b.bare.samples);
 }
 

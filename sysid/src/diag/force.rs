@@ -440,7 +440,52 @@ pub fn estimate_augmented(
     args: &ForceOptions,
     cfg: &crate::residual::Config,
 ) -> Result<(AugmentedForceReport, ForceTrace), DiagError> {
-    use crate::replay::{replay, CHAMBERS};
+    let BoardModels {
+        models,
+        chambers: augmented,
+    } = augmented_models(ident, test, cfg)?;
+    let (summary, frames) = crate::replay::replay(&models, test).map_err(|e| DiagError::Input {
+        path: test.path.clone(),
+        line: None,
+        column: None,
+        msg: e.0,
+    })?;
+    let ident_rmse = augmented
+        .iter()
+        .map(|a| (a.chamber, a.device_heldout_rmse_kpa))
+        .collect();
+    let (res, no_estimate) = board_residuals(test, args, &frames, ident_rmse, summary.unmatched)?;
+    if res.t.len() < 3 {
+        return Err(too_few(
+            test,
+            "where every chamber has a sample and the board an estimate",
+        ));
+    }
+    let (force, trace) = summarize(ident, test, args, res);
+    Ok((
+        AugmentedForceReport {
+            force,
+            no_estimate,
+            augmented,
+        },
+        trace,
+    ))
+}
+
+/// The board models of [`estimate_augmented`], by chamber (`None`: not in the test log), and
+/// what each carries.
+struct BoardModels {
+    models: [Option<firmware::store::Model>; crate::replay::CHAMBERS],
+    chambers: Vec<AugmentedChamber>,
+}
+
+/// Per chamber of `test` the loop on `ident`'s data set and `vfp export --augmented`'s model.
+fn augmented_models(
+    ident: &LogData,
+    test: &LogData,
+    cfg: &crate::residual::Config,
+) -> Result<BoardModels, DiagError> {
+    use crate::replay::CHAMBERS;
     let mut models = [None; CHAMBERS];
     let mut augmented = Vec::new();
     for s in &test.datasets {
@@ -454,7 +499,12 @@ pub fn estimate_augmented(
             });
         }
         let x = crate::residual::export::export_dataset(ident_dataset(ident, c)?, cfg).map_err(
-            |e| DiagError::fit(format!("{}, chamber {c}", ident.path.display()), e.to_string()),
+            |e| {
+                DiagError::fit(
+                    format!("{}, chamber {c}", ident.path.display()),
+                    e.to_string(),
+                )
+            },
         )?;
         models[c as usize] = Some(x.device.board_model());
         augmented.push(AugmentedChamber {
@@ -465,27 +515,33 @@ pub fn estimate_augmented(
             baseline_heldout_rmse_kpa: x.rmse.baseline,
         });
     }
-    let (summary, frames) = replay(&models, test).map_err(|e| DiagError::Input {
-        path: test.path.clone(),
-        line: None,
-        column: None,
-        msg: e.0,
-    })?;
+    Ok(BoardModels {
+        models,
+        chambers: augmented,
+    })
+}
+
+/// The replayed frames as [`Residuals`] (frames where a chamber of `test` has no board estimate
+/// left out and counted): the board's residuals through the device's force law, signed.
+fn board_residuals(
+    test: &LogData,
+    args: &ForceOptions,
+    frames: &[crate::replay::ReplayFrame],
+    ident_rmse: BTreeMap<u8, f64>,
+    unmatched: usize,
+) -> Result<(Residuals, usize), DiagError> {
     let areas: [f32; 3] = core::array::from_fn(|c| area_of(args, c as u8) as f32);
+    let used: Vec<u8> = ident_rmse.keys().copied().collect();
     let mut res = Residuals {
         t: Vec::new(),
         raw: Vec::new(),
         truth: frames.iter().any(|f| f.force_ref.is_some()).then(Vec::new),
         pressures: BTreeMap::new(),
-        ident_rmse: augmented
-            .iter()
-            .map(|a| (a.chamber, a.device_heldout_rmse_kpa))
-            .collect(),
-        unmatched: summary.unmatched,
+        ident_rmse,
+        unmatched,
     };
-    let used: Vec<u8> = augmented.iter().map(|a| a.chamber).collect();
     let mut no_estimate = 0;
-    for f in &frames {
+    for f in frames {
         let chambers = &f.frame.chambers;
         if used
             .iter()
@@ -509,19 +565,5 @@ pub fn estimate_augmented(
             tr.push(f.force_ref.unwrap_or(f64::NAN));
         }
     }
-    if res.t.len() < 3 {
-        return Err(too_few(
-            test,
-            "where every chamber has a sample and the board an estimate",
-        ));
-    }
-    let (force, trace) = summarize(ident, test, args, res);
-    Ok((
-        AugmentedForceReport {
-            force,
-            no_estimate,
-            augmented,
-        },
-        trace,
-    ))
+    Ok((res, no_estimate))
 }

@@ -104,8 +104,9 @@ pub fn run(args: &Args) -> Result<(), Error> {
         }
         Some(cfg) => {
             let (report, trace) = estimate_augmented(&ident, &test, &o, &cfg)?;
-            args.out
-                .emit(&report, human_augmented, |dir, f| plot_force(dir, f, &trace, w))
+            args.out.emit(&report, human_augmented, |dir, f| {
+                plot_force(dir, f, &trace, w)
+            })
         }
     }
 }
@@ -129,7 +130,10 @@ pub fn human_augmented(r: &AugmentedForceReport) -> String {
             a.chamber, a.device_heldout_rmse_kpa, a.baseline_heldout_rmse_kpa
         );
         for d in &a.host_only {
-            s += &format!("    kept by the loop, not on the board: {} ({})\n", d.name, d.reason);
+            s += &format!(
+                "    kept by the loop, not on the board: {} ({})\n",
+                d.name, d.reason
+            );
         }
     }
     if r.no_estimate > 0 {
