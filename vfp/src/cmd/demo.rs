@@ -17,7 +17,8 @@
 //! 7. **force** — the paper's Sec. IV-C pushes on the same plant: each board's force estimate
 //!    (bare polynomials, augmented models; same pushes, same noise) against the simulator's true
 //!    force (mean, std, RMSE in mN).
-//! 8. **report** — `report.md` with figures, and `report.json`, in the output directory.
+//! 8. **report** — `report.md` with figures (the force figure shows the two boards' estimates
+//!    side by side against the truth), and `report.json`, in the output directory.
 //!
 //! Every number in the report is computed in this run; a stage that cannot run says why.
 
