@@ -272,8 +272,9 @@ fn diagnose(
     })
 }
 
-/// `force`: the `vfp force --json` report.
+/// `force`: the `vfp force --json` report (`augmented`: `vfp force --augmented --json`).
 #[pyfunction]
+#[allow(clippy::too_many_arguments)]
 fn force(
     py: Python<'_>,
     ident: Source,
@@ -282,6 +283,7 @@ fn force(
     shape: (usize, usize),
     area: Vec<f64>,
     smooth: usize,
+    augmented: bool,
 ) -> PyResult<String> {
     let o = sysid::diag::force::ForceOptions {
         shape: sysid::diag::Shape {
@@ -295,6 +297,18 @@ fn force(
     py.detach(|| {
         let ident = load(ident, &data, None)?;
         let test = load(test, &data, None)?;
+        if augmented {
+            // The residual loop as `vfp force --augmented` runs it: `vfp diagnose`'s settings,
+            // baseline (n, m).
+            let cfg = sysid::residual::Config {
+                n: o.shape.n,
+                m: o.shape.m,
+                ..sysid::residual::Config::default()
+            };
+            let (report, _) = sysid::diag::force::estimate_augmented(&ident, &test, &o, &cfg)
+                .map_err(value_error)?;
+            return json(&report);
+        }
         let (report, _) = sysid::diag::force::estimate(&ident, &test, &o).map_err(value_error)?;
         json(&report)
     })

@@ -131,8 +131,8 @@ def test_force_equals_cli_json(tmp_path):
     run_cli("simulate", "--preset", "force", "--force-seconds", "4", "--seed", "4", "--out", test)
     cli = cli_json("force", "--ident", ident, "--test", test)
     assert vfp.force(str(ident), str(test)) == cli
-    with pytest.raises(NotImplementedError):
-        vfp.force(str(ident), str(test), augmented=True)
+    cli = cli_json("force", "--ident", ident, "--test", test, "--augmented")
+    assert vfp.force(str(ident), str(test), augmented=True) == cli
 
 
 def cli_error(*args):

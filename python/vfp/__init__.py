@@ -349,11 +349,16 @@ def force(
     on ``test`` the measured minus predicted pressure (kPa) times the effective area (mm², one
     for all chambers or one per chamber) is summed over chambers: the force in N.
     ``smooth``: centred moving average over this many samples. Returns the command's report
-    (forces in N, pressures in kPa). ``augmented=True`` (the residual loop's model) is not in
-    the library yet and raises ``NotImplementedError``.
+    (forces in N, pressures in kPa). ``augmented=True``: ``vfp force --augmented --json``, the
+    models the board would run (per chamber the residual loop on ``ident`` with baseline
+    (``n``, ``m``), built as ``vfp export --augmented`` builds them, ``test`` replayed through the
+    firmware's estimator); the report adds ``augmented`` (effects per chamber) and
+    ``no_estimate``.
     """
-    if augmented:
-        raise NotImplementedError("force(augmented=True): the library has no augmented force yet")
+    if augmented and holdout_every < 2:
+        raise ValueError(
+            f"invalid option: --holdout-every {holdout_every}: --augmented compares models on held-out cycles (2 or more)"
+        )
     areas = [float(area)] if np.isscalar(area) else [float(a) for a in area]
     if len(areas) not in (1, 3) or not all(np.isfinite(a) and a > 0 for a in areas):
         raise ValueError(
@@ -362,5 +367,5 @@ def force(
     if smooth < 1:
         raise ValueError("invalid option: --smooth 0: the window is at least 1 sample")
     data = _data(columns, chamber_base, holdout_every, derive_flow, diff_half_width, deadband)
-    text = _native.force(_source(ident), _source(test), data, (n, m), areas, smooth)
+    text = _native.force(_source(ident), _source(test), data, (n, m), areas, smooth, augmented)
     return json.loads(text)

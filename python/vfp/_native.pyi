@@ -38,6 +38,7 @@ def force(
     shape: Tuple[int, int],
     area: List[float],
     smooth: int,
+    augmented: bool,
 ) -> str: ...
 def export(
     source: Source,

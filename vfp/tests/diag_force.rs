@@ -87,6 +87,7 @@ fn args(ident: std::path::PathBuf, test: std::path::PathBuf, smooth: usize) -> F
         shape: ShapeOpts { n: 3, m: 2 },
         smooth,
         plot_window: 10.0,
+        augmented: false,
         data: DataOpts::default(),
         out: OutputOpts::default(),
     }

@@ -153,6 +153,7 @@ fn force_pushes_are_estimated_near_the_noise_floor() {
         shape: ShapeOpts::default(),
         smooth: 1,
         plot_window: 10.0,
+        augmented: false,
         data: DataOpts::default(),
         out: OutputOpts::default(),
     };
@@ -289,6 +290,7 @@ fn readme_runs() {
         shape: ShapeOpts::default(),
         smooth: 1,
         plot_window: 10.0,
+        augmented: false,
         data: DataOpts::default(),
         out: plots,
     })

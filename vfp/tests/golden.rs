@@ -420,6 +420,19 @@ fn force_sim() {
         ],
     );
     golden_json(
+        "force-sim-augmented",
+        sim(),
+        &[
+            "force",
+            "--ident",
+            "paper.csv",
+            "--test",
+            "force.csv",
+            "--json",
+            "--augmented",
+        ],
+    );
+    golden_json(
         "force-sim-smooth",
         sim(),
         &[

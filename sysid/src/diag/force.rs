@@ -182,6 +182,50 @@ pub fn error_stats(e: &[f64]) -> (f64, f64, f64) {
     (mean, var.sqrt(), rms)
 }
 
+/// The effective area of chamber `c` (one value for all, or one per chamber).
+fn area_of(args: &ForceOptions, c: u8) -> f64 {
+    if args.area.len() == 1 {
+        args.area[0]
+    } else {
+        args.area[c as usize]
+    }
+}
+
+/// The identification log's data set of chamber `c`, which the test log uses.
+fn ident_dataset(ident: &LogData, c: u8) -> Result<&Dataset, DiagError> {
+    ident.dataset(c).ok_or_else(|| DiagError::Input {
+        path: ident.path.clone(),
+        line: None,
+        column: Some("chamber".into()),
+        msg: format!(
+            "the test log has chamber {c} but the identification log has none; identify \
+             every chamber the test log uses"
+        ),
+    })
+}
+
+/// What an estimator hands [`summarize`]: per kept instant its time, the unfiltered force and the
+/// truth, per chamber the measured and predicted pressure and the model's error on the
+/// identification log.
+struct Residuals {
+    t: Vec<f64>,
+    raw: Vec<f64>,
+    truth: Option<Vec<f64>>,
+    pressures: BTreeMap<u8, (Vec<f64>, Vec<f64>)>,
+    ident_rmse: BTreeMap<u8, f64>,
+    unmatched: usize,
+}
+
+/// Error when fewer than 3 instants are left to estimate on.
+fn too_few(test: &LogData, why: &str) -> DiagError {
+    DiagError::Input {
+        path: test.path.clone(),
+        line: None,
+        column: Some("time_s".into()),
+        msg: format!("fewer than 3 instants {why}"),
+    }
+}
+
 /// Identifies per chamber on `ident`, estimates the force on `test`.
 pub fn estimate(
     ident: &LogData,
@@ -189,26 +233,11 @@ pub fn estimate(
     args: &ForceOptions,
 ) -> Result<(ForceReport, ForceTrace), DiagError> {
     let shape = args.shape;
-    let area_of = |c: u8| -> f64 {
-        if args.area.len() == 1 {
-            args.area[0]
-        } else {
-            args.area[c as usize]
-        }
-    };
     let mut fits = BTreeMap::new();
     let mut test_series = BTreeMap::new();
     for s in &test.datasets {
         let c = s.chamber;
-        let is = ident.dataset(c).ok_or_else(|| DiagError::Input {
-            path: ident.path.clone(),
-            line: None,
-            column: Some("chamber".into()),
-            msg: format!(
-                "the test log has chamber {c} but the identification log has none; identify \
-                 every chamber the test log uses"
-            ),
-        })?;
+        let is = ident_dataset(ident, c)?;
         let fit = poly::fit(
             Xy {
                 v: &is.v,
@@ -230,14 +259,10 @@ pub fn estimate(
     }
     let (rows, unmatched) = match_times(&test_series);
     if rows.len() < 3 {
-        return Err(DiagError::Input {
-            path: test.path.clone(),
-            line: None,
-            column: Some("time_s".into()),
-            msg: "fewer than 3 instants where every chamber has a sample; chambers must be \
-                  sampled at common times"
-                .into(),
-        });
+        return Err(too_few(
+            test,
+            "where every chamber has a sample; chambers must be sampled at common times",
+        ));
     }
     let (rc, rs) = test_series
         .iter()
@@ -246,7 +271,7 @@ pub fn estimate(
         .unwrap();
     let mut pressures: BTreeMap<u8, (Vec<f64>, Vec<f64>)> = BTreeMap::new();
     let mut raw = vec![0.0; rows.len()];
-    let areas: [f32; 3] = core::array::from_fn(|c| area_of(c as u8) as f32);
+    let areas: [f32; 3] = core::array::from_fn(|c| area_of(args, c as u8) as f32);
     for (k, row) in rows.iter().enumerate() {
         // The device's own force law (model-core): Fᵢ = rᵢ·Aᵢ, chambers absent from the log
         // contribute a zero residual.
@@ -259,20 +284,50 @@ pub fn estimate(
             e.1.push(pred);
             r[c as usize] = (s.p[i] - pred) as f32;
         }
-        let f = model_core::force::estimate(r, areas).map_err(|e| DiagError::Input {
-            path: test.path.clone(),
-            line: None,
-            column: None,
-            msg: format!("force estimate at t = {} s: {e}", rs.t[row[&rc]]),
-        })?;
-        raw[k] = f.signed_total_n() as f64;
+        raw[k] = signed_force(r, areas, test, rs.t[row[&rc]])?;
     }
+    let res = Residuals {
+        t: rows.iter().map(|r| rs.t[r[&rc]]).collect(),
+        raw,
+        truth: rs
+            .force
+            .as_ref()
+            .map(|f| rows.iter().map(|r| f[r[&rc]]).collect()),
+        pressures,
+        ident_rmse: fits.iter().map(|(&c, f)| (c, f.train.rmse)).collect(),
+        unmatched,
+    };
+    Ok(summarize(ident, test, args, res))
+}
+
+/// The device's own force law (model-core), its signed total `Σ Aᵢ·rᵢ` in N.
+fn signed_force(r: [f32; 3], areas: [f32; 3], test: &LogData, t: f64) -> Result<f64, DiagError> {
+    let f = model_core::force::estimate(r, areas).map_err(|e| DiagError::Input {
+        path: test.path.clone(),
+        line: None,
+        column: None,
+        msg: format!("force estimate at t = {t} s: {e}"),
+    })?;
+    Ok(f.signed_total_n() as f64)
+}
+
+/// The report and trace from the residuals of either estimator (filter, error statistics,
+/// noise floors).
+fn summarize(
+    ident: &LogData,
+    test: &LogData,
+    args: &ForceOptions,
+    res: Residuals,
+) -> (ForceReport, ForceTrace) {
+    let Residuals {
+        t,
+        raw,
+        truth,
+        pressures,
+        ident_rmse,
+        unmatched,
+    } = res;
     let est = moving_average(&raw, args.smooth);
-    let t: Vec<f64> = rows.iter().map(|r| rs.t[r[&rc]]).collect();
-    let truth: Option<Vec<f64>> = rs
-        .force
-        .as_ref()
-        .map(|f| rows.iter().map(|r| f[r[&rc]]).collect());
     let mut dts: Vec<f64> = t.windows(2).map(|w| w[1] - w[0]).collect();
     dts.sort_by(f64::total_cmp);
     let fs = 1.0 / dts[dts.len() / 2];
@@ -283,8 +338,8 @@ pub fn estimate(
             let r: Vec<f64> = meas.iter().zip(pred).map(|(a, b)| a - b).collect();
             ChamberForce {
                 chamber: c,
-                area_mm2: area_of(c),
-                ident_rmse_kpa: fits[&c].train.rmse,
+                area_mm2: area_of(args, c),
+                ident_rmse_kpa: ident_rmse[&c],
                 test_noise_kpa: difference_noise(&r),
                 mean_residual_kpa: r.iter().sum::<f64>() / r.len() as f64,
             }
@@ -310,8 +365,8 @@ pub fn estimate(
     let report = ForceReport {
         ident: ident.name(),
         test: test.name(),
-        shape,
-        samples: rows.len(),
+        shape: args.shape,
+        samples: t.len(),
         unmatched,
         mean_force_n: est.iter().sum::<f64>() / est.len() as f64,
         mean_error_n: mean_e,
@@ -328,7 +383,7 @@ pub fn estimate(
         },
         chambers,
     };
-    Ok((
+    (
         report,
         ForceTrace {
             t,
@@ -336,5 +391,179 @@ pub fn estimate(
             truth,
             pressures,
         },
+    )
+}
+
+/// Per chamber: the board model `vfp force --augmented` estimated with.
+#[derive(Debug, Clone, Serialize)]
+pub struct AugmentedChamber {
+    /// Chamber index.
+    pub chamber: u8,
+    /// Effects the board's model carries (inertance folded into the polynomial, then the chain's
+    /// effects in evaluation order); empty: the residual loop kept none the board can run.
+    pub effects: Vec<&'static str>,
+    /// Effects the loop kept that stay on the host, with the reason.
+    pub host_only: Vec<crate::residual::export::Dropped>,
+    /// Held-out RMSE of the board's model on the identification log, run by the firmware's
+    /// estimator in f32 (kPa); also the report's `ident_rmse_kpa`.
+    pub device_heldout_rmse_kpa: f64,
+    /// Held-out RMSE of the loop's baseline polynomial on the same cycles (kPa).
+    pub baseline_heldout_rmse_kpa: f64,
+}
+
+/// The report of `vfp force --augmented`: every key of [`ForceReport`] plus the board models.
+#[derive(Debug, Serialize)]
+pub struct AugmentedForceReport {
+    /// The estimate, with the keys of the bare report.
+    #[serde(flatten)]
+    pub force: ForceReport,
+    /// Matched test-log instants where the board gave no estimate (a chain's or AR history still
+    /// filling, or a sample outside the model's range), left out of every statistic.
+    pub no_estimate: usize,
+    /// The model each chamber's board ran.
+    pub augmented: Vec<AugmentedChamber>,
+}
+
+/// `vfp force --augmented`: the force the board would estimate with the augmented models.
+///
+/// Per chamber of `test`, the residual loop runs on `ident`'s data set of that chamber with
+/// `cfg` and its model is built for the board exactly as `vfp export --augmented` builds it
+/// ([`crate::residual::export::export_dataset`]: polynomial, folded inertance and effect chain).
+/// The three models are installed in the firmware's own estimator and `test`'s frames replayed
+/// through it ([`crate::replay::replay`]: the chain's state carried from frame to frame, `f32`).
+/// The force is the board's residuals through the device's force law with the areas of `args`,
+/// kept signed as in [`estimate`] (the board's telemetry sends `|Σ Aᵢ·rᵢ|`), then filtered and
+/// summarised as there, so the two reports compare like with like.
+pub fn estimate_augmented(
+    ident: &LogData,
+    test: &LogData,
+    args: &ForceOptions,
+    cfg: &crate::residual::Config,
+) -> Result<(AugmentedForceReport, ForceTrace), DiagError> {
+    let BoardModels {
+        models,
+        chambers: augmented,
+    } = augmented_models(ident, test, cfg)?;
+    let (summary, frames) = crate::replay::replay(&models, test).map_err(|e| DiagError::Input {
+        path: test.path.clone(),
+        line: None,
+        column: None,
+        msg: e.0,
+    })?;
+    let ident_rmse = augmented
+        .iter()
+        .map(|a| (a.chamber, a.device_heldout_rmse_kpa))
+        .collect();
+    let (res, no_estimate) = board_residuals(test, args, &frames, ident_rmse, summary.unmatched)?;
+    if res.t.len() < 3 {
+        return Err(too_few(
+            test,
+            "where every chamber has a sample and the board an estimate",
+        ));
+    }
+    let (force, trace) = summarize(ident, test, args, res);
+    Ok((
+        AugmentedForceReport {
+            force,
+            no_estimate,
+            augmented,
+        },
+        trace,
     ))
+}
+
+/// The board models of [`estimate_augmented`], by chamber (`None`: not in the test log), and
+/// what each carries.
+struct BoardModels {
+    models: [Option<firmware::store::Model>; crate::replay::CHAMBERS],
+    chambers: Vec<AugmentedChamber>,
+}
+
+/// Per chamber of `test` the loop on `ident`'s data set and `vfp export --augmented`'s model.
+fn augmented_models(
+    ident: &LogData,
+    test: &LogData,
+    cfg: &crate::residual::Config,
+) -> Result<BoardModels, DiagError> {
+    use crate::replay::CHAMBERS;
+    let mut models = [None; CHAMBERS];
+    let mut augmented = Vec::new();
+    for s in &test.datasets {
+        let c = s.chamber;
+        if c as usize >= CHAMBERS {
+            return Err(DiagError::Input {
+                path: test.path.clone(),
+                line: None,
+                column: Some("chamber".into()),
+                msg: format!("chamber {c}: the board has chambers 0..={}", CHAMBERS - 1),
+            });
+        }
+        let x = crate::residual::export::export_dataset(ident_dataset(ident, c)?, cfg).map_err(
+            |e| {
+                DiagError::fit(
+                    format!("{}, chamber {c}", ident.path.display()),
+                    e.to_string(),
+                )
+            },
+        )?;
+        models[c as usize] = Some(x.device.board_model());
+        augmented.push(AugmentedChamber {
+            chamber: c,
+            effects: x.carried.iter().map(|e| e.name).collect(),
+            host_only: x.dropped.clone(),
+            device_heldout_rmse_kpa: x.rmse.device,
+            baseline_heldout_rmse_kpa: x.rmse.baseline,
+        });
+    }
+    Ok(BoardModels {
+        models,
+        chambers: augmented,
+    })
+}
+
+/// The replayed frames as [`Residuals`] (frames where a chamber of `test` has no board estimate
+/// left out and counted): the board's residuals through the device's force law, signed.
+fn board_residuals(
+    test: &LogData,
+    args: &ForceOptions,
+    frames: &[crate::replay::ReplayFrame],
+    ident_rmse: BTreeMap<u8, f64>,
+    unmatched: usize,
+) -> Result<(Residuals, usize), DiagError> {
+    let areas: [f32; 3] = core::array::from_fn(|c| area_of(args, c as u8) as f32);
+    let used: Vec<u8> = ident_rmse.keys().copied().collect();
+    let mut res = Residuals {
+        t: Vec::new(),
+        raw: Vec::new(),
+        truth: frames.iter().any(|f| f.force_ref.is_some()).then(Vec::new),
+        pressures: BTreeMap::new(),
+        ident_rmse,
+        unmatched,
+    };
+    let mut no_estimate = 0;
+    for f in frames {
+        let chambers = &f.frame.chambers;
+        if used
+            .iter()
+            .any(|&c| !chambers[c as usize].residual.is_finite())
+        {
+            no_estimate += 1;
+            continue;
+        }
+        // Chambers absent from the test log contribute a zero residual, as in `estimate`.
+        let mut r = [0.0f32; 3];
+        for &c in &used {
+            let ch = &chambers[c as usize];
+            r[c as usize] = ch.residual;
+            let e = res.pressures.entry(c).or_default();
+            e.0.push(f64::from(ch.p));
+            e.1.push(f64::from(ch.p_hat));
+        }
+        res.raw.push(signed_force(r, areas, test, f.t)?);
+        res.t.push(f.t);
+        if let Some(tr) = &mut res.truth {
+            tr.push(f.force_ref.unwrap_or(f64::NAN));
+        }
+    }
+    Ok((res, no_estimate))
 }

@@ -218,6 +218,16 @@ pub fn augmented_export(series: Series, cfg: &Config) -> Result<AugmentedExport,
     from_diagnosis(diagnosis, &series)
 }
 
+/// One chamber of a log as `vfp export --augmented` exports it: the loop's series from the data
+/// set ([`super::series_from_dataset`], its held-out cycles included), the loop and the export
+/// ([`augmented_export`]). `vfp force --augmented` builds its board models through the same call.
+pub fn export_dataset(
+    ds: &crate::dataset::Dataset,
+    cfg: &Config,
+) -> Result<AugmentedExport, ExportError> {
+    augmented_export(super::series_from_dataset(ds)?, cfg)
+}
+
 /// Exports the model of a finished diagnosis of `series` (the same series it was run on).
 pub fn from_diagnosis(
     diagnosis: Diagnosis,

@@ -17,7 +17,8 @@
 //! 7. **force** — the paper's Sec. IV-C pushes on the same plant: each board's force estimate
 //!    (bare polynomials, augmented models; same pushes, same noise) against the simulator's true
 //!    force (mean, std, RMSE in mN).
-//! 8. **report** — `report.md` with figures, and `report.json`, in the output directory.
+//! 8. **report** — `report.md` with figures (the force figure shows the two boards' estimates
+//!    side by side against the truth), and `report.json`, in the output directory.
 //!
 //! Every number in the report is computed in this run; a stage that cannot run says why.
 
@@ -524,9 +525,10 @@ pub fn run_plan(plan: Plan, seed: u64, out: &Path) -> Result<DemoReport, Error> 
         .and_then(hysteresis_amplitude)
         .map(|a| 3.0 * f64::from(model_core::force::DEFAULT_AREA_MM2) * a);
     let (force, trace) = force_stats(&plan, &force_run, predicted_bias);
-    let force_augmented = aug_run
-        .as_ref()
-        .and_then(|(run, _)| force_stats(&plan, run, None).0);
+    let (force_augmented, aug_trace) = match aug_run.as_ref() {
+        Some((run, _)) => force_stats(&plan, run, None),
+        None => (None, Trace::new()),
+    };
     let line = |f: &Option<ForceResult>| match f {
         Some(f) => format!(
             "error mean {:+.1} mN, std {:.1} mN, RMSE {:.1} mN over {} frames (true mean {:.0} mN)",
@@ -557,7 +559,12 @@ pub fn run_plan(plan: Plan, seed: u64, out: &Path) -> Result<DemoReport, Error> 
         written.extend(super::diagnose::write_plots(&fig, format, d)?);
     }
     let force_path = fig.join(format.file("force"));
-    force_figure(&force_path, format, &trace)
+    let mut panels = vec![ForcePanel::new("bare polynomials", &force, &trace)];
+    if !aug_trace.is_empty() {
+        let title = format!("augmented ({})", carried_union(&augmented));
+        panels.push(ForcePanel::new(&title, &force_augmented, &aug_trace));
+    }
+    force_figure(&force_path, format, &panels)
         .map_err(|e| Error::Msg(format!("{}: {e}", force_path.display())))?;
     written.push(force_path);
     for p in &written {
@@ -788,7 +795,10 @@ fn caption(stem: &str) -> String {
         "error-histogram" => "Held-out error distribution of the selected polynomial".into(),
         "resid-before" => "Residual loop: held-out residual before".into(),
         "resid-after" => "Residual loop: held-out residual after".into(),
-        "force" => "Force pushes: the board's estimate against the true force".into(),
+        "force" => {
+            "Force pushes: the board's estimate against the true force (bare polynomials, augmented models)"
+                .into()
+        }
         w => match w.strip_suffix("-rmse-aicc") {
             Some(fam) => format!("Model comparison, {fam}: RMSE (bars) and AICc"),
             None => w.to_string(),
@@ -801,26 +811,73 @@ fn caption(stem: &str) -> String {
     }
 }
 
-fn force_figure(path: &Path, format: PlotFormat, trace: &Trace) -> Result<(), String> {
-    let root = crate::figure::canvas(path, (1000, 420), format);
+/// One panel of the force figure: a board's estimate against the truth.
+struct ForcePanel<'a> {
+    title: String,
+    trace: &'a Trace,
+}
+
+impl<'a> ForcePanel<'a> {
+    /// The panel of a board named `what`, its error statistics in the title.
+    fn new(what: &str, stats: &Option<ForceResult>, trace: &'a Trace) -> Self {
+        let title = match stats {
+            Some(f) => format!(
+                "{what}: error {:+.1} ± {:.1} mN",
+                f.mean_error_mn, f.std_error_mn
+            ),
+            None => what.to_string(),
+        };
+        ForcePanel { title, trace }
+    }
+}
+
+/// The effects any chamber's augmented chain carries, in first-seen order (`a + b`).
+fn carried_union(aug: &[ChamberEffects]) -> String {
+    let mut names: Vec<&str> = Vec::new();
+    for n in aug.iter().flat_map(|(_, e)| e) {
+        if !names.contains(&n.as_str()) {
+            names.push(n);
+        }
+    }
+    if names.is_empty() {
+        "no effect carried".into()
+    } else {
+        names.join(" + ").replace('_', " ")
+    }
+}
+
+/// The force figure: one panel per board (bare, augmented) side by side, on one force axis.
+fn force_figure(path: &Path, format: PlotFormat, panels: &[ForcePanel]) -> Result<(), String> {
+    let w = 700 * panels.len().max(1) as u32;
+    let root = crate::figure::canvas(path, (w, 420), format);
     root.fill(&WHITE).map_err(|e| e.to_string())?;
+    let hi = panels
+        .iter()
+        .flat_map(|p| p.trace.iter().flat_map(|q| [q.1, q.2]))
+        .filter(|x| x.is_finite())
+        .fold(0.0f64, f64::max)
+        * 1e3
+        * 1.35
+        + 10.0;
+    let areas = root.split_evenly((1, panels.len().max(1)));
+    for (area, panel) in areas.iter().zip(panels) {
+        force_panel(area, panel, hi)?;
+    }
+    root.present().map_err(|e| e.to_string())
+}
+
+fn force_panel<DB: DrawingBackend>(
+    area: &DrawingArea<DB, plotters::coord::Shift>,
+    panel: &ForcePanel,
+    hi: f64,
+) -> Result<(), String> {
+    let trace = panel.trace;
     let (x0, x1) = trace
         .first()
         .zip(trace.last())
         .map_or((0.0, 1.0), |(a, b)| (a.0, b.0.max(a.0 + 1.0)));
-    let hi = trace
-        .iter()
-        .flat_map(|p| [p.1, p.2])
-        .filter(|x| x.is_finite())
-        .fold(0.0f64, f64::max)
-        * 1e3
-        * 1.1
-        + 10.0;
-    let mut chart = ChartBuilder::on(&root)
-        .caption(
-            "force pushes: true force and the board's estimate",
-            ("sans-serif", 20),
-        )
+    let mut chart = ChartBuilder::on(area)
+        .caption(&panel.title, ("sans-serif", 18))
         .margin(10)
         .x_label_area_size(36)
         .y_label_area_size(56)
@@ -851,15 +908,15 @@ fn force_figure(path: &Path, format: PlotFormat, trace: &Trace) -> Result<(), St
             red.stroke_width(1),
         ))
         .map_err(|e| e.to_string())?
-        .label("estimated on the board (Σ residual × 22 mm²)")
+        .label("the board's estimate (|Σ residual × 22 mm²|)")
         .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], red.stroke_width(2)));
     chart
         .configure_series_labels()
+        .position(SeriesLabelPosition::UpperRight)
         .background_style(WHITE.mix(0.8))
         .border_style(BLACK.mix(0.3))
         .draw()
-        .map_err(|e| e.to_string())?;
-    root.present().map_err(|e| e.to_string())
+        .map_err(|e| e.to_string())
 }
 
 fn markdown(r: &DemoReport, figures: &[(String, String)]) -> String {

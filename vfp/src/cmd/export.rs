@@ -7,7 +7,7 @@ use crate::Error;
 use sysid::dataset::Dataset;
 use sysid::export::{augmented_report, board_lines, export_log, rust_constants};
 use sysid::poly;
-use sysid::residual::export::augmented_export;
+use sysid::residual::export::export_dataset;
 use sysid::residual::{self, EffectKind};
 
 /// Export identified models for the device (serial command lines and Rust constants).
@@ -138,8 +138,7 @@ pub fn run(args: &Args) -> Result<(), Error> {
                 ds.chamber
             ))
         };
-        let series = residual::series_from_dataset(ds).map_err(|e| wrap(&e))?;
-        let x = augmented_export(series, &cfg).map_err(|e| wrap(&e))?;
+        let x = export_dataset(ds, &cfg).map_err(|e| wrap(&e))?;
         let report = augmented_report(&data.path, ds.chamber, &x);
         for l in report
             .iter()

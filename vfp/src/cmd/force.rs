@@ -1,12 +1,15 @@
-//! `vfp force --ident A.csv --test B.csv`: external force from pressure residuals (paper §IV-C,
-//! Fig. 8); the method is [`sysid::diag::force`].
+//! `vfp force --ident A.csv --test B.csv [--augmented]`: external force from pressure residuals
+//! (paper §IV-C, Fig. 8); the method is [`sysid::diag::force`], with `--augmented`
+//! [`sysid::diag::force::estimate_augmented`] (the residual loop's models as the board runs them).
 
 use super::stiffness::ShapeOpts;
 use crate::opts::{DataOpts, OutputOpts};
 use crate::plots::diag::{self as plot, Curve, Mark};
 use crate::Error;
 use std::path::PathBuf;
-use sysid::diag::force::{estimate, ForceOptions, ForceReport, ForceTrace};
+use sysid::diag::force::{
+    estimate, estimate_augmented, AugmentedForceReport, ForceOptions, ForceReport, ForceTrace,
+};
 
 /// `vfp force`: external force from pressure residuals.
 #[derive(Debug, Clone, clap::Args)]
@@ -29,6 +32,13 @@ pub struct Args {
     /// the start when the log has no force_n).
     #[arg(long, default_value_t = 10.0)]
     pub plot_window: f64,
+    /// Estimate with the augmented models, as the board would: per chamber the residual loop
+    /// (as `vfp diagnose`, baseline shape --n/--m) on the identification log, its model built as
+    /// `vfp export --augmented` builds it (polynomial and effect chain), and the test log replayed
+    /// through the firmware's own estimator (`vfp replay`). The report adds the effects each
+    /// chamber's board ran and those that stay on the host.
+    #[arg(long)]
+    pub augmented: bool,
     #[command(flatten)]
     pub data: DataOpts,
     #[command(flatten)]
@@ -60,15 +70,80 @@ impl Args {
     }
 }
 
+/// Settings of the residual loop behind `--augmented` (those of `vfp diagnose`, the baseline
+/// shape from --n/--m), checked.
+pub fn loop_config(args: &Args) -> Result<sysid::residual::Config, Error> {
+    if args.data.holdout_every < 2 {
+        return Err(Error::Usage(format!(
+            "--holdout-every {}: --augmented compares models on held-out cycles (2 or more)",
+            args.data.holdout_every
+        )));
+    }
+    let shape = args.shape.shape()?;
+    Ok(sysid::residual::Config {
+        n: shape.n,
+        m: shape.m,
+        progress: crate::progress::shown()
+            .then_some(crate::progress::stages as sysid::progress::ProgressFn),
+        ..sysid::residual::Config::default()
+    })
+}
+
 /// Runs `vfp force`.
 pub fn run(args: &Args) -> Result<(), Error> {
     let o = args.options()?;
+    let cfg = args.augmented.then(|| loop_config(args)).transpose()?;
     let ident = args.data.load(&args.ident, None)?;
     let test = args.data.load(&args.test, None)?;
-    let (report, trace) = estimate(&ident, &test, &o)?;
-    args.out.emit(&report, human, |dir, format| {
-        plot_force(dir, format, &trace, args.plot_window)
-    })
+    let w = args.plot_window;
+    match cfg {
+        None => {
+            let (report, trace) = estimate(&ident, &test, &o)?;
+            args.out
+                .emit(&report, human, |dir, f| plot_force(dir, f, &trace, w))
+        }
+        Some(cfg) => {
+            let (report, trace) = estimate_augmented(&ident, &test, &o, &cfg)?;
+            args.out.emit(&report, human_augmented, |dir, f| {
+                plot_force(dir, f, &trace, w)
+            })
+        }
+    }
+}
+
+/// The human report of `--augmented`: the bare report's text, then the board models.
+pub fn human_augmented(r: &AugmentedForceReport) -> String {
+    let mut s = format!(
+        "Augmented models as the board runs them (residual loop on {}, `vfp export \
+         --augmented`'s model, the firmware's estimator over the test log; ident RMSE below is \
+         the board model's held-out RMSE)\n",
+        r.force.ident
+    );
+    for a in &r.augmented {
+        let fx = if a.effects.is_empty() {
+            "none (bare polynomial refitted)".to_string()
+        } else {
+            a.effects.join(", ")
+        };
+        s += &format!(
+            "  chamber {}: effects on the board: {fx}; held-out RMSE {:.4} kPa (baseline {:.4})\n",
+            a.chamber, a.device_heldout_rmse_kpa, a.baseline_heldout_rmse_kpa
+        );
+        for d in &a.host_only {
+            s += &format!(
+                "    kept by the loop, not on the board: {} ({})\n",
+                d.name, d.reason
+            );
+        }
+    }
+    if r.no_estimate > 0 {
+        s += &format!(
+            "  {} test instants without a board estimate (history filling or out of the model's \
+             range) left out\n",
+            r.no_estimate
+        );
+    }
+    s + "\n" + &human(&r.force)
 }
 
 /// The human report (forces in mN).
