@@ -781,6 +781,8 @@ pub struct Estimator {
     zeroing: Option<(u32, [f32; AXES])>,
     /// Each chamber's correction of the zero at rest.
     rest: [RestZero; AXES],
+    /// Each chamber's load pressure of the last frame, kPa ([`Chain::load_pressure`]).
+    load_kpa: [f32; AXES],
     /// Current (non-latching) warnings.
     warnings: u32,
     seq: u32,
@@ -796,6 +798,7 @@ impl Estimator {
             zero_kpa: [0.0; AXES],
             zeroing: Some((cfg.zero_frames, [0.0; AXES])),
             rest: [RestZero::default(); AXES],
+            load_kpa: [f32::NAN; AXES],
             warnings: Flags::NOT_ZEROED,
             seq: 0,
             chambers: [chamber.clone(), chamber.clone(), chamber],
@@ -822,6 +825,11 @@ impl Estimator {
     /// Pressure zero offsets, kPa.
     pub fn zero_kpa(&self) -> [f32; AXES] {
         self.zero_kpa
+    }
+    /// Each chamber's load pressure in the last frame, kPa: its residual with the chain's
+    /// sensor lag undone ([`Chain::load_pressure`]); the force is these times the areas.
+    pub fn load_kpa(&self) -> [f32; AXES] {
+        self.load_kpa
     }
     /// Current warning bits (zero pending, model range, drift, RLS active).
     pub fn warnings(&self) -> u32 {
@@ -939,8 +947,7 @@ impl Estimator {
                 self.warnings |= flag;
             }
         }
-        let residual = core::array::from_fn(|ch| chambers[ch].residual);
-        let force_n = model_core::force::estimate(residual, self.cfg.area_mm2)
+        let force_n = model_core::force::estimate(self.load_kpa, self.cfg.area_mm2)
             .map_or(f32::NAN, |f| f.total_n);
         let frame = Frame {
             seq: self.seq,
@@ -1007,6 +1014,10 @@ impl Estimator {
             Ok(e) => {
                 c.p_hat = e.p;
                 c.residual = c.p - e.p;
+                self.load_kpa[ch] =
+                    chamber
+                        .chain
+                        .load_pressure(&mut chamber.state, c.residual, inp.dt);
                 c.k = e.k;
                 c.c = e.c;
                 ((e.v_in, e.vdot_in, c.p - (e.p - e.p_poly)), Ok(()))
@@ -1017,6 +1028,10 @@ impl Estimator {
                 c.residual = f32::NAN;
                 c.k = f32::NAN;
                 c.c = f32::NAN;
+                self.load_kpa[ch] =
+                    chamber
+                        .chain
+                        .load_pressure(&mut chamber.state, f32::NAN, inp.dt);
                 ((c.v, c.vdot, c.p), Err(range))
             }
         };

@@ -484,7 +484,8 @@ fn sensor_lag(w: &[f32; 8], s: &mut [f32; 8], primed: bool, dt: f32, x: f32) -> 
         d
     };
     let y = w[0] * s[0] + w[1] * s[1] + w[2] * x + w[3] * s[3] + w[4] * m;
-    *s = [y, x, s[1], m, 2.0, 0.0, 0.0, 0.0];
+    // Slots 5 and 6 belong to `Chain::load_pressure`.
+    *s = [y, x, s[1], m, 2.0, s[5], s[6], 0.0];
     y
 }
 
@@ -681,6 +682,39 @@ impl Chain {
             d[i] = Derived::of(e, dt);
         }
         Ok(d)
+    }
+
+    /// The pressure of an external load on the chamber from this frame's residual
+    /// `r = P − P̂` (kPa). The load's pressure reaches the sensor through the same lag as the
+    /// chamber's own, so with a `sensor_lag` of τ the residual is the load's pressure lagged,
+    /// and undoing the lag to first order gives
+    ///
+    /// ```text
+    /// load_k = r_k + τ·(r_k − r_{k−1})/Δt
+    /// ```
+    ///
+    /// (r alone on the first frame after a reset or after a frame without a residual). The
+    /// difference multiplies the residual's noise by about √(1 + 2(τ/Δt)²): 3.7 at τ = 0.1 s and
+    /// 25 Hz, the price of a force that is not late. Without a sensor lag: r. A non-finite r gives
+    /// NaN, and the next frame starts over. Call it once per frame, after [`Chain::eval`], with
+    /// the same state (slots 5 and 6 of the sensor lag's).
+    pub fn load_pressure(&self, state: &mut ChainState, residual: f32, dt: f32) -> f32 {
+        let Some(i) = self.position(EffectKind::SensorLag) else {
+            return residual;
+        };
+        let tau = self.effects()[i].params[0];
+        let s = &mut state.slot[i];
+        if !residual.is_finite() {
+            s[6] = 0.0;
+            return f32::NAN;
+        }
+        let load = if s[6] > 0.0 {
+            residual + tau * (residual - s[5]) / dt
+        } else {
+            residual
+        };
+        (s[5], s[6]) = (residual, 1.0);
+        load
     }
 
     fn position(&self, kind: EffectKind) -> Option<usize> {

@@ -813,3 +813,52 @@ proptest! {
         }
     }
 }
+
+#[test]
+fn the_load_pressure_undoes_the_sensor_lag_on_the_residual() {
+    let dt = DT;
+    let tau = 0.1f32;
+    let lagged = chain(&[(EffectKind::SensorLag, &[tau])]);
+    let plain = chain(&[(EffectKind::Hysteresis, &[5.0, 0.5, 0.0])]);
+    let mut st = ChainState::new();
+    // A load ramping at 2 kPa/s from t = 0, through the sensor's first-order lag (exact):
+    // r(t) = a(t − τ) + aτe^{−t/τ}. Once r is linear (a few τ), r + τ ṙ is the load a·t exactly
+    // (the backward difference of a straight line is its slope).
+    let a = 2.0f64;
+    let tau64 = f64::from(tau);
+    let r = |t: f64| a * (t - tau64) + a * tau64 * (-t / tau64).exp();
+    for k in 0..40 {
+        let t = k as f64 * f64::from(dt);
+        let load = lagged.load_pressure(&mut st, r(t) as f32, dt);
+        if k == 0 {
+            assert_eq!(
+                load,
+                r(0.0) as f32,
+                "the first frame has no slope: r itself"
+            );
+        }
+        if t > 8.0 * tau64 {
+            assert!(
+                (f64::from(load) - a * t).abs() < 1e-3,
+                "t {t}: {load} vs {}",
+                a * t
+            );
+        }
+        // The residual alone is a·τ = 0.2 kPa late.
+        if t > 8.0 * tau64 {
+            assert!((r(t) - a * t + a * tau64).abs() < 1e-3);
+        }
+    }
+    // A frame without a residual: NaN, and the next frame starts over (no slope across it).
+    assert!(lagged.load_pressure(&mut st, f32::NAN, dt).is_nan());
+    assert_eq!(lagged.load_pressure(&mut st, 1.5, dt), 1.5);
+    // A reset starts over too.
+    st.reset();
+    assert_eq!(lagged.load_pressure(&mut st, 0.25, dt), 0.25);
+    // Without a sensor lag the load is the residual.
+    let mut st = ChainState::new();
+    for r in [0.0f32, 1.0, -3.0, 0.5] {
+        assert_eq!(plain.load_pressure(&mut st, r, dt), r);
+    }
+    assert_eq!(Chain::new().load_pressure(&mut st, 0.7, dt), 0.7);
+}

@@ -42,6 +42,9 @@ pub struct ReplayFrame {
     pub t: f64,
     /// The board's frame (P̂, residual, k, c per chamber, force).
     pub frame: Frame,
+    /// Per chamber the load pressure the board's force is made of, kPa: the residual with the
+    /// chain's sensor lag undone (`model_core::chain::Chain::load_pressure`).
+    pub load_kpa: [f32; CHAMBERS],
     /// Reference force of the log, N, when it has one.
     pub force_ref: Option<f64>,
     /// Whether the frame lies in a held-out cycle.
@@ -126,12 +129,21 @@ pub fn estimator(models: &[Option<Model>; CHAMBERS], frame_hz: u32) -> Estimator
     est
 }
 
+/// What the board's estimator made of one frame.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BoardFrame {
+    /// The frame it streams.
+    pub frame: Frame,
+    /// Per chamber the load pressure behind its force, kPa.
+    pub load_kpa: [f32; CHAMBERS],
+}
+
 /// Runs `frames` (time in s, per chamber `(v, v̇, P)`) through a fresh [`estimator`].
 pub fn run(
     models: &[Option<Model>; CHAMBERS],
     frame_hz: u32,
     frames: impl IntoIterator<Item = (f64, [(f32, f32, f32); CHAMBERS])>,
-) -> Vec<Frame> {
+) -> Vec<BoardFrame> {
     let mut est = estimator(models, frame_hz);
     let mut events = EventBuf::new();
     frames
@@ -144,7 +156,12 @@ pub fn run(
                 ..ChamberFrame::default()
             });
             events.clear();
-            est.estimate_frame(chambers, (t * 1e6).round().max(0.0) as u64, &mut events)
+            let frame =
+                est.estimate_frame(chambers, (t * 1e6).round().max(0.0) as u64, &mut events);
+            BoardFrame {
+                frame,
+                load_kpa: est.load_kpa(),
+            }
         })
         .collect()
 }
@@ -192,12 +209,13 @@ pub fn replay(
     let frames: Vec<ReplayFrame> = rows
         .iter()
         .zip(board)
-        .map(|(row, frame)| {
+        .map(|(row, b)| {
             let (&c0, &i0) = row.iter().next().expect("a matched row has a chamber");
             let d = by_ch[&c0];
             ReplayFrame {
                 t: d.t[i0],
-                frame,
+                frame: b.frame,
+                load_kpa: b.load_kpa,
                 force_ref: d.force.as_ref().map(|f| f[i0]),
                 heldout: d.heldout[i0],
             }

@@ -112,7 +112,7 @@ fn worst_relative(series: &Series, carry: &[EffectKind], chain: &[Effect]) -> f6
     let range = (hi - lo).max(1e-9);
     let mut worst = 0.0f64;
     for (j, &want) in pred.iter().enumerate() {
-        let got = f64::from(out[j + dm.first_row].chambers[0].p_hat);
+        let got = f64::from(out[j + dm.first_row].frame.chambers[0].p_hat);
         assert!(got.is_finite(), "frame {}: no estimate", j + dm.first_row);
         worst = worst.max((got - want).abs() / range);
     }

@@ -5,9 +5,7 @@ use host_sim::plant::Hysteresis;
 use host_sim::{simulate, Effects, PlantConfig, Protocol, Scenario};
 use std::path::{Path, PathBuf};
 use sysid::dataset::{DatasetConfig, LogData};
-use sysid::diag::force::{
-    error_stats, estimate, estimate_augmented, AugmentedForceReport, ForceReport, ForceTrace,
-};
+use sysid::diag::force::{estimate, estimate_augmented, AugmentedForceReport, ForceReport};
 use vfp::cmd::force::{loop_config, Args as ForceArgs};
 use vfp::cmd::stiffness::ShapeOpts;
 use vfp::opts::{DataOpts, OutputOpts};
@@ -74,9 +72,7 @@ fn args(ident: PathBuf, test: PathBuf) -> ForceArgs {
 /// The reports and traces of bare and augmented `vfp force` on one pair of logs.
 struct Both {
     bare: ForceReport,
-    bare_trace: ForceTrace,
     aug: AugmentedForceReport,
-    aug_trace: ForceTrace,
 }
 
 /// Bare and augmented `vfp force` on one pair of logs.
@@ -87,52 +83,14 @@ fn both(dir: &Path, effects: &Effects, test: &Scenario) -> Both {
     let read = |p: &Path| LogData::read(p, None, &DatasetConfig::default()).unwrap();
     let (i, t) = (read(&ident), read(&test));
     let o = a.options().unwrap();
-    let (bare, bare_trace) = estimate(&i, &t, &o).unwrap();
-    let (aug, aug_trace) = estimate_augmented(&i, &t, &o, &loop_config(&a).unwrap()).unwrap();
-    Both {
-        bare,
-        bare_trace,
-        aug,
-        aug_trace,
-    }
+    let (bare, _) = estimate(&i, &t, &o).unwrap();
+    let (aug, _) = estimate_augmented(&i, &t, &o, &loop_config(&a).unwrap()).unwrap();
+    Both { bare, aug }
 }
 
-/// The force the sensors can show: the true force through the sensor's first-order lag τ (the
-/// plant's, exact for a force linear between samples), so `estimate − lagged` is the model's
-/// share of the error and `lagged − true` the lag's, which no model of P̂ removes.
-fn lagged_truth(tr: &ForceTrace, tau: f64) -> Vec<f64> {
-    let f = tr.truth.as_ref().expect("the push log has force_n");
-    let mut y = vec![f[0]; f.len()];
-    for k in 1..f.len() {
-        let h = tr.t[k] - tr.t[k - 1];
-        if tau <= 0.0 {
-            y[k] = f[k];
-            continue;
-        }
-        let a = (-h / tau).exp();
-        // Exact response of ẏ = (F − y)/τ to F linear over [t_{k−1}, t_k].
-        let slope = (f[k] - f[k - 1]) / h;
-        y[k] = f[k] - slope * tau + a * (y[k - 1] - f[k - 1] + slope * tau);
-    }
-    y
-}
-
-/// Standard deviation of the model's share of the force error (estimate against the lagged
-/// truth), N.
-fn model_share_std(tr: &ForceTrace, tau: f64) -> f64 {
-    let y = lagged_truth(tr, tau);
-    let e: Vec<f64> = tr.est.iter().zip(&y).map(|(a, b)| a - b).collect();
-    error_stats(&e).1
-}
-
-fn show(what: &str, b: &Both, tau: f64) {
+fn show(what: &str, b: &Both) {
     let (bare, aug) = (&b.bare, &b.aug);
     let mn = |x: Option<f64>| x.unwrap() * 1e3;
-    eprintln!(
-        "{what}: model share std bare {:.2} aug {:.2} mN",
-        model_share_std(&b.bare_trace, tau) * 1e3,
-        model_share_std(&b.aug_trace, tau) * 1e3
-    );
     eprintln!(
         "{what}: bare {:+.2} ± {:.2} mN, augmented {:+.2} ± {:.2} mN ({} samples, {} without estimate); effects {:?}",
         mn(bare.mean_error_n),
@@ -165,21 +123,20 @@ fn rig_effects() -> Effects {
 }
 
 /// The acceptance run of issue #16: identification (seed 11) and pushes (seed 12) on a plant
-/// with wall hysteresis and sensor lag in every chamber.
+/// with wall hysteresis and sensor lag in every chamber; the force error's std on the board
+/// with the augmented model at most half the bare model's.
 ///
-/// Measured (2026-11-24), force error mean ± std: bare 8.30 ± 48.67 mN, augmented 1.08 ± 35.29 mN (std ratio
-/// 0.73); against the lagged truth (the model's share) 33.62 → 2.03 mN (0.06). The sensor lag
-/// delays the force's own pressure too (a 1 Hz push of 0.3 N through τ = 0.1 s is ≈ 35 mN of
-/// error), which no model of P̂ removes: the board's residual is `P − P̂` and the chain only
-/// makes P̂ what the sensor would show without a push. So the whole-error ratio cannot reach 0.5
-/// here; the model's share is asserted to at most half, the whole error to improve, and it must
-/// stay above the lag's own floor (no estimate can undo the lag by accident).
+/// Measured (2026-11-24), force error mean ± std: bare +8.30 ± 48.67 mN, augmented
+/// +0.93 ± 6.22 mN (0.13×). The sensor lag delays the push's own pressure as well as the
+/// chamber's (a 1 Hz push of 0.3 N through τ = 0.1 s is ≈ 35 mN of error); the board undoes it
+/// on the residual (`Chain::load_pressure`: r + τ ṙ), without which the augmented std was
+/// 35.3 mN (0.73×).
 #[test]
 fn augmented_board_removes_the_model_error_of_hysteresis_and_sensor_lag() {
     let dir = tmpdir("rig");
     let e = rig_effects();
     let b = both(&dir, &e, &push_scenario(&e, 12));
-    show("hysteresis + sensor lag", &b, SENSOR_LAG_S);
+    show("hysteresis + sensor lag", &b);
     for a in &b.aug.augmented {
         for want in ["hysteresis", "sensor_lag"] {
             assert!(
@@ -194,25 +151,9 @@ fn augmented_board_removes_the_model_error_of_hysteresis_and_sensor_lag() {
         b.bare.std_error_n.unwrap(),
         b.aug.force.std_error_n.unwrap(),
     );
-    let (bare_model, aug_model) = (
-        model_share_std(&b.bare_trace, SENSOR_LAG_S),
-        model_share_std(&b.aug_trace, SENSOR_LAG_S),
-    );
     assert!(
-        aug_model <= 0.5 * bare_model,
-        "model share of the error: augmented {aug_model} N, bare {bare_model} N"
-    );
-    assert!(aug < bare, "std error: augmented {aug} N, bare {bare} N");
-    let truth = b.aug_trace.truth.as_ref().unwrap();
-    let lag_only: Vec<f64> = lagged_truth(&b.aug_trace, SENSOR_LAG_S)
-        .iter()
-        .zip(truth)
-        .map(|(y, f)| y - f)
-        .collect();
-    let floor = error_stats(&lag_only).1;
-    assert!(
-        aug > 0.9 * floor,
-        "augmented std {aug} N below the lag's own error {floor} N"
+        aug <= 0.5 * bare,
+        "std error: augmented {aug} N, bare {bare} N"
     );
     assert!(
         b.aug.force.mean_error_n.unwrap().abs() < b.bare.mean_error_n.unwrap().abs(),
@@ -229,7 +170,7 @@ fn augmented_board_is_no_worse_without_planted_effects() {
     let dir = tmpdir("control");
     let e = Effects::default();
     let b = both(&dir, &e, &push_scenario(&e, 12));
-    show("no planted effect", &b, 0.0);
+    show("no planted effect", &b);
     let (bare, aug) = (
         b.bare.std_error_n.unwrap(),
         b.aug.force.std_error_n.unwrap(),
@@ -257,6 +198,6 @@ fn sizes() {
             ..Effects::default()
         };
         let b = both(&dir, &e, &push_scenario(&e, 12));
-        show(&format!("H_a {amp} kPa, tau {tau} s"), &b, tau);
+        show(&format!("H_a {amp} kPa, tau {tau} s"), &b);
     }
 }

@@ -522,7 +522,8 @@ fn augmented_models(
 }
 
 /// The replayed frames as [`Residuals`] (frames where a chamber of `test` has no board estimate
-/// left out and counted): the board's residuals through the device's force law, signed.
+/// left out and counted): the board's load pressures (its residuals with the chain's sensor lag
+/// undone, `ReplayFrame::load_kpa`) through the device's force law, signed.
 fn board_residuals(
     test: &LogData,
     args: &ForceOptions,
@@ -554,7 +555,7 @@ fn board_residuals(
         let mut r = [0.0f32; 3];
         for &c in &used {
             let ch = &chambers[c as usize];
-            r[c as usize] = ch.residual;
+            r[c as usize] = f.load_kpa[c as usize];
             let e = res.pressures.entry(c).or_default();
             e.0.push(f64::from(ch.p));
             e.1.push(f64::from(ch.p_hat));

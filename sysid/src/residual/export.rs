@@ -601,7 +601,7 @@ pub fn device_rmse(model: &firmware::store::Model, series: &Series) -> (f64, usi
     let out = crate::replay::run(&[Some(*model), None, None], hz, frames);
     let (mut sse, mut n) = (0.0, 0usize);
     for (k, f) in out.iter().enumerate() {
-        let c = &f.chambers[0];
+        let c = &f.frame.chambers[0];
         if !series.train[k] && c.p_hat.is_finite() {
             let r = series.p[k] - f64::from(c.p_hat);
             sse += r * r;
