@@ -337,6 +337,51 @@ fn export(
     })
 }
 
+/// `replay`: `vfp replay MODEL LOG --json`'s summary and every frame as columns (the columns of
+/// `vfp replay -o`: `time_s`, per chamber `p_i`, `p_hat_i`, `residual_i`, `load_i`, `k_i`,
+/// `c_i`, then `force_n` and `force_ref_n`; the board's f32 values widened to f64).
+#[pyfunction]
+fn replay(
+    py: Python<'_>,
+    model: String,
+    model_name: String,
+    source: Source,
+    data: DataOptions,
+) -> PyResult<(String, Vec<OutColumn>)> {
+    py.detach(|| {
+        let uploads = sysid::deploy::parse_lines(&model, &model_name).map_err(value_error)?;
+        let models = sysid::replay::board_models(&uploads)
+            .map_err(|e| value_error(format!("{model_name}: {e}")))?;
+        let data = load(source, &data, None)?;
+        let (summary, frames) = sysid::replay::replay(&models, &data).map_err(value_error)?;
+        let mut cols = vec![numbers("time_s", frames.iter().map(|f| f.t))];
+        for ch in 0..sysid::replay::CHAMBERS {
+            let c = |f: &sysid::replay::ReplayFrame| f.frame.chambers[ch];
+            let col = |name: &str, get: &dyn Fn(&sysid::replay::ReplayFrame) -> f32| {
+                numbers(
+                    &format!("{name}_{ch}"),
+                    frames.iter().map(|f| f64::from(get(f))),
+                )
+            };
+            cols.push(col("p", &|f| c(f).p));
+            cols.push(col("p_hat", &|f| c(f).p_hat));
+            cols.push(col("residual", &|f| c(f).residual));
+            cols.push(col("load", &|f| f.load_kpa[ch]));
+            cols.push(col("k", &|f| c(f).k));
+            cols.push(col("c", &|f| c(f).c));
+        }
+        cols.push(numbers(
+            "force_n",
+            frames.iter().map(|f| f64::from(f.frame.force_n)),
+        ));
+        cols.push(numbers(
+            "force_ref_n",
+            frames.iter().map(|f| f.force_ref.unwrap_or(f64::NAN)),
+        ));
+        Ok((json(&summary)?, cols))
+    })
+}
+
 /// `simulate`: the log `vfp simulate` writes, as columns and comments.
 #[pyfunction]
 fn simulate(
@@ -374,6 +419,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(diagnose, m)?)?;
     m.add_function(wrap_pyfunction!(force, m)?)?;
     m.add_function(wrap_pyfunction!(export, m)?)?;
+    m.add_function(wrap_pyfunction!(replay, m)?)?;
     m.add_function(wrap_pyfunction!(simulate, m)?)?;
     m.add(
         "__doc__",

@@ -73,6 +73,38 @@ def test_export_lines_equal_cli():
     assert vfp.export(QUICK, n=2, m=1, format="rust") == rust
 
 
+def test_replay_equals_cli(tmp_path):
+    """`replay` with `export`'s lines gives `vfp replay --json`'s summary, and its frames are the
+    CSV of `vfp replay -o` (the board's f32 values, widened exactly)."""
+    log = tmp_path / "paper.csv"
+    run_cli("simulate", "--preset", "paper", "--cycles", "2", "-o", log)
+    lines = vfp.export(log)
+    model = tmp_path / "model.txt"
+    model.write_text("\n".join(lines) + "\n")
+    summary, frames = vfp.replay(lines, log, frames=True)
+    assert summary == cli_json("replay", model, log)
+    assert vfp.replay(model, log) == summary
+    out = tmp_path / "replay.csv"
+    run_cli("replay", model, log, "-o", out)
+    csv = pd.read_csv(out)
+    np.testing.assert_array_equal(frames["time_s"], csv["time_s"].to_numpy())
+    # The CSV holds each f32 in its shortest round-trip form: equal as f32.
+    for col in ["p_0", "p_hat_0", "residual_0", "k_0", "c_0", "force_n"]:
+        got, want = frames[col].astype(np.float32), csv[col].to_numpy().astype(np.float32)
+        np.testing.assert_array_equal(got, want, err_msg=col)
+    # Identities: the residual is P - P̂ in f32, and without a sensor lag the load is the residual;
+    # the summary's RMSE is the frames' own.
+    r = (frames["p_0"].astype(np.float32) - frames["p_hat_0"].astype(np.float32)).astype(np.float64)
+    np.testing.assert_array_equal(frames["residual_0"], r)
+    np.testing.assert_array_equal(frames["load_0"], frames["residual_0"])
+    ok = np.isfinite(frames["p_hat_0"])
+    rmse = float(np.sqrt(np.mean((frames["p_0"][ok] - frames["p_hat_0"][ok]) ** 2)))
+    assert math.isclose(rmse, summary["chambers"][0]["p_hat_rmse_kpa"], rel_tol=1e-9)
+    # A ventilator's scales are beyond the board's commands: the replay refuses, naming them.
+    with pytest.raises(ValueError, match=r"model lines:2: the firmware would refuse it \(out-of-range 8\)"):
+        vfp.replay(vfp.export(BAG), BAG)
+
+
 def test_frame_and_dict_agree_with_path():
     frame = vfp.read_log(QUICK, as_frame=True)
     table = vfp.read_log(QUICK)

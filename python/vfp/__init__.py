@@ -37,7 +37,7 @@ import numpy as np
 
 from . import _native
 
-__all__ = ["read_log", "identify", "diagnose", "simulate", "export", "force"]
+__all__ = ["read_log", "identify", "diagnose", "simulate", "export", "force", "replay"]
 
 Log = Union[str, "os.PathLike[str]", Mapping, Any]
 
@@ -369,3 +369,45 @@ def force(
     data = _data(columns, chamber_base, holdout_every, derive_flow, diff_half_width, deadband)
     text = _native.force(_source(ident), _source(test), data, (n, m), areas, smooth, augmented)
     return json.loads(text)
+
+
+def replay(
+    model: Union[str, "os.PathLike[str]", Sequence[str]],
+    log: Log,
+    *,
+    frames: bool = False,
+    as_frame: bool = False,
+    holdout_every: int = 5,
+    columns: Optional[str] = None,
+    chamber_base: int = 0,
+    derive_flow: bool = False,
+    diff_half_width: int = 2,
+    deadband: Optional[float] = None,
+) -> Any:
+    """What the board would have estimated on a log: ``vfp replay MODEL LOG --json``.
+
+    ``model``: the lines ``export()`` returns (a list of ``str``) or the path of a file of
+    ``vfp export`` output. The log's frames go through the firmware's own estimator (the code the
+    board runs, its f32 arithmetic, the effect chain included). Returns the command's summary:
+    per chamber the P̂ RMSE against the measured pressure (kPa), over all frames and the held-out
+    cycles, and the force error against ``force_n`` (N) when the log has one.
+
+    With ``frames=True`` returns ``(summary, frames)``: ``frames`` a dict of numpy arrays (a
+    pandas DataFrame with ``as_frame=True``) with ``time_s`` (s), per chamber ``p_i``,
+    ``p_hat_i``, ``residual_i``, ``load_i`` (kPa; the residual with the chain's sensor lag
+    undone, what the force is made of), ``k_i`` (kPa/mm³), ``c_i`` (kPa·s/mm³), then ``force_n``
+    and ``force_ref_n`` (N; NaN where the log has none).
+    """
+    if isinstance(model, (str, os.PathLike)):
+        name = os.fspath(model)
+        with open(name, encoding="utf-8") as f:
+            text = f.read()
+    else:
+        name = "model lines"
+        text = "\n".join(model)
+    data = _data(columns, chamber_base, holdout_every, derive_flow, diff_half_width, deadband)
+    summary, cols = _native.replay(text, name, _source(log), data)
+    doc = json.loads(summary)
+    if not frames:
+        return doc
+    return doc, _table((cols, []), as_frame)

@@ -48,6 +48,12 @@ def export(
     p: int,
     all_samples: bool,
 ) -> List[Tuple[int, Optional[str], List[str], str]]: ...
+def replay(
+    model: str,
+    model_name: str,
+    source: Source,
+    data: Any,
+) -> Tuple[str, List[Tuple[str, Optional[bytes], Optional[List[str]]]]]: ...
 def simulate(
     preset: str,
     cycles: Optional[int],

@@ -320,6 +320,17 @@ pub fn f32_loss(e: &Exported, v: &[f64], vdot: &[f64], p: &[f64]) -> F32Loss {
     }
 }
 
+/// A warning when the board's own command parser (`firmware::command`, through
+/// [`crate::deploy::parse_lines`]) refuses `lines`: a log far from a syringe rig's scales (a
+/// ventilator's flows of 10⁵–10⁶ mm³/s) gives a scaling beyond the bounds its commands accept.
+fn board_refusal(lines: &[String]) -> Option<String> {
+    crate::deploy::parse_lines(&lines.join("\n"), "export").err().map(|e| {
+        format!(
+            "WARNING: the board would refuse these lines ({e}); its commands take volumes within ±1e6 mm³ and flows within ±1e4 mm³/s, so they are for the record only"
+        )
+    })
+}
+
 /// A warning when the device's f32 loss exceeds a tenth of the model's own error on the log.
 pub fn f32_warning(e: &Exported, ds: &Dataset) -> Option<String> {
     let r = f32_loss(e, &ds.v, &ds.vdot, &ds.p);
@@ -428,10 +439,15 @@ pub fn export_log(
         .iter()
         .map(|ds| {
             let e = model_for(ds, n, m, p, all_samples)?;
+            let lines = command_lines(ds.chamber, &e.model);
+            let warnings: Vec<String> = [f32_warning(&e, ds), board_refusal(&lines)]
+                .into_iter()
+                .flatten()
+                .collect();
             Ok(ChamberExport {
                 chamber: ds.chamber,
-                warning: f32_warning(&e, ds),
-                lines: command_lines(ds.chamber, &e.model),
+                warning: (!warnings.is_empty()).then(|| warnings.join("; ")),
+                lines,
                 rust: rust_constants(
                     ds.chamber,
                     &e.model,
