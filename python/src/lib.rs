@@ -241,6 +241,7 @@ fn diagnose(
     alpha: f64,
     min_gain: f64,
     effects: Option<Vec<String>>,
+    validate: Option<Source>,
 ) -> PyResult<(String, Vec<u8>, Vec<u8>)> {
     let mut cfg = residual::Config {
         alpha,
@@ -265,9 +266,20 @@ fn diagnose(
             .collect::<PyResult<_>>()?;
     }
     py.detach(|| {
-        let data = load(source, &data, chamber)?;
-        let d = residual::diagnose_log(&data, &cfg, model.is_some()).map_err(value_error)?;
-        let doc = json(&residual::document(&data, &d))?;
+        let log = load(source, &data, chamber)?;
+        let d = residual::diagnose_log(&log, &cfg, model.is_some()).map_err(value_error)?;
+        let mut doc = residual::document(&log, &d);
+        if let Some(other) = validate {
+            let other = load(other, &data, Some(log.first().chamber))?;
+            let v = residual::validate::validate_log(&d, &other).map_err(value_error)?;
+            if let Some(obj) = doc.as_object_mut() {
+                obj.insert(
+                    "validation".into(),
+                    serde_json::to_value(&v).map_err(value_error)?,
+                );
+            }
+        }
+        let doc = json(&doc)?;
         Ok((doc, points(&d.analysis_before), points(&d.analysis_after)))
     })
 }

@@ -57,6 +57,22 @@ def test_diagnose_residuals_are_the_reported_ones(bag_diagnosis):
         assert math.isclose(float(np.sqrt(np.mean(r**2))), rmse, rel_tol=1e-12)
 
 
+def test_diagnose_validate_equals_cli_json(tmp_path):
+    """`diagnose(validate=)` gives `vfp diagnose --validate`'s document, for a path and a table."""
+    a, b = tmp_path / "a.csv", tmp_path / "b.csv"
+    run_cli("simulate", "--preset", "effect:hysteresis", "--cycles", "2", "--seed", "1", "-o", a)
+    run_cli("simulate", "--preset", "effect:hysteresis", "--cycles", "2", "--seed", "2", "-o", b)
+    py = vfp.diagnose(a, validate=b)
+    cli = cli_json("diagnose", a, "--validate", b)
+    assert py == cli
+    v = py["validation"]
+    assert v["final_rmse"] < v["baseline_rmse"]
+    table = vfp.read_log(b, as_frame=True)
+    assert vfp.diagnose(a, validate=table)["validation"]["steps"] == v["steps"]
+    with pytest.raises(ValueError, match="missing.csv"):
+        vfp.diagnose(a, validate=tmp_path / "missing.csv")
+
+
 def test_diagnose_options_reach_the_library():
     py = vfp.diagnose(BAG, model=(2, 1), effects=["hysteresis"], alpha=0.01)
     cli = cli_json(

@@ -197,6 +197,7 @@ def diagnose(
     alpha: float = 1e-3,
     min_gain: float = 0.01,
     effects: Optional[Sequence[str]] = None,
+    validate: Optional[Log] = None,
     *,
     holdout_every: int = 5,
     columns: Optional[str] = None,
@@ -217,8 +218,11 @@ def diagnose(
     Returns the command's document: ``baseline`` (``n``, ``m``, ``nu``, ``rmse_train`` and
     ``rmse_heldout`` in kPa), ``effects`` (kept effects in order, with their parameters and
     units), ``final`` (the final model's RMSEs in kPa), ``remaining``, ``before`` / ``after``
-    (held-out residual summaries), ``log``, ``chamber``, ``split``. The command's
-    ``--validate`` option does not exist yet, so there is no ``validate=`` either.
+    (held-out residual summaries), ``log``, ``chamber``, ``split``. ``validate``: another log of
+    the same rig (path, DataFrame or dict, read with the same options): the document then has
+    ``validation`` (``vfp diagnose --validate``): the models fitted on ``log`` evaluated on every
+    row of the other, nothing refitted (``baseline_rmse``, ``final_rmse``, ``steps`` per kept
+    effect, in kPa; ``clock_bound``: effects evaluated on the other log's own clock).
 
     With ``residuals=True`` returns ``(document, residuals)``: ``residuals["before"]`` (the
     baseline) and ``residuals["after"]`` (the final model) each hold the held-out samples'
@@ -247,6 +251,7 @@ def diagnose(
         float(alpha),
         float(min_gain),
         None if effects is None else list(effects),
+        None if validate is None else _source(validate),
     )
     doc = json.loads(text)
     if not residuals:

@@ -30,6 +30,7 @@ def diagnose(
     alpha: float,
     min_gain: float,
     effects: Optional[List[str]],
+    validate: Optional[Source],
 ) -> Tuple[str, bytes, bytes]: ...
 def force(
     ident: Source,

@@ -31,6 +31,7 @@ pub mod export;
 mod lsq;
 pub mod select;
 pub(crate) mod signal;
+pub mod validate;
 
 use serde::Serialize;
 
@@ -377,6 +378,13 @@ pub struct Diagnosis {
     /// The final model's effects with their searched parameters (what an export refits).
     #[serde(skip)]
     pub final_effects: Vec<effects::Effect>,
+    /// The fitted models, baseline first, then the model after each kept effect (what
+    /// [`validate`] evaluates on another log).
+    #[serde(skip)]
+    pub models: Vec<validate::FittedModel>,
+    /// The polynomial basis (its scaling) the models were fitted in.
+    #[serde(skip)]
+    pub basis: basis::PolyBasis,
 }
 
 /// Device verdict for a list of effect names (for `vfp export`): per effect whether
@@ -389,6 +397,8 @@ pub fn device_support(kinds: &[EffectKind]) -> Vec<(EffectKind, DeviceSupport)> 
 /// One effect the loop kept: the errors before and after its round (RMSE, kPa) and its test.
 struct KeptStep {
     kind: EffectKind,
+    /// The model as kept.
+    model: validate::FittedModel,
     heldout_before: f64,
     heldout_after: f64,
     train_before: f64,
@@ -530,6 +540,7 @@ fn keep(prep: &effects::Prepared, sel: &mut Selection, r: Ranked) {
     };
     sel.kept.push(KeptStep {
         kind: r.cand.kind,
+        model: validate::FittedModel::of(&model),
         heldout_before: sel.model.rmse_heldout,
         heldout_after: model.rmse_heldout,
         train_before: sel.model.rmse_train,
@@ -637,6 +648,10 @@ fn report(prep: &effects::Prepared, cfg: &Config, baseline: &Stage, sel: Selecti
         analysis_before,
         analysis_after,
         final_effects: sel.model.effects.clone(),
+        models: std::iter::once(validate::FittedModel::of(baseline))
+            .chain(sel.kept.iter().map(|k| k.model.clone()))
+            .collect(),
+        basis: prep.basis.clone(),
     }
 }
 

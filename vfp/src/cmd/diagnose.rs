@@ -8,6 +8,7 @@ use plotters::prelude::*;
 use crate::opts::{effect_parser, LogInput, OutputOpts};
 use crate::Error;
 use sysid::residual::analysis::Binned;
+use sysid::residual::validate::{validate_log, Validation};
 use sysid::residual::{
     diagnose_log, document, Config, Diagnosis, EffectKind, Param, ResidualAnalysis,
 };
@@ -32,6 +33,11 @@ pub struct Args {
     /// Restrict the candidates (repeatable; default: the whole library).
     #[arg(long = "effect", value_parser = effect_parser())]
     pub effects: Vec<EffectKind>,
+    /// Another log of the same rig: the models fitted on LOG (baseline, after each kept effect,
+    /// final) are evaluated on all of its rows, same chamber, nothing refitted (JSON:
+    /// `validation`).
+    #[arg(long, value_name = "OTHER.csv")]
+    pub validate: Option<PathBuf>,
     /// `--json`: one document instead of the text report; `--plots DIR`: residual figures
     /// before and after (SVG).
     #[command(flatten)]
@@ -86,11 +92,23 @@ pub fn run(args: &Args) -> Result<(), Error> {
         cfg.candidates = args.effects.clone();
     }
     let d = diagnose_log(&data, &cfg, shape.is_some()).map_err(|e| Error::Msg(e.to_string()))?;
+    let validation = match &args.validate {
+        Some(other) => {
+            let other = args.input.data.load(other, Some(data.first().chamber))?;
+            Some(validate_log(&d, &other).map_err(|e| Error::Msg(e.to_string()))?)
+        }
+        None => None,
+    };
     if let Some(dir) = &args.out.plots {
         write_plots(dir, args.out.plot_format, &d)?;
     }
     if args.out.json {
-        crate::opts::print_json(&document(&data, &d))?;
+        let mut doc = document(&data, &d);
+        if let (Some(v), Some(obj)) = (&validation, doc.as_object_mut()) {
+            let v = serde_json::to_value(v).map_err(|e| Error::Msg(e.to_string()))?;
+            obj.insert("validation".into(), v);
+        }
+        crate::opts::print_json(&doc)?;
     } else {
         print!(
             "{}",
@@ -101,8 +119,46 @@ pub fn run(args: &Args) -> Result<(), Error> {
                 &d
             )
         );
+        if let Some(v) = &validation {
+            print!("{}", validation_report(v));
+        }
     }
     Ok(())
+}
+
+/// The `--validate` block of the text report.
+fn validation_report(v: &Validation) -> String {
+    let mut s = format!(
+        "\nvalidation on {} ({} samples, every row, nothing refitted):\n  baseline RMSE {:.4} kPa\n",
+        v.log, v.samples, v.baseline_rmse
+    );
+    for st in &v.steps {
+        let _ = writeln!(s, "  + {:<18} RMSE {:.4} kPa", st.effect, st.rmse);
+    }
+    let verdict = if v.final_rmse.is_nan() {
+        "the final model could not be evaluated there".to_string()
+    } else if v.final_rmse > v.baseline_rmse {
+        format!(
+            "the final model is WORSE there than the baseline ({:.4} against {:.4} kPa): what the loop added on this log does not hold on that one",
+            v.final_rmse, v.baseline_rmse
+        )
+    } else {
+        format!(
+            "the final model lowers the error there from {:.4} to {:.4} kPa ({:.1} %)",
+            v.baseline_rmse,
+            v.final_rmse,
+            100.0 * (1.0 - v.final_rmse / v.baseline_rmse)
+        )
+    };
+    let _ = writeln!(s, "  {verdict}");
+    if !v.clock_bound.is_empty() {
+        let _ = writeln!(
+            s,
+            "  {} follow the log's own clock: evaluated from the other log's start, they claim the same drift or phase there",
+            v.clock_bound.join(", ")
+        );
+    }
+    s
 }
 
 fn fmt_param(p: &Param) -> String {
