@@ -24,7 +24,7 @@
 
 use proptest::prelude::*;
 use sysid::residual::effects::Effect;
-use sysid::residual::export::device_model_with;
+use sysid::residual::export::{board_frames, device_model_with};
 use sysid::residual::{EffectKind, Series};
 
 /// Frame period (s): the board's 25 Hz.
@@ -94,18 +94,7 @@ fn segments() -> impl Strategy<Value = Vec<(f64, usize)>> {
 /// deviation relative to the refit's range.
 fn worst_relative(series: &Series, carry: &[EffectKind], chain: &[Effect]) -> f64 {
     let dm = device_model_with(series, 3, 2, carry, chain).expect("the device form fits");
-    let model = dm.board_model();
-    let hz = sysid::replay::frame_hz(DT).expect("25 Hz");
-    let nan = (f32::NAN, f32::NAN, f32::NAN);
-    let frames = (0..series.len()).map(|k| {
-        let x = (
-            series.v[k] as f32,
-            series.vdot[k] as f32,
-            series.p[k] as f32,
-        );
-        (series.t[k], [x, nan, nan])
-    });
-    let out = sysid::replay::run(&[Some(model), None, None], hz, frames);
+    let out = board_frames(&dm.board_model(), series).expect("25 Hz");
     let pred = &dm.refit.pred;
     let lo = pred.iter().copied().fold(f64::INFINITY, f64::min);
     let hi = pred.iter().copied().fold(f64::NEG_INFINITY, f64::max);

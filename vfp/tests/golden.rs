@@ -407,30 +407,19 @@ fn chow_sim() {
 
 #[test]
 fn force_sim() {
-    golden_json(
-        "force-sim",
-        sim(),
-        &[
-            "force",
-            "--ident",
-            "paper.csv",
-            "--test",
-            "force.csv",
-            "--json",
-        ],
-    );
+    let args = [
+        "force",
+        "--ident",
+        "paper.csv",
+        "--test",
+        "force.csv",
+        "--json",
+    ];
+    golden_json("force-sim", sim(), &args);
     golden_json(
         "force-sim-augmented",
         sim(),
-        &[
-            "force",
-            "--ident",
-            "paper.csv",
-            "--test",
-            "force.csv",
-            "--json",
-            "--augmented",
-        ],
+        &[&args[..], &["--augmented"]].concat(),
     );
     golden_json(
         "force-sim-smooth",

@@ -581,14 +581,14 @@ fn board_chain(
     Ok(out)
 }
 
-/// Held-out RMSE of the board's `model` (polynomial and chain) run over the series in order by
-/// the firmware's own estimator ([`crate::replay::run`], f32, the chain's state and the AR
-/// history carried from frame to frame), with the number of held-out samples it produced an
-/// estimate for.
-pub fn device_rmse(model: &firmware::store::Model, series: &Series) -> (f64, usize) {
-    let Ok(hz) = crate::replay::frame_hz(median_dt(&series.t)) else {
-        return (f64::NAN, 0);
-    };
+/// The board's frames over `series` loaded as chamber 0 (the other chambers unplugged), at the
+/// series' frame rate: the firmware's own estimator ([`crate::replay::run`]); `None` when the
+/// series' sample interval is no board frame rate.
+pub fn board_frames(
+    model: &firmware::store::Model,
+    series: &Series,
+) -> Option<Vec<crate::replay::BoardFrame>> {
+    let hz = crate::replay::frame_hz(median_dt(&series.t)).ok()?;
     let nan = (f32::NAN, f32::NAN, f32::NAN);
     let frames = (0..series.len()).map(|k| {
         let x = (
@@ -598,7 +598,17 @@ pub fn device_rmse(model: &firmware::store::Model, series: &Series) -> (f64, usi
         );
         (series.t[k], [x, nan, nan])
     });
-    let out = crate::replay::run(&[Some(*model), None, None], hz, frames);
+    Some(crate::replay::run(&[Some(*model), None, None], hz, frames))
+}
+
+/// Held-out RMSE of the board's `model` (polynomial and chain) run over the series in order by
+/// the firmware's own estimator ([`board_frames`], f32, the chain's state and the AR
+/// history carried from frame to frame), with the number of held-out samples it produced an
+/// estimate for.
+pub fn device_rmse(model: &firmware::store::Model, series: &Series) -> (f64, usize) {
+    let Some(out) = board_frames(model, series) else {
+        return (f64::NAN, 0);
+    };
     let (mut sse, mut n) = (0.0, 0usize);
     for (k, f) in out.iter().enumerate() {
         let c = &f.frame.chambers[0];
