@@ -51,7 +51,7 @@ impl EffectModel for SealFriction {
         vec![Column::new(col, "seal friction tanh(vdot/q_s)")]
     }
 
-    fn unphysical(&self, _e: &Effect, coefs: &[f64]) -> Option<String> {
+    fn unphysical(&self, _e: &Effect, coefs: &[f64], _sc: &Scales) -> Option<String> {
         (coefs[0] < 0.0).then(|| "friction cannot help the motion along".to_string())
     }
 

@@ -103,6 +103,10 @@ pub struct Series {
     pub p: Vec<f64>,
     /// True on training samples, false on held-out samples.
     pub train: Vec<bool>,
+    /// The period of the log's cycles (s) when they repeat regularly (a ventilator's breaths):
+    /// what a plausible periodic effect must not be locked to. `None` (the default) when unknown
+    /// or irregular; [`series_from_dataset`] sets it from the cycle split ([`cycle_period`]).
+    pub cycle_s: Option<f64>,
 }
 
 impl Series {
@@ -159,6 +163,7 @@ impl Series {
             vddot,
             p,
             train,
+            cycle_s: None,
         })
     }
 
@@ -514,7 +519,7 @@ fn rank_round(
             let gain = cur.rmse_heldout - cand.stage.rmse_heldout;
             Ranked {
                 passes: test.p_value < cfg.alpha && gain >= cfg.min_gain * cur.rmse_heldout,
-                unphysical: select::unphysical(&cand.stage).map(|(_, why)| why),
+                unphysical: select::unphysical(&cand.stage, &prep.scales).map(|(_, why)| why),
                 cand,
                 test,
             }
@@ -533,7 +538,9 @@ fn rank_round(
 /// "after" being the model as kept (so each step's "after" is the next step's "before").
 fn keep(prep: &effects::Prepared, sel: &mut Selection, r: Ranked) {
     let tuned = select::retune(prep, &r.cand.stage);
-    let model = if tuned.fit.sse <= r.cand.stage.fit.sse && select::unphysical(&tuned).is_none() {
+    let model = if tuned.fit.sse <= r.cand.stage.fit.sse
+        && select::unphysical(&tuned, &prep.scales).is_none()
+    {
         tuned
     } else {
         r.cand.stage
@@ -727,7 +734,81 @@ pub fn series_from_dataset(ds: &Dataset) -> Result<Series, DiagnoseError> {
         crate::dataset::FlowSource::Logged => signal::acceleration_hermite(&ds.t, &ds.v, &ds.vdot),
         crate::dataset::FlowSource::Derived { .. } => ds.vddot.clone(),
     };
+    s.cycle_s = cycle_period(&ds.t, &ds.cycle).or_else(|| motion_period(&ds.t, &ds.vdot));
     Ok(s)
+}
+
+/// The period (s) of a motion that repeats itself, from its flow (the volume may drift when it is
+/// the integral of a measured flow): the lag of the first local maximum of the flow's
+/// autocorrelation past its first zero crossing that reaches 0.8, within a third of the log (so
+/// at least three periods). For logs whose cycle split is irregular (a breath split in two at a
+/// pause). The flow is averaged over blocks to at most 2,000 points first; the peak is refined by
+/// a parabola through its neighbours. `None` for a motion that does not repeat (the paper's
+/// protocols change their rate from cycle to cycle).
+pub fn motion_period(t: &[f64], q: &[f64]) -> Option<f64> {
+    let v = q;
+    let n = v.len();
+    if n < 16 || t.len() != n {
+        return None;
+    }
+    let m = n.div_ceil(2000);
+    let x: Vec<f64> = v
+        .chunks(m)
+        .filter(|c| c.len() == m)
+        .map(|c| c.iter().sum::<f64>() / m as f64)
+        .collect();
+    let step = (t[n - 1] - t[0]) / (n - 1) as f64 * m as f64;
+    let mean = x.iter().sum::<f64>() / x.len() as f64;
+    let x: Vec<f64> = x.iter().map(|y| y - mean).collect();
+    let var: f64 = x.iter().map(|y| y * y).sum();
+    if var.is_nan() || var <= 0.0 {
+        return None;
+    }
+    // The unbiased estimate (each lag's mean product over its own pairs, over the variance).
+    let len = x.len() as f64;
+    let acf = |lag: usize| {
+        let s: f64 = x.iter().zip(&x[lag..]).map(|(a, b)| a * b).sum();
+        s / (len - lag as f64) / (var / len)
+    };
+    let last = x.len() / 3;
+    let r: Vec<f64> = (0..=last).map(acf).collect();
+    let zero = r.iter().position(|&c| c < 0.0)?;
+    // The first local maximum past the zero crossing that reaches 0.8 (later ones are its
+    // multiples).
+    let best =
+        (zero.max(1)..last).find(|&k| r[k] >= 0.8 && r[k] >= r[k - 1] && r[k] >= r[k + 1])?;
+    let peak = r[best];
+    let (a, b, c) = (r[best - 1], peak, r[best + 1]);
+    let denom = a - 2.0 * b + c;
+    let shift = if denom < 0.0 {
+        0.5 * (a - c) / denom
+    } else {
+        0.0
+    };
+    Some((best as f64 + shift) * step)
+}
+
+/// The mean period of complete cycles (s) when there are at least four and their durations vary
+/// by at most 5 % (coefficient of variation): a protocol that repeats one cycle, as a
+/// ventilator's breaths. The first and last cycles, which the log may cut, are left out; so are
+/// the paper's protocols, whose cycles change length with the flow rate.
+pub fn cycle_period(t: &[f64], cycle: &[usize]) -> Option<f64> {
+    let mut spans: Vec<(usize, f64, f64)> = Vec::new();
+    for (&c, &tk) in cycle.iter().zip(t) {
+        match spans.last_mut() {
+            Some(last) if last.0 == c => last.2 = tk,
+            _ => spans.push((c, tk, tk)),
+        }
+    }
+    // Complete cycles: each runs from its first sample to the next cycle's first.
+    let inner: Vec<f64> = spans.windows(2).skip(1).map(|w| w[1].1 - w[0].1).collect();
+    if inner.len() < 4 {
+        return None;
+    }
+    let n = inner.len() as f64;
+    let mean = inner.iter().sum::<f64>() / n;
+    let sd = (inner.iter().map(|d| (d - mean).powi(2)).sum::<f64>() / (n - 1.0)).sqrt();
+    (mean > 0.0 && sd <= 0.05 * mean).then_some(mean)
 }
 
 /// The shape the loop starts from by default: the polynomial's selection

@@ -481,14 +481,14 @@ pub fn retune(prep: &Prepared, stage: &Stage) -> Stage {
 /// Why a fitted model is not physically possible (the first offending effect: its index and the
 /// reason, [`super::effects::EffectModel::unphysical`]), or `None` when every effect is admissible
 /// (module docs).
-pub fn unphysical(stage: &Stage) -> Option<(usize, String)> {
+pub fn unphysical(stage: &Stage, sc: &super::effects::Scales) -> Option<(usize, String)> {
     stage.effects.iter().enumerate().find_map(|(idx, e)| {
         let coefs: Vec<f64> = stage
             .owned_columns(idx)
             .into_iter()
             .map(|c| stage.fit.beta[c])
             .collect();
-        e.kind.unphysical(e, &coefs).map(|why| (idx, why))
+        e.kind.unphysical(e, &coefs, sc).map(|why| (idx, why))
     })
 }
 

@@ -20,6 +20,8 @@ pub struct Scales {
     pub duration: f64,
     /// `∫ P dt` over the log (kPa·s).
     pub p_integral: f64,
+    /// The period of the log's cycles when they repeat regularly (s; `Series::cycle_s`).
+    pub cycle_s: Option<f64>,
 }
 
 /// One effect with its nonlinear parameter fixed.
@@ -138,6 +140,7 @@ impl Prepared {
                 dt,
                 duration,
                 p_integral,
+                cycle_s: series.cycle_s,
             },
             train_rows,
             held_rows,

@@ -44,7 +44,7 @@ impl EffectModel for Hysteresis {
         ]
     }
 
-    fn unphysical(&self, _e: &Effect, coefs: &[f64]) -> Option<String> {
+    fn unphysical(&self, _e: &Effect, coefs: &[f64], _sc: &Scales) -> Option<String> {
         let [h0, h1] = coefs[..] else { return None };
         // Gap 2·(H₀ + H₁x) over x ∈ [−1, 1] (the data's volume range): least at one end.
         let least = 2.0 * (h0 - h1.abs());

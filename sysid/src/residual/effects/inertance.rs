@@ -1,7 +1,7 @@
 //! Inertance: the water column's mass, one added column `L·v̈` (v̈ the volumetric acceleration),
 //! no searched parameter; admissible only with `L ≥ 0`.
 
-use super::{param, Column, DeviceSupport, Effect, EffectModel, Fitted, Param, Prepared};
+use super::{param, Column, DeviceSupport, Effect, EffectModel, Fitted, Param, Prepared, Scales};
 
 /// Fluid inertance of the line (v̈ term).
 pub struct Inertance;
@@ -32,7 +32,7 @@ impl EffectModel for Inertance {
         Some(vec![*coefs.first()?])
     }
 
-    fn unphysical(&self, _e: &Effect, coefs: &[f64]) -> Option<String> {
+    fn unphysical(&self, _e: &Effect, coefs: &[f64], _sc: &Scales) -> Option<String> {
         let &l = coefs.first()?;
         (l < 0.0).then(|| {
             format!("inertance L = {l:.3e} kPa·s²/mm³ is negative, which no mass of water gives")

@@ -59,7 +59,7 @@
 //!
 //! ```
 //! use sysid::residual::effects::{
-//!     Column, DeviceSupport, Effect, EffectKind, EffectModel, Fitted, Prepared, REGISTRY,
+//!     Column, DeviceSupport, Effect, EffectKind, EffectModel, Fitted, Prepared, Scales, REGISTRY,
 //! };
 //! use sysid::residual::{diagnose, param, Config, Param, Series};
 //!
@@ -77,7 +77,7 @@
 //!         let q = &prep.series.vdot;
 //!         vec![Column::new(q.iter().map(|q| q * q.abs()).collect(), "orifice vdot|vdot|")]
 //!     }
-//!     fn unphysical(&self, _e: &Effect, coefs: &[f64]) -> Option<String> {
+//!     fn unphysical(&self, _e: &Effect, coefs: &[f64], _sc: &Scales) -> Option<String> {
 //!         (coefs[0] < 0.0).then(|| "a restriction cannot push the flow along".to_string())
 //!     }
 //!     fn params(&self, f: &Fitted) -> Vec<Param> {
@@ -351,10 +351,12 @@ pub trait EffectModel: Send + Sync {
         false
     }
 
-    /// Why the fitted effect is physically impossible, from θ and its columns' coefficients, or
-    /// `None` when it is admissible (default: θ, when searched, must be finite; the search keeps
-    /// it inside its physical range).
-    fn unphysical(&self, e: &Effect, _coefs: &[f64]) -> Option<String> {
+    /// Why the fitted effect is physically impossible or implausible on this log, from θ, its
+    /// columns' coefficients and the log's own scales (its cycle period, duration, volume range),
+    /// or `None` when it is admissible (default: θ, when searched, must be finite; the search keeps
+    /// it inside its physical range). A rejected effect is not kept; the structure it would have
+    /// absorbed is reported in `remaining` with this reason.
+    fn unphysical(&self, e: &Effect, _coefs: &[f64], _sc: &Scales) -> Option<String> {
         (self.has_nonlinear() && !e.theta.is_finite())
             .then(|| format!("{} parameter is not finite", self.name()))
     }

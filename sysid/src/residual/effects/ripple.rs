@@ -22,6 +22,27 @@ impl EffectModel for Ripple {
         Search::Spectral
     }
 
+    /// Not at the cycle rate or one of its first 20 harmonics when the log's cycles repeat
+    /// regularly (`Scales::cycle_s`): a sinusoid locked to the cycles is the model's misfit over a
+    /// cycle (its shape, repeated every cycle), not a disturbance of its own. Within
+    /// `max(1/duration, 1 % of f)` of `h/T` counts as locked: the frequency resolution of the log,
+    /// or the cycle period's own spread at that harmonic.
+    fn unphysical(&self, e: &Effect, _coefs: &[f64], sc: &Scales) -> Option<String> {
+        if !e.theta.is_finite() {
+            return Some("ripple frequency is not finite".into());
+        }
+        let period = sc.cycle_s?;
+        let h = (e.theta * period).round();
+        let tol = (1.0 / sc.duration).max(0.01 * e.theta);
+        ((1.0..=20.0).contains(&h) && (e.theta - h / period).abs() <= tol).then(|| {
+            format!(
+                "its frequency {:.4} Hz is harmonic {h} of the cycle rate ({:.4} Hz, period {period:.3} s): structure locked to the cycles is the model's misfit over a cycle, not a ripple",
+                e.theta,
+                1.0 / period
+            )
+        })
+    }
+
     fn has_nonlinear(&self) -> bool {
         true
     }

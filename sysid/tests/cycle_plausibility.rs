@@ -1,0 +1,104 @@
+//! The log's own cycle period, and the plausibility rule that uses it: a ripple locked to the
+//! cycles (at the cycle rate or a harmonic) is the model's misfit over a cycle, not a ripple.
+//!
+//! Truths: synthetic motions whose period is set by construction, and hand-computed harmonics.
+
+use sysid::residual::effects::{Effect, EffectKind, Scales};
+use sysid::residual::{cycle_period, motion_period};
+
+/// Cycle indices for cycles of the given durations, sampled every `dt` s.
+fn split(durations: &[f64], dt: f64) -> (Vec<f64>, Vec<usize>) {
+    let (mut t, mut c) = (Vec::new(), Vec::new());
+    let mut start = 0.0;
+    for (i, d) in durations.iter().enumerate() {
+        let mut x = start;
+        while x < start + d - 1e-9 {
+            t.push(x);
+            c.push(i);
+            x += dt;
+        }
+        start += d;
+    }
+    (t, c)
+}
+
+#[test]
+fn a_regular_split_gives_its_period_and_an_irregular_one_none() {
+    let regular: Vec<f64> = (0..10)
+        .map(|i| 5.0 + 0.05 * ((i % 3) as f64 - 1.0))
+        .collect();
+    let (t, c) = split(&regular, 0.01);
+    let p = cycle_period(&t, &c).expect("regular cycles");
+    // The inner cycles' mean (first and last left out), to the sampling step.
+    let want = regular[1..9].iter().sum::<f64>() / 8.0;
+    assert!((p - want).abs() < 0.02, "{p} vs {want}");
+    // A breath split at its pause: 1.6 s and 8.4 s alternating.
+    let (t, c) = split(&[1.6, 8.4, 1.6, 8.4, 1.6, 8.4, 1.6, 8.4], 0.01);
+    assert_eq!(cycle_period(&t, &c), None);
+    // Too few cycles to tell.
+    let (t, c) = split(&[5.0, 5.0, 5.0, 5.0], 0.01);
+    assert_eq!(cycle_period(&t, &c), None);
+}
+
+#[test]
+fn a_repeating_flow_gives_its_period_and_a_changing_one_none() {
+    // A breathing-like flow: 1 s inspiration, 4 s expiration, period 5 s, 100 Hz, 60 s, with a
+    // deterministic pseudo-noise of 5 % of the peak.
+    let dt = 0.01;
+    let t: Vec<f64> = (0..6000).map(|k| k as f64 * dt).collect();
+    let q: Vec<f64> = t
+        .iter()
+        .enumerate()
+        .map(|(k, &x)| {
+            let ph = x % 5.0;
+            let breath = if ph < 1.0 {
+                400.0
+            } else {
+                -100.0 * (-(ph - 1.0)).exp()
+            };
+            breath + 20.0 * ((k as f64 * 12.9898).sin() * 43758.5453).fract()
+        })
+        .collect();
+    let p = motion_period(&t, &q).expect("a repeating flow");
+    assert!((p - 5.0).abs() < 0.05, "{p}");
+    // The paper's protocol: fill and empty at 20, 40, …, 100 mm³/s, each cycle shorter than the
+    // last: no period.
+    let (mut t, mut q) = (Vec::new(), Vec::new());
+    let mut x = 0.0;
+    for rate in [20.0, 40.0, 60.0, 80.0, 100.0] {
+        let leg = 550.0 / rate;
+        for (dir, len) in [(1.0, leg), (0.0, 2.0), (-1.0, leg), (0.0, 2.0)] {
+            let n = (len / 0.04) as usize;
+            for _ in 0..n {
+                t.push(x);
+                q.push(dir * rate);
+                x += 0.04;
+            }
+        }
+    }
+    assert_eq!(motion_period(&t, &q), None);
+}
+
+#[test]
+fn a_ripple_at_a_harmonic_of_the_cycle_is_not_a_ripple() {
+    let ripple = EffectKind::named("ripple").expect("ripple");
+    let scales = |cycle_s| Scales {
+        v_range: 500.0,
+        dt: 0.01,
+        duration: 41.0,
+        p_integral: 100.0,
+        cycle_s,
+    };
+    let judge =
+        |f: f64, cycle_s| ripple.unphysical(&Effect::new(ripple, f), &[0.1, 0.1], &scales(cycle_s));
+    // 2.1974 Hz on 5.009 s breaths: harmonic 11 (2.1960 Hz), inside max(1/41 s, 1 %) = 0.024 Hz.
+    let why = judge(2.1974, Some(5.009)).expect("locked to the cycles");
+    assert!(why.contains("harmonic 11"), "{why}");
+    // The breathing rate itself.
+    assert!(judge(0.19998, Some(5.0)).is_some());
+    // Between harmonics (2.3 Hz is 0.1 Hz from 11/5.009 and 12/5.009 Hz): a ripple may be.
+    assert_eq!(judge(2.3, Some(5.009)), None);
+    // Above the 20th harmonic, or without a regular cycle, the rule says nothing.
+    assert_eq!(judge(21.0 / 5.0, Some(5.0)), None);
+    assert_eq!(judge(2.1974, None), None);
+}
