@@ -294,6 +294,15 @@ mod reference {
             let m = backward_slopes(dt, &out);
             out = lag(dt, p[0], &out, Some(&m));
         }
+        // An output lag remembers an edge frame's flow: the second after it is left out too.
+        if get(EffectKind::AirCompliance).is_some() || get(EffectKind::SensorLag).is_some() {
+            let first: Vec<usize> = (0..n).filter(|&k| edge[k]).collect();
+            for k in first {
+                for e in edge.iter_mut().skip(k).take(26) {
+                    *e = true;
+                }
+            }
+        }
         (out, edge)
     }
 }

@@ -102,3 +102,28 @@ fn a_ripple_at_a_harmonic_of_the_cycle_is_not_a_ripple() {
     assert_eq!(judge(21.0 / 5.0, Some(5.0)), None);
     assert_eq!(judge(2.1974, None), None);
 }
+
+#[test]
+fn a_lag_of_a_good_part_of_the_cycle_is_named_pressure_dynamics() {
+    let lag = EffectKind::named("sensor_lag").expect("sensor_lag");
+    let scales = |cycle_s| Scales {
+        v_range: 500.0,
+        dt: 0.01,
+        duration: 233.0,
+        p_integral: 100.0,
+        cycle_s,
+    };
+    let name = |tau: f64, cycle_s| {
+        lag.neutral(&Effect::new(lag, tau), &scales(cycle_s))
+            .map(|n| n.0)
+    };
+    // The test lung's 0.985 s on its 5 s breaths (20 %), the bag's 0.37 s (7 %).
+    assert_eq!(name(0.985, Some(5.0)), Some("pressure_dynamics"));
+    assert_eq!(name(0.37, Some(5.01)), Some("pressure_dynamics"));
+    // The QuickLung's 32 ms on 3 s (1 %): a sensor lag. The boundary is 5 % of the period.
+    assert_eq!(name(0.0316, Some(3.01)), None);
+    assert_eq!(name(0.24, Some(5.0)), None);
+    assert_eq!(name(0.26, Some(5.0)), Some("pressure_dynamics"));
+    // No regular cycle (the paper's protocols): the name stands.
+    assert_eq!(name(0.985, None), None);
+}

@@ -591,8 +591,8 @@ fn effect_reports(prep: &effects::Prepared, sel: &Selection) -> Vec<EffectReport
         .enumerate()
         .map(|(i, step)| EffectReport {
             kind: step.kind,
-            name: step.kind.name(),
-            story: step.kind.story(),
+            name: neutral(prep, sel, i).map_or(step.kind.name(), |n| n.0),
+            story: neutral(prep, sel, i).map_or(step.kind.story(), |n| n.1),
             params: select::effect_params(prep, &sel.model, i),
             rmse_heldout_before: step.heldout_before,
             rmse_heldout_after: step.heldout_after,
@@ -603,6 +603,17 @@ fn effect_reports(prep: &effects::Prepared, sel: &Selection) -> Vec<EffectReport
             device: step.kind.device_support(),
         })
         .collect()
+}
+
+/// The neutral name and story of the final model's `i`-th effect, if its parameters call for one
+/// ([`EffectModel::neutral`]).
+fn neutral(
+    prep: &effects::Prepared,
+    sel: &Selection,
+    i: usize,
+) -> Option<(&'static str, &'static str)> {
+    let e = sel.model.effects.get(i)?;
+    e.kind.neutral(e, &prep.scales)
 }
 
 /// The held-out residual analysis (step 2) of a model's residual.

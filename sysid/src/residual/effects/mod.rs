@@ -361,6 +361,14 @@ pub trait EffectModel: Send + Sync {
             .then(|| format!("{} parameter is not finite", self.name()))
     }
 
+    /// A name and story that claim no more than the evidence, when the fitted effect's
+    /// parameters, measured against the log's own scales, say the structure is real but the
+    /// effect's name overstates it (default: `None`, the effect's own name). The model is the
+    /// same; only the report's `name` and `story` change.
+    fn neutral(&self, _e: &Effect, _sc: &Scales) -> Option<(&'static str, &'static str)> {
+        None
+    }
+
     /// Physical parameters with uncertainties and units (default: θ when searched, then each
     /// column's coefficient).
     fn params(&self, f: &Fitted) -> Vec<Param> {

@@ -23,6 +23,18 @@ impl EffectModel for SensorLag {
         "The pressure sensor (or its filter) responds to a step with a first-order exponential of time constant tau, so fast pressure changes are reported late and smoothed."
     }
 
+    /// A pressure sensor with its tubing responds within milliseconds to tens of milliseconds;
+    /// a first-order lag of more than 5 % of the log's cycle (250 ms on a 5 s breath) is the
+    /// pressure's own slow response (the chamber, a lung, the tubing), so it is reported as
+    /// `pressure_dynamics`: the same first-order lag of the output, named for what it shows.
+    fn neutral(&self, e: &Effect, sc: &Scales) -> Option<(&'static str, &'static str)> {
+        let period = sc.cycle_s?;
+        (e.theta > 0.05 * period).then_some((
+            "pressure_dynamics",
+            "The pressure follows the model through a first-order lag of a good part of a cycle (over 5 %): a slow response of the pressure itself (chamber, lung, tubing) rather than of a sensor, which responds in milliseconds. Modelled as a first-order lag of the output; the name claims no more.",
+        ))
+    }
+
     fn search(&self, sc: &Scales) -> Search {
         Search::Log(0.25 * sc.dt, (3.0f64).min(sc.duration / 20.0).max(sc.dt))
     }
