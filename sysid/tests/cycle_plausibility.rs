@@ -127,3 +127,28 @@ fn a_lag_of_a_good_part_of_the_cycle_is_named_pressure_dynamics() {
     // No regular cycle (the paper's protocols): the name stands.
     assert_eq!(name(0.985, None), None);
 }
+
+#[test]
+fn a_play_leak_or_air_pocket_of_a_large_part_of_the_stroke_is_not_kept() {
+    let sc = Scales {
+        v_range: 550.0,
+        dt: 0.04,
+        duration: 2000.0,
+        p_integral: 20_000.0,
+        cycle_s: None,
+    };
+    let judge = |name: &str, theta: f64| {
+        let k = EffectKind::named(name).expect("known effect");
+        k.unphysical(&Effect::new(k, theta), &[0.1, 0.1], &sc)
+    };
+    // Play: 5 % of 550 mm³ is 27.5 mm³.
+    let why = judge("backlash", 30.0).expect("30 mm³ of play");
+    assert!(why.contains("5 % of the stroke"), "{why}");
+    assert_eq!(judge("backlash", 25.0), None);
+    // Leak: λ ∫P dt against a quarter of the stroke (137.5 mm³): λ = 0.01 loses 200 mm³.
+    assert!(judge("leak", 0.01).is_some());
+    assert_eq!(judge("leak", 0.005), None);
+    // Air: half the stroke is 275 mm³ (the paper's pockets are 20–100 mm³).
+    assert!(judge("air_compliance", 300.0).is_some());
+    assert_eq!(judge("air_compliance", 100.0), None);
+}

@@ -31,6 +31,22 @@ impl EffectModel for AirCompliance {
         Search::Log(0.002 * sc.v_range, 1.0 * sc.v_range)
     }
 
+    /// An air pocket of more than half the stroke (the paper's pockets are 4–18 % of it) turns
+    /// the chamber into a gas spring; the fit follows something else.
+    fn unphysical(&self, e: &Effect, _coefs: &[f64], sc: &Scales) -> Option<String> {
+        if !e.theta.is_finite() {
+            return Some("air volume is not finite".into());
+        }
+        (e.theta > 0.5 * sc.v_range).then(|| {
+            format!(
+                "an air pocket of {:.4e} mm³ is {:.0} % of the stroke ({:.4e} mm³)",
+                e.theta,
+                100.0 * e.theta / sc.v_range,
+                sc.v_range
+            )
+        })
+    }
+
     fn has_nonlinear(&self) -> bool {
         true
     }

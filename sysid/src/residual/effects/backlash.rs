@@ -29,6 +29,22 @@ impl EffectModel for Backlash {
         Search::Log(0.0002 * sc.v_range, 0.2 * sc.v_range)
     }
 
+    /// A play of more than 5 % of the stroke (27 mm³ on the paper's 550 mm³ syringe, hundreds
+    /// of motor steps) is no lead screw's: the dead band is fitting something else.
+    fn unphysical(&self, e: &Effect, _coefs: &[f64], sc: &Scales) -> Option<String> {
+        if !e.theta.is_finite() {
+            return Some("backlash play is not finite".into());
+        }
+        (e.theta > 0.05 * sc.v_range).then(|| {
+            format!(
+                "a play of {:.4e} mm³ is {:.0} % of the stroke ({:.4e} mm³), more than any lead screw's dead band",
+                e.theta,
+                100.0 * e.theta / sc.v_range,
+                sc.v_range
+            )
+        })
+    }
+
     fn has_nonlinear(&self) -> bool {
         true
     }

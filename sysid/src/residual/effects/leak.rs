@@ -30,6 +30,23 @@ impl EffectModel for Leak {
         }
     }
 
+    /// A leak that loses more than a quarter of the stroke over the log (`λ ∫P dt`) would have
+    /// emptied a chamber a lab would notice; the fit follows something else (a drifting volume
+    /// reading, a slow pressure trend).
+    fn unphysical(&self, e: &Effect, _coefs: &[f64], sc: &Scales) -> Option<String> {
+        if !e.theta.is_finite() {
+            return Some("leak conductance is not finite".into());
+        }
+        let lost = e.theta * sc.p_integral;
+        (lost > 0.25 * sc.v_range).then(|| {
+            format!(
+                "the leak would lose {lost:.4e} mm³ over the log, {:.0} % of the stroke ({:.4e} mm³)",
+                100.0 * lost / sc.v_range,
+                sc.v_range
+            )
+        })
+    }
+
     fn has_nonlinear(&self) -> bool {
         true
     }
