@@ -443,10 +443,10 @@ const RETUNED: [&str; 3] = ["sensor_lag", "delivery_lag", "air_compliance"];
 ///
 /// The board has only the past: its sensor and air lags run on the cubic between frames with
 /// backward-difference slopes (`signal::backward_slopes`, where the loop's Akima slopes need the
-/// next frames), the delivery lag's flow on the straight line, its play operator on each frame's
-/// motion rebuilt from that frame alone ([`Effect::board_form`]), its delay on the volume's cubic
-/// Hermite ([`Effect::point_sampled`], the form the loop also fits
-/// point samples in). The loop may have kept the frame-mean form, whose τ is not the best
+/// next frames), the delivery lag's flow on the cubic whose slopes are the causal accelerations
+/// (`signal::acceleration_causal`, also inertance's v̈), its play operator on each frame's motion
+/// rebuilt from that frame alone ([`Effect::board_form`]), its delay on the volume's cubic Hermite
+/// ([`Effect::point_sampled`], the form the loop also fits point samples in). The loop may have kept the frame-mean form, whose τ is not the best
 /// device τ, so each lag's τ ([`RETUNED`]) is searched again in the device form around the
 /// loop's (golden section on ln τ over a factor e² either side, within the effect's search
 /// range), minimising the training SSE with the polynomial refitted at each trial; a trial is
