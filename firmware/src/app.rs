@@ -1014,10 +1014,6 @@ impl Estimator {
             Ok(e) => {
                 c.p_hat = e.p;
                 c.residual = c.p - e.p;
-                self.load_kpa[ch] =
-                    chamber
-                        .chain
-                        .load_pressure(&mut chamber.state, c.residual, inp.dt);
                 c.k = e.k;
                 c.c = e.c;
                 ((e.v_in, e.vdot_in, c.p - (e.p - e.p_poly)), Ok(()))
@@ -1028,13 +1024,13 @@ impl Estimator {
                 c.residual = f32::NAN;
                 c.k = f32::NAN;
                 c.c = f32::NAN;
-                self.load_kpa[ch] =
-                    chamber
-                        .chain
-                        .load_pressure(&mut chamber.state, f32::NAN, inp.dt);
                 ((c.v, c.vdot, c.p), Err(range))
             }
         };
+        // NaN without an estimate, which starts the load's difference over.
+        self.load_kpa[ch] = chamber
+            .chain
+            .load_pressure(&mut chamber.state, c.residual, inp.dt);
         let drift = chamber.online.as_mut().and_then(|online| {
             online_update(online, &mut chamber.model, &chamber.hist, poly_in, &cfg)
         });

@@ -483,7 +483,7 @@ fn sensor_lag(w: &[f32; 8], s: &mut [f32; 8], primed: bool, dt: f32, x: f32) -> 
     } else {
         d
     };
-    let y = w[0] * s[0] + w[1] * s[1] + w[2] * x + w[3] * s[3] + w[4] * m;
+    let y = lag_step(w, s[0], s[1], x, s[3], m);
     // Slots 5 and 6 belong to `Chain::load_pressure`.
     *s = [y, x, s[1], m, 2.0, s[5], s[6], 0.0];
     y
@@ -858,6 +858,13 @@ fn lag_weights_f32(dt: f32, tau: f32) -> [f32; 5] {
     ]
 }
 
+/// One step of a first-order lag over the cubic between frames, with the weights `[a, w₀, w₁,
+/// Δt·m₀, Δt·m₁]` of [`lag_weights`] in `w[..5]`: `y = a y₀ + w₀ x₀ + w₁ x₁ + Δt(m₀ ẋ₀ + m₁ ẋ₁)`.
+#[inline]
+fn lag_step(w: &[f32; 8], y0: f32, x0: f32, x1: f32, d0: f32, d1: f32) -> f32 {
+    w[0] * y0 + w[1] * x0 + w[2] * x1 + w[3] * d0 + w[4] * d1
+}
+
 /// The acceleration at the end of a frame interval: the end slope of the cubic Hermite through
 /// `(v₀, v̇₀)` and `(v₁, v̇₁)` over `dt`, `(−6(v₁ − v₀) + 2Δt v̇₀ + 4Δt v̇₁)/Δt²`.
 fn end_accel(dt: f32, v0: f32, f0: f32, v1: f32, f1: f32) -> f32 {
@@ -874,7 +881,6 @@ fn delivery(w: &[f32; 8], s: &mut [f32; 8], primed: bool, dt: f32, v: f32, f: f3
         *s = [v, f, v, f, v, f, 0.0, 0.0];
         return (v, f);
     }
-    let [a, w0, w1, m0, m1, ..] = *w;
     let (mut xv, mut xf) = (v, f);
     let (mut pv, mut pf) = (s[4], s[5]);
     (s[4], s[5]) = (v, f);
@@ -883,8 +889,8 @@ fn delivery(w: &[f32; 8], s: &mut [f32; 8], primed: bool, dt: f32, v: f32, f: f3
         let acc = end_accel(dt, pv, pf, xv, xf);
         let before = s[6 + st];
         s[6 + st] = acc;
-        let nv = a * yv + w0 * pv + w1 * xv + m0 * pf + m1 * xf;
-        let nf = a * yf + w0 * pf + w1 * xf + m0 * before + m1 * acc;
+        let nv = lag_step(w, yv, pv, xv, pf, xf);
+        let nf = lag_step(w, yf, pf, xf, before, acc);
         // The next stage's previous input is this stage's previous output.
         (pv, pf) = (yv, yf);
         (s[2 * st], s[2 * st + 1]) = (nv, nf);

@@ -544,10 +544,7 @@ fn board_residuals(
     let mut no_estimate = 0;
     for f in frames {
         let chambers = &f.frame.chambers;
-        if used
-            .iter()
-            .any(|&c| !chambers[c as usize].residual.is_finite())
-        {
+        if used.iter().any(|&c| !f.load_kpa[c as usize].is_finite()) {
             no_estimate += 1;
             continue;
         }

@@ -757,13 +757,12 @@ pub fn series_from_dataset(ds: &Dataset) -> Result<Series, DiagnoseError> {
 /// a parabola through its neighbours. `None` for a motion that does not repeat (the paper's
 /// protocols change their rate from cycle to cycle).
 pub fn motion_period(t: &[f64], q: &[f64]) -> Option<f64> {
-    let v = q;
-    let n = v.len();
+    let n = q.len();
     if n < 16 || t.len() != n {
         return None;
     }
     let m = n.div_ceil(2000);
-    let x: Vec<f64> = v
+    let x: Vec<f64> = q
         .chunks(m)
         .filter(|c| c.len() == m)
         .map(|c| c.iter().sum::<f64>() / m as f64)

@@ -180,11 +180,20 @@ fn baseline_derivative(
     stage: &Stage,
     d: fn(&PolyBasis, &[f64], f64, f64) -> f64,
 ) -> Arc<Vec<f64>> {
-    let beta = &stage.fit.beta[..prep.basis.len()];
+    basis_derivative(prep, &stage.fit.beta[..prep.basis.len()], d)
+}
+
+/// A partial derivative (`PolyBasis::stiffness` or `damping`) of the polynomial with basis
+/// coefficients `poly` on `prep`'s raw inputs, per sample.
+pub(super) fn basis_derivative(
+    prep: &Prepared,
+    poly: &[f64],
+    d: fn(&PolyBasis, &[f64], f64, f64) -> f64,
+) -> Arc<Vec<f64>> {
     let s = &prep.series;
     Arc::new(
         (0..s.len())
-            .map(|k| d(&prep.basis, beta, s.v[k], s.vdot[k]))
+            .map(|k| d(&prep.basis, poly, s.v[k], s.vdot[k]))
             .collect(),
     )
 }

@@ -537,6 +537,12 @@ pub fn delay_hermite(
     (vo, fo)
 }
 
+/// The second derivative at the end of an interval's cubic Hermite (length `h`, volume change
+/// `dv`, slopes the flows `f0`, `f1`): `(−6Δv + 2h f₀ + 4h f₁)/h²`.
+fn end_accel(h: f64, dv: f64, f0: f64, f1: f64) -> f64 {
+    (-6.0 * dv + 2.0 * h * f0 + 4.0 * h * f1) / (h * h)
+}
+
 /// Volumetric acceleration at the samples from the past only: the second derivative at the end
 /// of the last interval's cubic Hermite (slopes the flows), `(−6Δv + 2h f_{k−1} + 4h f_k)/h²`;
 /// 0 at the first sample. The board's form (`model_core::chain`: delivery lag, inertance).
@@ -544,10 +550,7 @@ pub fn acceleration_causal(t: &[f64], v: &[f64], f: &[f64]) -> Vec<f64> {
     (0..t.len())
         .map(|k| match k {
             0 => 0.0,
-            _ => {
-                let h = t[k] - t[k - 1];
-                (-6.0 * (v[k] - v[k - 1]) + 2.0 * h * f[k - 1] + 4.0 * h * f[k]) / (h * h)
-            }
+            _ => end_accel(t[k] - t[k - 1], v[k] - v[k - 1], f[k - 1], f[k]),
         })
         .collect()
 }
@@ -566,7 +569,7 @@ pub fn acceleration_hermite(t: &[f64], v: &[f64], f: &[f64]) -> Vec<f64> {
         let h = t[j + 1] - t[j];
         let dv = v[j + 1] - v[j];
         if end {
-            (-6.0 * dv + 2.0 * h * f[j] + 4.0 * h * f[j + 1]) / (h * h)
+            end_accel(h, dv, f[j], f[j + 1])
         } else {
             (6.0 * dv - 4.0 * h * f[j] - 2.0 * h * f[j + 1]) / (h * h)
         }

@@ -15,13 +15,13 @@
 //! which another log rarely has. The report names them (`clock_bound`), so a final model that is
 //! worse on B because of them reads as what it is.
 
-use std::sync::Arc;
-
 use serde::Serialize;
 
 use super::effects::design::build;
 use super::effects::{Effect, Prepared};
-use super::{DiagnoseError, Diagnosis, Series, Stage};
+use super::lsq;
+use super::select::basis_derivative;
+use super::{DiagnoseError, Diagnosis, PolyBasis, Series, Stage};
 
 /// A model as fitted: its effects and its coefficients (the design's column order).
 #[derive(Clone, Debug, Default)]
@@ -121,37 +121,18 @@ fn rmse_on(prep: &Prepared, model: &FittedModel) -> f64 {
         return f64::NAN;
     }
     let p = &prep.series.p;
-    let sse: f64 = (0..p.len())
-        .map(|k| {
-            let pred: f64 = design
-                .cols
-                .iter()
-                .zip(&model.beta)
-                .map(|(c, b)| c[k] * b)
-                .sum();
-            (p[k] - pred).powi(2)
-        })
-        .sum();
+    let pred = lsq::predict(&design.cols, &model.beta);
+    let sse: f64 = p.iter().zip(&pred).map(|(p, q)| (p - q).powi(2)).sum();
     (sse / p.len().max(1) as f64).sqrt()
 }
 
 /// `e` with its per-sample schedules (damping, stiffness) recomputed on `prep`'s samples from the
 /// polynomial part `poly` of the model it belongs to.
 fn with_schedules(prep: &Prepared, e: &Effect, poly: &[f64]) -> Effect {
-    let s = &prep.series;
-    let along = |d: fn(&super::PolyBasis, &[f64], f64, f64) -> f64| {
-        Arc::new(
-            (0..s.len())
-                .map(|k| d(&prep.basis, poly, s.v[k], s.vdot[k]))
-                .collect::<Vec<f64>>(),
-        )
-    };
+    let along = |d| basis_derivative(prep, poly, d);
     Effect {
-        damping: e.damping.as_ref().map(|_| along(super::PolyBasis::damping)),
-        stiffness: e
-            .stiffness
-            .as_ref()
-            .map(|_| along(super::PolyBasis::stiffness)),
+        damping: e.damping.as_ref().map(|_| along(PolyBasis::damping)),
+        stiffness: e.stiffness.as_ref().map(|_| along(PolyBasis::stiffness)),
         ..e.clone()
     }
 }
