@@ -398,7 +398,11 @@ impl ChamberRows {
                 needed: 3,
             });
         }
-        let (t, v, p) = (self.t, self.v, self.p);
+        let (mut t, mut v, mut p) = (self.t, self.v, self.p);
+        // Grown by doubling while the file was read: give back the unused half.
+        for c in [&mut t, &mut v, &mut p] {
+            c.shrink_to_fit();
+        }
         let logged_flow = self.flow.filter(|_| !cfg.derive_flow);
         let h = cfg.diff_half_width.max(1);
         let (vdot, vddot, flow_source) = match logged_flow {
@@ -421,7 +425,10 @@ impl ChamberRows {
             vdot,
             vddot,
             p,
-            force: self.force,
+            force: self.force.map(|mut f| {
+                f.shrink_to_fit();
+                f
+            }),
             cycle,
             heldout,
             flow_source,

@@ -157,3 +157,38 @@ fn two_effects_are_both_named() {
         d.final_model.rmse_heldout
     );
 }
+
+#[test]
+fn a_design_budget_below_one_design_changes_the_schedule_only() {
+    // The design budget (`Config::design_memory`) only makes the search threads take turns with
+    // their designs: with a budget of one byte (every design waits for the others to be dropped)
+    // the diagnosis of a log with two filtered effects (sensor lag, air pocket), whose searches
+    // hold designs, is the same document as with the default budget.
+    let g = generate(
+        &[
+            Inject::SensorLag { tau_s: 0.08 },
+            Inject::Air { volume_mm3: 40.0 },
+        ],
+        &RATES,
+        2,
+        SIGMA,
+        21,
+    );
+    let ds = Dataset::from_columns(g.t, g.v, g.vdot, g.p, &DatasetConfig::default());
+    let series = series_from_dataset(&ds).expect("valid series");
+    let cfg = Config {
+        threads: 2,
+        ..Config::default()
+    };
+    let free = diagnose(series.clone(), &cfg).expect("diagnosis runs");
+    let tight = Config {
+        design_memory: 1,
+        ..cfg
+    };
+    let turns = diagnose(series, &tight).expect("diagnosis runs");
+    assert!(!free.effects.is_empty(), "the effects are found");
+    assert_eq!(
+        serde_json::to_value(&free).unwrap(),
+        serde_json::to_value(&turns).unwrap()
+    );
+}

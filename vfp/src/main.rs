@@ -5,6 +5,17 @@ use clap::{Parser, Subcommand};
 use std::process::ExitCode;
 use vfp::cmd;
 
+/// One malloc arena for every thread (glibc): the threads of a long search free large designs
+/// that another thread allocates next, which per-thread arenas would each keep (vfp/Cargo.toml).
+#[cfg(all(target_os = "linux", target_env = "gnu"))]
+fn one_malloc_arena() {
+    // SAFETY: `mallopt` sets one of the allocator's parameters and touches no memory of ours;
+    // it runs first in `main`, before any other thread exists.
+    unsafe {
+        libc::mallopt(libc::M_ARENA_MAX, 1);
+    }
+}
+
 /// Volume-flow-pressure identification and analyses for hydraulic soft actuators.
 #[derive(Parser)]
 #[command(name = "vfp", version, about)]
@@ -47,6 +58,8 @@ enum Command {
 }
 
 fn main() -> ExitCode {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    one_malloc_arena();
     let cli = Cli::parse();
     vfp::progress::set_quiet(cli.quiet);
     let result = match &cli.command {

@@ -133,9 +133,34 @@ pub fn fit(cols: &[Vec<f64>], y: &[f64], rows: &[usize]) -> Option<LsFit> {
 /// designs behind an output filter (sensor lag, air compliance) come here during the searches;
 /// the others take [`sse_fast_poly`].
 pub fn sse_fast(cols: &[Vec<f64>], y: &[f64], rows: &[usize]) -> f64 {
-    let p = cols.len();
+    if cols.iter().any(|c| c.len() != y.len()) {
+        return f64::INFINITY;
+    }
+    let mut pos = 0;
+    sse_fast_streamed(cols.len(), y, rows, |hi, out| {
+        let lo = pos;
+        out.clear();
+        for c in cols {
+            out.extend_from_slice(&c[lo..hi]);
+        }
+        pos = hi;
+        lo
+    })
+}
+
+/// [`sse_fast`] of a design that is produced in row order, a block at a time, and never held
+/// whole: `advance(hi, out)` writes rows `lo..hi` of its `p` columns into `out` (column by
+/// column, `p` runs of `hi − lo`), where `lo` is the `hi` of its previous call (0 at the first),
+/// and returns `lo`. A filtered design (`signal::LagStream`) is summed this way in the memory of
+/// one block.
+pub fn sse_fast_streamed(
+    p: usize,
+    y: &[f64],
+    rows: &[usize],
+    mut advance: impl FnMut(usize, &mut Vec<f64>) -> usize,
+) -> f64 {
     let n = rows.len();
-    if n <= p || p == 0 || cols.iter().any(|c| c.len() != y.len()) {
+    if n <= p || p == 0 {
         return f64::INFINITY;
     }
     let mean = rows.iter().map(|&r| y[r]).sum::<f64>() / n as f64;
@@ -149,15 +174,19 @@ pub fn sse_fast(cols: &[Vec<f64>], y: &[f64], rows: &[usize]) -> f64 {
     // per trial θ costs more in page faults than the copy itself.
     let q = p + 1;
     let mut gram = DMatrix::zeros(q, q);
+    let mut rows_block = Vec::new();
     GRAM_BUF.with_borrow_mut(|data| {
         for (k, block) in rows.chunks(GRAM_BLOCK).enumerate() {
+            let hi = block[block.len() - 1] + 1;
+            let lo = advance(hi, &mut rows_block);
+            let len = hi - lo;
             let runs = runs_of(block);
             data.clear();
             data.reserve(block.len() * q);
             for c in 0..q {
                 for &(a, b) in &runs {
                     if c < p {
-                        data.extend_from_slice(&cols[c][a..b]);
+                        data.extend_from_slice(&rows_block[c * len + a - lo..c * len + b - lo]);
                     } else {
                         data.extend(y[a..b].iter().map(|&yv| yv - mean));
                     }
@@ -220,8 +249,10 @@ fn sse_from_gram(p: usize, g: impl Fn(usize, usize) -> f64) -> f64 {
 
 /// [`sse_fast`] for a design whose leading columns are the tensor Chebyshev basis
 /// `T_i(x)·T_j(y)`, i ≤ n, j ≤ m (column `i·(m+1) + j`, as `PolyBasis::columns`), followed by
-/// `extra` columns. Everything is given on the fitted rows only: `tx[a] = T_a(x)` for a ≤ 2n,
-/// `ty[b] = T_b(y)` for b ≤ 2m, `extra` and the centred pressure `yc`.
+/// `extra` columns. Everything is given on the fitted rows only: `factors(rows)` gives
+/// `T_a(x)` for a ≤ 2n and `T_b(y)` for b ≤ 2m over a range of them (`PolyBasis::factors`), asked
+/// for a block of rows at a time so that only a block of them is ever held; `extra` and the
+/// centred pressure `yc` over all of them.
 ///
 /// The baseline block of the Gram matrix comes from the moments `M_ab = Σ_r T_a(x_r) T_b(y_r)` by
 /// the product rule `T_i T_k = ½(T_{i+k} + T_{|i−k|})`:
@@ -230,8 +261,7 @@ fn sse_from_gram(p: usize, g: impl Fn(usize, usize) -> f64) -> f64 {
 /// 2,080 (an identity of the polynomials, exact up to rounding). Its cross terms with a column z
 /// are `Σ T_i(x)·(T_j(y) z)`. The tail is [`sse_fast`]'s.
 pub fn sse_fast_poly(
-    tx: &[Vec<f64>],
-    ty: &[Vec<f64>],
+    factors: impl Fn(std::ops::Range<usize>) -> (Vec<Vec<f64>>, Vec<Vec<f64>>),
     n: usize,
     m: usize,
     extra: &[Vec<f64>],
@@ -240,7 +270,7 @@ pub fn sse_fast_poly(
     let len = yc.len();
     let nb = (n + 1) * (m + 1);
     let p = nb + extra.len();
-    if len <= p || tx.len() < 2 * n + 1 || ty.len() < 2 * m + 1 {
+    if len <= p || extra.iter().any(|z| z.len() != len) {
         return f64::INFINITY;
     }
     let mm = 2 * m + 1;
@@ -251,27 +281,42 @@ pub fn sse_fast_poly(
         .chain(std::iter::once(yc))
         .collect();
     let nt = tail.len();
-    // Column-major len × k matrices in one per-thread buffer (see `sse_fast`): T_x(0..=2n),
-    // T_y(0..=2m), then W, whose column t·(m+1) + j is T_j(y)·z_t. The products go to
-    // `matrixmultiply`: the moments T_xᵀT_y, and the cross terms Σ T_i(x)·(T_j(y) z_t) = T_xᵀW.
-    let (mom, cw) = POLY_BUF.with_borrow_mut(|buf| {
-        buf.clear();
-        buf.reserve(len * (2 * n + 1 + mm + (m + 1) * nt));
-        for v in tx[..=2 * n].iter().chain(&ty[..mm]) {
-            buf.extend_from_slice(&v[..len]);
-        }
-        for z in &tail {
-            for tj in &ty[..=m] {
-                buf.extend(tj[..len].iter().zip(z.iter()).map(|(a, b)| a * b));
+    // Per block of rows, column-major matrices in one per-thread buffer (see `sse_fast`):
+    // T_x(0..=2n), T_y(0..=2m), then W, whose column t·(m+1) + j is T_j(y)·z_t. The products go
+    // to `matrixmultiply` and are summed over the blocks (bit-identical to one product, as in
+    // `sse_fast`): the moments T_xᵀT_y, and the cross terms Σ T_i(x)·(T_j(y) z_t) = T_xᵀW.
+    let mut mom = DMatrix::zeros(2 * n + 1, mm);
+    let mut cw = DMatrix::zeros(n + 1, (m + 1) * nt);
+    let complete = POLY_BUF.with_borrow_mut(|buf| {
+        for (k, lo) in (0..len).step_by(GRAM_BLOCK).enumerate() {
+            let hi = (lo + GRAM_BLOCK).min(len);
+            let bl = hi - lo;
+            let (tx, ty) = factors(lo..hi);
+            if tx.len() < 2 * n + 1 || ty.len() < mm || tx.iter().chain(&ty).any(|c| c.len() != bl)
+            {
+                return false;
             }
+            buf.clear();
+            buf.reserve(bl * (2 * n + 1 + mm + (m + 1) * nt));
+            for v in tx[..=2 * n].iter().chain(&ty[..mm]) {
+                buf.extend_from_slice(v);
+            }
+            for z in &tail {
+                for tj in &ty[..=m] {
+                    buf.extend(tj.iter().zip(&z[lo..hi]).map(|(a, b)| a * b));
+                }
+            }
+            let (txd, rest) = buf.split_at(bl * (2 * n + 1));
+            let (tyd, wd) = rest.split_at(bl * mm);
+            at_b_into(txd, bl, 2 * n + 1, tyd, mm, &mut mom, k > 0);
+            let w_cols = (m + 1) * nt;
+            at_b_into(&txd[..(n + 1) * bl], bl, n + 1, wd, w_cols, &mut cw, k > 0);
         }
-        let (txd, rest) = buf.split_at(len * (2 * n + 1));
-        let (tyd, wd) = rest.split_at(len * mm);
-        (
-            at_b(txd, len, 2 * n + 1, tyd, mm),
-            at_b(&txd[..(n + 1) * len], len, n + 1, wd, (m + 1) * nt),
-        )
+        true
     });
+    if !complete {
+        return f64::INFINITY;
+    }
     let mo = |a: usize, b: usize| mom[(a, b)];
     let cross = |t: usize, idx: usize| cw[(idx / (m + 1), t * (m + 1) + idx % (m + 1))];
     let mut tt = vec![0.0; nt * nt];
@@ -295,16 +340,9 @@ pub fn sse_fast_poly(
     sse_from_gram(p, g)
 }
 
-/// `AᵀB` for column-major `len × ka` and `len × kb` matrices given as slices, by
-/// `matrixmultiply` (register-blocked kernels on the CPU's vector units), reading `A` through
-/// strides, without a transposed copy.
-fn at_b(a: &[f64], len: usize, ka: usize, b: &[f64], kb: usize) -> DMatrix<f64> {
-    let mut c = DMatrix::zeros(ka, kb);
-    at_b_into(a, len, ka, b, kb, &mut c, false);
-    c
-}
-
-/// `C ← AᵀB` (or `C ← C + AᵀB` when `accumulate`) for [`at_b`]'s operands; `c` is ka × kb.
+/// `C ← AᵀB` (or `C ← C + AᵀB` when `accumulate`) for column-major `len × ka` and `len × kb`
+/// matrices given as slices, by `matrixmultiply` (register-blocked kernels on the CPU's vector
+/// units), reading `A` through strides, without a transposed copy; `c` is ka × kb.
 fn at_b_into(
     a: &[f64],
     len: usize,
@@ -437,16 +475,18 @@ mod tests {
         let rows: Vec<usize> = (0..150).chain(200..len).collect();
         let qr = fit(&cols, &p, &rows).unwrap().sse;
         let g = |s: &[f64]| -> Vec<f64> { rows.iter().map(|&r| s[r]).collect() };
-        let tx: Vec<Vec<f64>> = (0..=2 * n)
-            .map(|d| rows.iter().map(|&r| cheb(x[r], d)).collect())
-            .collect();
-        let ty: Vec<Vec<f64>> = (0..=2 * m)
-            .map(|d| rows.iter().map(|&r| cheb(yv[r], d)).collect())
-            .collect();
+        let factors = |range: std::ops::Range<usize>| {
+            let at = |s: &[f64], deg: usize| -> Vec<Vec<f64>> {
+                (0..=deg)
+                    .map(|d| rows[range.clone()].iter().map(|&r| cheb(s[r], d)).collect())
+                    .collect()
+            };
+            (at(&x, 2 * n), at(&yv, 2 * m))
+        };
         let pr = g(&p);
         let mean = pr.iter().sum::<f64>() / pr.len() as f64;
         let yc: Vec<f64> = pr.iter().map(|v| v - mean).collect();
-        let fast = sse_fast_poly(&tx, &ty, n, m, &[g(&e1), g(&e2)], &yc);
+        let fast = sse_fast_poly(factors, n, m, &[g(&e1), g(&e2)], &yc);
         assert!((fast - qr).abs() < 1e-9 * qr, "{fast} vs {qr}");
     }
 

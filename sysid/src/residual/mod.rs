@@ -197,6 +197,10 @@ pub struct Config {
     pub max_effects: usize,
     /// Worker threads for the candidate searches.
     pub threads: usize,
+    /// Bytes the full designs of the searches may hold at once, across the threads
+    /// (`effects::DesignGate`; default `effects::DESIGN_MEMORY`, 192 MiB): on a long log the
+    /// threads take turns with their designs instead of holding one each.
+    pub design_memory: usize,
     /// Told as each stage starts (baseline, each round's searches, the final analysis) and as
     /// each candidate's search finishes; `None`: silent.
     pub progress: Option<crate::progress::ProgressFn>,
@@ -215,6 +219,7 @@ impl Default for Config {
             threads: std::thread::available_parallelism()
                 .map_or(1, |n| n.get())
                 .min(4),
+            design_memory: effects::DESIGN_MEMORY,
             progress: None,
         }
     }
@@ -442,7 +447,8 @@ pub fn diagnose(series: Series, cfg: &Config) -> Result<Diagnosis, DiagnoseError
     }
     let say = |what: &str| tell(cfg.progress, Progress::Stage { what, total: 0 });
     say("baseline fit");
-    let prep = effects::Prepared::new(series, cfg.n, cfg.m);
+    let mut prep = effects::Prepared::new(series, cfg.n, cfg.m);
+    prep.gate = effects::DesignGate::new(cfg.design_memory);
     let baseline = select::fit_stage(&prep, &[]).ok_or_else(|| {
         DiagnoseError::Degenerate(
             "its columns are linearly dependent on the training rows (is volume or flow constant?)"

@@ -74,8 +74,8 @@ impl Stage {
 
     /// The design's columns over every sample, rebuilt ([`build`] is deterministic, so they are
     /// the columns the stage was fitted on).
-    pub fn columns(&self, prep: &Prepared) -> Vec<Vec<f64>> {
-        build(prep, &self.effects).cols
+    pub fn columns(&self, prep: &Prepared) -> Design {
+        build(prep, &self.effects)
     }
 
     /// The design columns of effect `idx`, in order.
@@ -95,7 +95,7 @@ pub fn fit_stage(prep: &Prepared, effects: &[Effect]) -> Option<Stage> {
     let mut design = build(prep, effects);
     let fit = lsq::fit(&design.cols, &prep.series.p, &prep.train_rows)?;
     let pred = lsq::predict(&design.cols, &fit.beta);
-    design.cols = Vec::new();
+    design.release();
     let resid: Vec<f64> = prep
         .series
         .p
@@ -233,8 +233,11 @@ pub(crate) fn with(base: &[Effect], e: Effect) -> Vec<Effect> {
 /// Searches the nonlinear parameter of `kind` added to `cur`, returning the best augmented model
 /// (after the effect's own [`super::effects::EffectModel::refine`]).
 pub fn search(prep: &Prepared, cur: &Stage, kind: EffectKind) -> Option<Candidate> {
-    let trials = Trials::new(prep, cur, kind);
+    let mut trials = Trials::new(prep, cur, kind);
     let found = trials.best_theta()?;
+    // The shortcut may hold the current design (sensor lag's `LagBase`); the fits below build
+    // their own, so let it go first.
+    trials.fast = None;
     let stage = match found.prefit.or_else(|| trials.fit(found.theta)) {
         Some(stage) => stage,
         // The searches' SSE tolerates a rank-deficient design, the reported QR fit does not

@@ -102,30 +102,32 @@ fn per_interval<C: Copy>(
 /// (the three-point backward difference on a uniform grid), the secant `d_1` at the second
 /// sample and 0 at the first (at rest). The board's sensor lag runs on the cubic with these
 /// slopes (`model_core::chain`): unlike Akima's ([`akima_slopes`]) they need no later frame.
+/// ([`LagStream`] computes them a block at a time.)
+#[cfg(test)]
 pub fn backward_slopes(t: &[f64], x: &[f64]) -> Vec<f64> {
     let mut m = Vec::with_capacity(x.len());
-    let mut prev = 0.0;
-    for k in 0..x.len() {
-        if k == 0 {
-            m.push(0.0);
-            continue;
-        }
-        let d = (x[k] - x[k - 1]) / (t[k] - t[k - 1]);
-        m.push(if k == 1 { d } else { d + 0.5 * (d - prev) });
-        prev = d;
-    }
+    backward_slopes_range(t, x, 0, x.len(), &mut m);
     m
+}
+
+/// [`backward_slopes`] at samples `lo..hi` only, appended to `out`.
+fn backward_slopes_range(t: &[f64], x: &[f64], lo: usize, hi: usize, out: &mut Vec<f64>) {
+    let d = |k: usize| (x[k] - x[k - 1]) / (t[k] - t[k - 1]);
+    out.extend((lo..hi).map(|k| match k {
+        0 => 0.0,
+        1 => d(1),
+        _ => {
+            let dk = d(k);
+            dk + 0.5 * (dk - d(k - 1))
+        }
+    }));
 }
 
 /// The lag of [`lag_cubic_coeffs`] applied to every column in place, each column reconstructed
 /// between samples by the cubic with [`backward_slopes`] (causal: the board's sensor lag),
 /// started at rest.
 pub fn lag_causal_apply_all(t: &[f64], coeffs: &[[f64; 5]], cols: &mut [Vec<f64>]) {
-    if cols.iter().any(|c| c.len() != t.len()) {
-        return;
-    }
-    let slopes: Vec<Vec<f64>> = cols.iter().map(|c| backward_slopes(t, c)).collect();
-    lag_cubic_apply_with(coeffs, cols, &slopes);
+    lag_apply_all(t, coeffs, LagSlopes::Backward, cols);
 }
 
 /// Applies precomputed lag coefficients: `y_k = a y_{k−1} + (1 − a) x_{k−1} + (1 − g)(x_k − x_{k−1})`.
@@ -164,35 +166,53 @@ pub fn akima_slopes(t: &[f64], x: &[f64]) -> Vec<f64> {
 
 /// [`akima_slopes`] with the reciprocal sample intervals given (shared by many columns).
 fn akima_slopes_inv(inv_dt: &[f64], x: &[f64]) -> Vec<f64> {
+    let (mut m, mut secants) = (Vec::with_capacity(x.len()), Vec::new());
+    akima_slopes_range(inv_dt, x, 0, x.len(), &mut secants, &mut m);
+    m
+}
+
+/// [`akima_slopes`] at samples `lo..hi` only, appended to `out` (`secants`: scratch). Sample k
+/// needs the secants of intervals k − 2 ..= k + 1, with Akima's linear extrapolation of two
+/// secants past each end.
+fn akima_slopes_range(
+    inv_dt: &[f64],
+    x: &[f64],
+    lo: usize,
+    hi: usize,
+    secants: &mut Vec<f64>,
+    out: &mut Vec<f64>,
+) {
     let n = x.len();
     if n < 2 {
-        return vec![0.0; n];
+        out.extend((lo..hi).map(|_| 0.0));
+        return;
     }
-    // Secants with two extrapolated on each side: d[j + 2] is the secant of interval j.
-    let mut d = Vec::with_capacity(n + 3);
-    d.extend([0.0, 0.0]);
-    d.extend((0..n - 1).map(|j| (x[j + 1] - x[j]) * inv_dt[j]));
-    let last = d[n];
-    let before_last = if n >= 3 { d[n - 1] } else { last };
-    let first = d[2];
-    let second = if n >= 3 { d[3] } else { first };
-    d[1] = 2.0 * first - second;
-    d[0] = 2.0 * d[1] - first;
-    d.push(2.0 * last - before_last);
-    let end = d[n + 1];
-    d.push(2.0 * end - last);
-    d.windows(4)
-        .map(|w| {
-            // Sample k sits between w[1] (left secant) and w[2] (right secant).
-            let (w_left, w_right) = ((w[3] - w[2]).abs(), (w[1] - w[0]).abs());
-            let sum = w_left + w_right;
-            if sum > 1e-12 * (w[1].abs() + w[2].abs()) && sum > 0.0 {
-                (w_left * w[1] + w_right * w[2]) / sum
-            } else {
-                0.5 * (w[1] + w[2])
-            }
-        })
-        .collect()
+    // d(e) is the secant of interval e − 2 (e = 2..=n), extrapolated for e = 0, 1, n + 1, n + 2.
+    let sec = |j: usize| (x[j + 1] - x[j]) * inv_dt[j];
+    let (first, last) = (sec(0), sec(n - 2));
+    let second = if n >= 3 { sec(1) } else { first };
+    let before_last = if n >= 3 { sec(n - 3) } else { last };
+    let d1 = 2.0 * first - second;
+    let end = 2.0 * last - before_last;
+    let d = |e: usize| match e {
+        0 => 2.0 * d1 - first,
+        1 => d1,
+        e if e <= n => sec(e - 2),
+        e if e == n + 1 => end,
+        _ => 2.0 * end - last,
+    };
+    secants.clear();
+    secants.extend((lo..hi + 3).map(d));
+    out.extend(secants.windows(4).map(|w| {
+        // Sample k sits between w[1] (left secant) and w[2] (right secant).
+        let (w_left, w_right) = ((w[3] - w[2]).abs(), (w[1] - w[0]).abs());
+        let sum = w_left + w_right;
+        if sum > 1e-12 * (w[1].abs() + w[2].abs()) && sum > 0.0 {
+            (w_left * w[1] + w_right * w[2]) / sum
+        } else {
+            0.5 * (w[1] + w[2])
+        }
+    }));
 }
 
 /// `I_q = ∫₀¹ r e^{−r(1−s)} s^q ds`, q = 0..3: the response at the end of an interval of a
@@ -274,44 +294,131 @@ pub fn lag_cubic(coeffs: &[[f64; 5]], x: &[f64], m: &[f64]) -> Vec<f64> {
 /// corners. Joining frames by straight lines puts every corner at a frame instant; the Akima cubic
 /// places it within the frame and keeps the flat side flat.
 pub fn lag_cubic_apply_all(t: &[f64], coeffs: &[[f64; 5]], cols: &mut [Vec<f64>]) {
+    lag_apply_all(t, coeffs, LagSlopes::Akima, cols);
+}
+
+/// [`LagStream`] over whole columns, in place, a block of rows at a time.
+fn lag_apply_all(t: &[f64], coeffs: &[[f64; 5]], slopes: LagSlopes, cols: &mut [Vec<f64>]) {
     let n = t.len();
-    if n == 0 || cols.iter().any(|c| c.len() != n) {
+    if n == 0 || coeffs.len() != n || cols.iter().any(|c| c.len() != n) {
         return;
     }
-    let slopes = akima_slopes_all(t, cols);
-    lag_cubic_apply_with(coeffs, cols, &slopes);
+    let mut run = LagStream::new(t, coeffs, slopes, cols);
+    // A block's slopes read the input up to three rows before it, so each block's output is
+    // written back only after the next block has been lagged.
+    let (mut out, mut pending) = (Vec::new(), Vec::new());
+    let mut pending_rows = 0..0;
+    for hi in (1..=n.div_ceil(LAG_BLOCK)).map(|b| (b * LAG_BLOCK).min(n)) {
+        let lo = run.advance(cols, hi, &mut out);
+        write_back(cols, &pending, pending_rows);
+        std::mem::swap(&mut out, &mut pending);
+        pending_rows = lo..hi;
+    }
+    write_back(cols, &pending, pending_rows);
 }
 
-/// [`akima_slopes`] of every column (the reciprocal intervals computed once).
-pub fn akima_slopes_all(t: &[f64], cols: &[Vec<f64>]) -> Vec<Vec<f64>> {
-    let inv: Vec<f64> = t.windows(2).map(|w| 1.0 / (w[1] - w[0])).collect();
-    cols.iter().map(|c| akima_slopes_inv(&inv, c)).collect()
-}
-
-/// [`lag_cubic_apply_all`] with each column's slopes given (they do not depend on τ, so a search
-/// over τ computes them once).
-pub fn lag_cubic_apply_with(coeffs: &[[f64; 5]], cols: &mut [Vec<f64>], slopes: &[Vec<f64>]) {
-    let n = coeffs.len();
-    if n == 0
-        || slopes.len() != cols.len()
-        || cols
-            .iter()
-            .zip(slopes)
-            .any(|(c, m)| c.len() != n || m.len() != n)
-    {
+/// Rows `rows` of every column from `lagged` (column by column).
+fn write_back(cols: &mut [Vec<f64>], lagged: &[f64], rows: std::ops::Range<usize>) {
+    if rows.is_empty() {
         return;
     }
-    // Every column's recurrence is a serial chain (latency-bound); stepping all columns together
-    // at each sample lets the independent chains overlap in the pipeline.
-    let mut state: Vec<(f64, f64)> = cols.iter().map(|c| (c[0], c[0])).collect();
-    for k in 1..n {
-        let [a, wx0, wx1, wm0, wm1] = coeffs[k];
-        for ((c, m), st) in cols.iter_mut().zip(slopes).zip(state.iter_mut()) {
-            let x = c[k];
-            let y = a * st.0 + wx0 * st.1 + wx1 * x + wm0 * m[k - 1] + wm1 * m[k];
-            c[k] = y;
-            *st = (y, x);
+    for (c, block) in cols.iter_mut().zip(lagged.chunks_exact(rows.len())) {
+        c[rows.clone()].copy_from_slice(block);
+    }
+}
+
+/// Rows per block of [`lag_apply_all`].
+const LAG_BLOCK: usize = 4096;
+
+/// The slopes of the cubic a [`LagStream`] reconstructs each column with between samples.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LagSlopes {
+    /// Akima's ([`akima_slopes`]): the loop's form for frame means.
+    Akima,
+    /// From the past only ([`backward_slopes`]): the board's form.
+    Backward,
+}
+
+/// The lag of [`lag_cubic_coeffs`] on many columns at once, run over the rows in order a block
+/// at a time: each column's slopes are computed for the block as it is reached, and only the
+/// lag's state (last output and input per column) is carried between blocks. What
+/// [`lag_cubic_apply_all`] and [`lag_causal_apply_all`] do to whole columns, holding one block of
+/// output instead of a second copy of the design (a search over τ filters it hundreds of times).
+pub struct LagStream<'a> {
+    t: &'a [f64],
+    inv_dt: Vec<f64>,
+    coeffs: &'a [[f64; 5]],
+    slopes: LagSlopes,
+    /// `(y_{k−1}, x_{k−1})` per column.
+    state: Vec<(f64, f64)>,
+    /// The next row to lag.
+    pos: usize,
+    /// Slopes of every column over the current block (and the row before it).
+    m: Vec<f64>,
+    secants: Vec<f64>,
+}
+
+impl<'a> LagStream<'a> {
+    /// A lag of `cols` (equal lengths, that of `t` and `coeffs`) started at rest (`y_0 = x_0`).
+    pub fn new(t: &'a [f64], coeffs: &'a [[f64; 5]], slopes: LagSlopes, cols: &[Vec<f64>]) -> Self {
+        let inv_dt = match slopes {
+            LagSlopes::Akima => t.windows(2).map(|w| 1.0 / (w[1] - w[0])).collect(),
+            LagSlopes::Backward => Vec::new(),
+        };
+        Self {
+            t,
+            inv_dt,
+            coeffs,
+            slopes,
+            state: cols.iter().map(|c| (c[0], c[0])).collect(),
+            pos: 0,
+            m: Vec::new(),
+            secants: Vec::new(),
         }
+    }
+
+    /// Lags rows `pos..hi` of every column (the same `cols` at every call) into `out`, column by
+    /// column (`cols.len()` runs of `hi − pos`), and returns `pos`, the first row written:
+    ///
+    /// ```text
+    /// y_k = a y_{k−1} + w_x0 x_{k−1} + w_x1 x_k + w_m0 m_{k−1} + w_m1 m_k   (k ≥ 1),  y_0 = x_0.
+    /// ```
+    pub fn advance(&mut self, cols: &[Vec<f64>], hi: usize, out: &mut Vec<f64>) -> usize {
+        let lo = self.pos;
+        let len = hi - lo;
+        let s0 = lo.saturating_sub(1);
+        let w = hi - s0;
+        self.m.clear();
+        for c in cols {
+            match self.slopes {
+                LagSlopes::Akima => {
+                    akima_slopes_range(&self.inv_dt, c, s0, hi, &mut self.secants, &mut self.m)
+                }
+                LagSlopes::Backward => backward_slopes_range(self.t, c, s0, hi, &mut self.m),
+            }
+        }
+        out.clear();
+        out.resize(cols.len() * len, 0.0);
+        // Every column's recurrence is a serial chain (latency-bound); stepping all columns
+        // together at each sample lets the independent chains overlap in the pipeline.
+        for k in lo..hi {
+            if k == 0 {
+                for (c, x) in cols.iter().enumerate() {
+                    out[c * len] = x[0];
+                }
+                continue;
+            }
+            let [a, wx0, wx1, wm0, wm1] = self.coeffs[k];
+            for (c, (x, st)) in cols.iter().zip(self.state.iter_mut()).enumerate() {
+                let (m0, m1) = (self.m[c * w + k - 1 - s0], self.m[c * w + k - s0]);
+                let x = x[k];
+                let y = a * st.0 + wx0 * st.1 + wx1 * x + wm0 * m0 + wm1 * m1;
+                out[c * len + k - lo] = y;
+                *st = (y, x);
+            }
+        }
+        self.pos = hi;
+        lo
     }
 }
 
@@ -686,6 +793,47 @@ mod tests {
         lag_cubic_apply_all(&t, &c, &mut all);
         for (x, y) in cols.iter().zip(&all) {
             assert_eq!(&lag_cubic(&c, x, &akima_slopes(&t, x)), y);
+        }
+    }
+
+    #[test]
+    fn streamed_lag_equals_the_whole_column_lag_across_blocks() {
+        // Identity: over 2.3 blocks of rows, with irregular intervals and a varying τ, the
+        // in-place lag of all columns (a block at a time, slopes computed per block) equals the
+        // lag of each column with its slopes computed over the whole column, to the bit, for
+        // Akima's slopes and for the board's backward ones.
+        let n = 2 * LAG_BLOCK + 1234;
+        let t: Vec<f64> = (0..n)
+            .map(|k| k as f64 * 0.04 + 1e-4 * (k % 7) as f64)
+            .collect();
+        let cols: Vec<Vec<f64>> = (0..3)
+            .map(|j| {
+                t.iter()
+                    .map(|&s| (s * (j + 1) as f64 * 0.7).sin() + (s * 0.05).cos().abs())
+                    .collect()
+            })
+            .collect();
+        let c = lag_cubic_coeffs(&t, |k| 0.05 + 0.1 * (k % 500) as f64 / 500.0);
+        let mut akima = cols.clone();
+        lag_cubic_apply_all(&t, &c, &mut akima);
+        let mut causal = cols.clone();
+        lag_causal_apply_all(&t, &c, &mut causal);
+        for ((x, ya), yc) in cols.iter().zip(&akima).zip(&causal) {
+            let first_diff = |a: &[f64], b: &[f64]| a.iter().zip(b).position(|(p, q)| p != q);
+            let want = lag_cubic(&c, x, &akima_slopes(&t, x));
+            assert_eq!(
+                first_diff(&want, ya),
+                None,
+                "{:?}",
+                first_diff(&want, ya).map(|k| (k, want[k], ya[k]))
+            );
+            let want = lag_cubic(&c, x, &backward_slopes(&t, x));
+            assert_eq!(
+                first_diff(&want, yc),
+                None,
+                "{:?}",
+                first_diff(&want, yc).map(|k| (k, want[k], yc[k]))
+            );
         }
     }
 

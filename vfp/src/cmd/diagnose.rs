@@ -76,7 +76,9 @@ pub fn run(args: &Args) -> Result<(), Error> {
     if args.input.data.holdout_every < 2 {
         return Err(Error::Usage("--holdout-every must be at least 2".into()));
     }
-    let data = args.input.load()?;
+    let mut data = args.input.load()?;
+    // The loop runs on the first requested chamber only; the others' data would only take room.
+    data.datasets.truncate(1);
     let shape = args.model.as_deref().map(parse_shape).transpose()?;
     let (n, m) = shape.unwrap_or((3, 2));
     let mut cfg = Config {

@@ -92,6 +92,8 @@ pub struct Prepared {
     pub cruise_speeds: std::sync::Arc<Vec<f64>>,
     /// Training row indices.
     pub train_rows: Vec<usize>,
+    /// The budget of the designs built on these data ([`DesignGate`], [`DESIGN_MEMORY`]).
+    pub gate: std::sync::Arc<DesignGate>,
     /// Held-out row indices.
     pub held_rows: Vec<usize>,
 }
@@ -145,7 +147,81 @@ impl Prepared {
             train_rows,
             held_rows,
             series,
+            gate: DesignGate::new(DESIGN_MEMORY),
         }
+    }
+}
+
+/// How much memory the full designs of one diagnosis may hold at once (bytes): a 64-column
+/// design of a 3-hour log (270,000 samples) is 138 MB, and the candidate searches run on several
+/// threads. Below this, the threads build designs freely; above it, one waits for another's
+/// design to be dropped ([`DesignGate`]).
+pub const DESIGN_MEMORY: usize = 192 << 20;
+
+/// A budget on the memory held by full designs ([`build`]), shared by the threads of one
+/// diagnosis: a build takes a [`Permit`] for its size, and waits while the others' permits
+/// and its own would exceed the budget. A thread that already holds a permit never waits (it
+/// would wait on itself), nor does a request when nothing is held (a design larger than the
+/// whole budget still runs, alone). Only the scheduling changes, never a result.
+#[derive(Debug)]
+pub struct DesignGate {
+    budget: usize,
+    held: std::sync::Mutex<usize>,
+    freed: std::sync::Condvar,
+}
+
+thread_local! {
+    /// Permits held by this thread (of any gate).
+    static HELD_HERE: std::cell::Cell<usize> = const { std::cell::Cell::new(0) };
+}
+
+impl DesignGate {
+    /// A gate with `budget` bytes.
+    pub fn new(budget: usize) -> std::sync::Arc<Self> {
+        std::sync::Arc::new(Self {
+            budget,
+            held: std::sync::Mutex::new(0),
+            freed: std::sync::Condvar::new(),
+        })
+    }
+
+    /// A permit for `bytes`, once the budget allows (see the type's docs).
+    fn acquire(self: &std::sync::Arc<Self>, bytes: usize) -> Permit {
+        let mut held = self.held.lock().unwrap_or_else(|e| e.into_inner());
+        if HELD_HERE.get() == 0 {
+            while *held > 0 && *held + bytes > self.budget {
+                held = self.freed.wait(held).unwrap_or_else(|e| e.into_inner());
+            }
+        }
+        *held += bytes;
+        HELD_HERE.set(HELD_HERE.get() + 1);
+        Permit {
+            gate: self.clone(),
+            bytes,
+        }
+    }
+}
+
+/// A share of a [`DesignGate`]'s budget, given back when dropped.
+#[derive(Debug)]
+pub struct Permit {
+    gate: std::sync::Arc<DesignGate>,
+    bytes: usize,
+}
+
+/// A copy of the columns takes its own share.
+impl Clone for Permit {
+    fn clone(&self) -> Self {
+        self.gate.acquire(self.bytes)
+    }
+}
+
+impl Drop for Permit {
+    fn drop(&mut self) {
+        let mut held = self.gate.held.lock().unwrap_or_else(|e| e.into_inner());
+        *held -= self.bytes;
+        HELD_HERE.set(HELD_HERE.get().saturating_sub(1));
+        self.gate.freed.notify_all();
     }
 }
 
@@ -158,11 +234,25 @@ pub struct Design {
     pub labels: Vec<String>,
     /// Index into the effect list of the effect a column belongs to; `None` for the baseline.
     pub owner: Vec<Option<usize>>,
+    /// The share of [`Prepared::gate`] the columns hold.
+    permit: Option<Permit>,
+}
+
+impl Design {
+    /// Drops the columns (and gives their memory back to the gate), keeping labels and owners.
+    pub fn release(&mut self) {
+        self.cols = Vec::new();
+        self.permit = None;
+    }
 }
 
 /// Builds the design of the baseline augmented with `effects` (see the module docs for the order:
 /// input transforms, baseline columns, added columns, output filters).
 pub fn build(prep: &Prepared, effects: &[Effect]) -> Design {
+    // The size before it is built: the baseline's columns plus (at most, for every effect here)
+    // two added ones.
+    let width = prep.basis.len() + 2 * effects.len();
+    let permit = Some(prep.gate.acquire(width * prep.series.len() * 8));
     let mut cols = if transforms_inputs(effects) {
         input_transformed_columns(prep, effects)
     } else {
@@ -175,6 +265,7 @@ pub fn build(prep: &Prepared, effects: &[Effect]) -> Design {
         cols,
         labels,
         owner,
+        permit,
     }
 }
 
@@ -206,14 +297,14 @@ pub fn sse_structured(prep: &Prepared, effects: &[Effect]) -> Option<f64> {
     // range keeps the Gram matrix well conditioned when a transform (leak, drift) moves them
     // outside the baseline's [−1, 1].
     let b = &PolyBasis::for_data(&v, &f, prep.basis.n, prep.basis.m);
-    let (tx, ty) = b.factors(&v, &f, 2 * b.n, 2 * b.m);
     let (mut extra, mut labels, mut owner) = (Vec::new(), Vec::new(), Vec::new());
     added_and_filters(prep, effects, &mut extra, &mut labels, &mut owner);
     let extra: Vec<Vec<f64>> = extra.iter().map(|c| gather(c)).collect();
     let y = gather(&se.p);
     let mean = y.iter().sum::<f64>() / y.len().max(1) as f64;
     let yc: Vec<f64> = y.iter().map(|p| p - mean).collect();
-    Some(lsq::sse_fast_poly(&tx, &ty, b.n, b.m, &extra, &yc))
+    let factors = |r: std::ops::Range<usize>| b.factors(&v[r.clone()], &f[r], 2 * b.n, 2 * b.m);
+    Some(lsq::sse_fast_poly(factors, b.n, b.m, &extra, &yc))
 }
 
 /// Baseline columns on the inputs after the input transforms (module docs).
@@ -309,6 +400,37 @@ mod tests {
     }
 
     #[test]
+    fn the_gate_keeps_other_threads_within_the_budget_and_never_blocks_a_holder() {
+        let gate = DesignGate::new(100);
+        // One request above the whole budget runs when nothing is held; a thread holding a
+        // permit gets another at once (it would otherwise wait on itself).
+        let big = gate.acquire(150);
+        let more = gate.acquire(70);
+        assert_eq!(*gate.held.lock().unwrap(), 220);
+        drop((big, more));
+        assert_eq!(*gate.held.lock().unwrap(), 0);
+        // Four threads each taking 60 of 100, 200 times: never two at once.
+        let most = std::sync::Mutex::new(0usize);
+        std::thread::scope(|s| {
+            for _ in 0..4 {
+                s.spawn(|| {
+                    for _ in 0..200 {
+                        let p = gate.acquire(60);
+                        let now = *gate.held.lock().unwrap();
+                        let mut m = most.lock().unwrap();
+                        *m = (*m).max(now);
+                        drop(m);
+                        std::thread::yield_now();
+                        drop(p);
+                    }
+                });
+            }
+        });
+        assert_eq!(*most.lock().unwrap(), 60);
+        assert_eq!(*gate.held.lock().unwrap(), 0);
+    }
+
+    #[test]
     fn structured_sse_equals_qr_fit_of_the_built_design() {
         // Identity: the moment route (rescaled onto the transformed inputs' own range) and the QR
         // fit of the explicitly built design minimise the same SSE — here with a leak large enough
@@ -349,7 +471,7 @@ mod tests {
             Effect::new(EffectKind(&Hysteresis), 20.0),
             air,
         ];
-        let lb = super::super::sensor_lag::LagBase::new(&prep, &build(&prep, &base).cols);
+        let lb = super::super::sensor_lag::LagBase::new(build(&prep, &base));
         for tau in [0.01, 0.2] {
             let mut with = base.clone();
             with.push(Effect::new(EffectKind(&SensorLag), tau));

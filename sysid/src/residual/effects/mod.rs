@@ -127,7 +127,9 @@ pub mod volume_drift;
 pub use air_compliance::AirCompliance;
 pub use backlash::Backlash;
 pub use delivery_lag::DeliveryLag;
-pub use design::{build, sse_structured, Design, Effect, Inputs, Prepared, Scales};
+pub use design::{
+    build, sse_structured, Design, DesignGate, Effect, Inputs, Prepared, Scales, DESIGN_MEMORY,
+};
 pub use hysteresis::Hysteresis;
 pub use inertance::Inertance;
 pub use leak::Leak;

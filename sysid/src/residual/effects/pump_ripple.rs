@@ -444,10 +444,14 @@ fn count_lag_gauss_newton(prep: &Prepared, base: &[Effect], mut stage: Stage) ->
         };
         let ab = pump_ripple_error(&stage, last);
         let extra = count_lag_columns(&prep.subframe, k, c, e.theta, ab, &e.count_lag);
-        let mut cols = stage.columns(prep);
-        let p0 = cols.len();
-        cols.extend(extra);
-        let Some(fit) = lsq::fit(&cols, &prep.series.p, &prep.train_rows) else {
+        // The design lives only for this fit: the refit below builds its own.
+        let (p0, fit) = {
+            let mut design = stage.columns(prep);
+            let p0 = design.cols.len();
+            design.cols.extend(extra);
+            (p0, lsq::fit(&design.cols, &prep.series.p, &prep.train_rows))
+        };
+        let Some(fit) = fit else {
             break;
         };
         let s2 = fit.sigma2();

@@ -5,8 +5,8 @@
 //! ([`LagBase`]).
 
 use super::{
-    param, DeviceSupport, Effect, EffectKind, EffectModel, Fitted, Param, Prepared, Scales, Search,
-    Stage,
+    param, Design, DeviceSupport, Effect, EffectKind, EffectModel, Fitted, Param, Prepared, Scales,
+    Search, Stage,
 };
 use crate::residual::lsq;
 use crate::residual::signal;
@@ -59,7 +59,7 @@ impl EffectModel for SensorLag {
         if cur.effects.iter().any(|e| e.kind == me) {
             return None;
         }
-        let lb = LagBase::new(prep, &cur.columns(prep));
+        let lb = LagBase::new(cur.columns(prep));
         Some(Box::new(move |tau| lb.sse(prep, tau)))
     }
 
@@ -96,28 +96,31 @@ impl EffectModel for SensorLag {
     }
 }
 
-/// A design about to be filtered by a sensor lag, with each column's Akima slopes, which do not
-/// depend on τ: sensor lag is the last step of [`super::build`], so adding it to a model whose design is
-/// known only filters that design, and a search over τ need not rebuild it.
+/// A design about to be filtered by a sensor lag: sensor lag is the last step of
+/// [`super::build`], so adding it to a model whose design is known only filters that design, and
+/// a search over τ need not rebuild it. Each trial streams the filtered design into the Gram sum
+/// a block of rows at a time (`signal::LagStream`, `lsq::sse_fast_streamed`): the design is held
+/// once, whatever the number of trials.
 pub struct LagBase {
-    cols: Vec<Vec<f64>>,
-    slopes: Vec<Vec<f64>>,
+    design: Design,
 }
 
 impl LagBase {
-    /// The design `cols` (every sample) of the model the lag is added to.
-    pub fn new(prep: &Prepared, cols: &[Vec<f64>]) -> Self {
-        Self {
-            cols: cols.to_vec(),
-            slopes: signal::akima_slopes_all(&prep.series.t, cols),
-        }
+    /// The design (every sample) of the model the lag is added to.
+    pub fn new(design: Design) -> Self {
+        Self { design }
     }
 
     /// Training SSE of the design filtered by a sensor lag of time constant `tau`.
     pub fn sse(&self, prep: &Prepared, tau: f64) -> f64 {
-        let mut cols = self.cols.clone();
-        let coeffs = signal::lag_cubic_coeffs(&prep.series.t, |_| tau);
-        signal::lag_cubic_apply_with(&coeffs, &mut cols, &self.slopes);
-        lsq::sse_fast(&cols, &prep.series.p, &prep.train_rows)
+        let (t, cols) = (&prep.series.t, &self.design.cols);
+        if cols.iter().any(|c| c.len() != t.len()) {
+            return f64::INFINITY;
+        }
+        let coeffs = signal::lag_cubic_coeffs(t, |_| tau);
+        let mut run = signal::LagStream::new(t, &coeffs, signal::LagSlopes::Akima, cols);
+        lsq::sse_fast_streamed(cols.len(), &prep.series.p, &prep.train_rows, |hi, out| {
+            run.advance(cols, hi, out)
+        })
     }
 }
