@@ -9,8 +9,9 @@
 #![allow(dead_code)]
 
 use model_core::poly::SBA1_RAW;
+use rand::Rng;
 use rand::SeedableRng;
-use rand_distr::{Distribution, Normal};
+use rand_distr::{Distribution, Normal, StudentT};
 
 /// An injected effect with its physical parameters.
 #[derive(Clone, Copy, Debug)]
@@ -116,6 +117,84 @@ fn trajectory(rates: &[f64], cycles: usize) -> (Vec<f64>, Vec<f64>, Vec<f64>, Ve
     (t, v, f, a)
 }
 
+/// An irregular trajectory with as many strokes as [`trajectory`]'s: each from where the last
+/// ended to a random volume in 0..550 mm³ (at least 60 mm³ away), at a random rate between the
+/// lowest and highest of `rates`, with a random dwell of 0.1–1.2 s after it (same acceleration;
+/// a stroke too short to reach its rate is a triangle).
+fn trajectory_irregular(
+    rates: &[f64],
+    cycles: usize,
+    seed: u64,
+) -> (Vec<f64>, Vec<f64>, Vec<f64>, Vec<f64>) {
+    let (dt, acc, vmax) = (1e-3, 400.0, 550.0);
+    let lo = rates.iter().copied().fold(f64::INFINITY, f64::min);
+    let hi = rates.iter().copied().fold(0.0, f64::max);
+    let mut rng = rand::rngs::StdRng::seed_from_u64(seed ^ 0x5eed);
+    let (mut t, mut v, mut f, mut a) = (vec![], vec![], vec![], vec![]);
+    let (mut now, mut pos) = (0.0, 0.0);
+    for _ in 0..2 * rates.len() * cycles {
+        let target = loop {
+            let x: f64 = rng.random_range(0.0..vmax);
+            if (x - pos).abs() >= 60.0 {
+                break x;
+            }
+        };
+        let len = (target - pos).abs();
+        let dir = (target - pos).signum();
+        let rate = rng.random_range(lo..=hi).min((acc * len).sqrt());
+        let tacc = rate / acc;
+        let dur = len / rate + tacc;
+        let steps = (dur / dt).round() as usize;
+        for k in 0..steps {
+            let s = k as f64 * dt;
+            let (x, vel, ac) = if s < tacc {
+                (0.5 * acc * s * s, acc * s, acc)
+            } else if s < dur - tacc {
+                (0.5 * acc * tacc * tacc + rate * (s - tacc), rate, 0.0)
+            } else {
+                let r = dur - s;
+                (len - 0.5 * acc * r * r, acc * r, -acc)
+            };
+            t.push(now);
+            v.push(pos + dir * x);
+            f.push(dir * vel);
+            a.push(dir * ac);
+            now += dt;
+        }
+        pos = target;
+        let dwell: f64 = rng.random_range(0.1..1.2);
+        for _ in 0..(dwell / dt).round() as usize {
+            t.push(now);
+            v.push(pos);
+            f.push(0.0);
+            a.push(0.0);
+            now += dt;
+        }
+    }
+    (t, v, f, a)
+}
+
+/// The sensor noise's distribution, scaled to standard deviation σ.
+#[derive(Clone, Copy, Debug, Default)]
+pub enum Noise {
+    /// Gaussian.
+    #[default]
+    Gaussian,
+    /// Student's t with `dof` degrees of freedom (heavy tails; dof > 2).
+    StudentT { dof: f64 },
+    /// Gaussian, plus on a fraction `rate` of the samples a spike of ± `size` σ.
+    Spikes { rate: f64, size: f64 },
+}
+
+/// How a generated log moves and how its noise is distributed.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Shape {
+    /// Irregular strokes from this seed ([`trajectory_irregular`]) instead of the protocol.
+    pub irregular: Option<u64>,
+    /// The noise.
+    pub noise: Noise,
+}
+
 /// Generates a log with `effects` injected, noise σ, seed.
 pub fn generate(
     effects: &[Inject],
@@ -124,7 +203,22 @@ pub fn generate(
     sigma: f64,
     seed: u64,
 ) -> Generated {
-    let (t, v, f, a) = trajectory(rates, cycles);
+    generate_shaped(effects, rates, cycles, sigma, seed, Shape::default())
+}
+
+/// [`generate`] on a trajectory and with noise of the given [`Shape`].
+pub fn generate_shaped(
+    effects: &[Inject],
+    rates: &[f64],
+    cycles: usize,
+    sigma: f64,
+    seed: u64,
+    shape: Shape,
+) -> Generated {
+    let (t, v, f, a) = match shape.irregular {
+        Some(s) => trajectory_irregular(rates, cycles, s),
+        None => trajectory(rates, cycles),
+    };
     let n = t.len();
     let dt = 1e-3;
     // Volume and flow the chamber sees.
@@ -251,7 +345,22 @@ pub fn generate(
         }
     }
     let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
-    let noise = Normal::new(0.0, sigma).expect("valid sigma");
+    let normal = Normal::new(0.0, sigma).expect("valid sigma");
+    let noise = |rng: &mut rand::rngs::StdRng| match shape.noise {
+        Noise::Gaussian => normal.sample(rng),
+        Noise::StudentT { dof } => {
+            let t = StudentT::new(dof).expect("valid dof");
+            sigma * ((dof - 2.0) / dof).sqrt() * t.sample(rng)
+        }
+        Noise::Spikes { rate, size } => {
+            let spike = if rng.random::<f64>() < rate {
+                size * sigma * if rng.random::<bool>() { 1.0 } else { -1.0 }
+            } else {
+                0.0
+            };
+            normal.sample(rng) + spike
+        }
+    };
     let every = 40; // 25 Hz from the 1 ms grid
     let mut out = Generated {
         t: vec![],
@@ -265,7 +374,7 @@ pub fn generate(
         // The log reports the nut's volume and flow (step counts), as the firmware does.
         out.v.push(v[k]);
         out.vdot.push(f[k]);
-        out.p.push(p[k] + noise.sample(&mut rng));
+        out.p.push(p[k] + noise(&mut rng));
     }
     out
 }
