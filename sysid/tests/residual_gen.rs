@@ -57,6 +57,21 @@ fn sba1(v: f64, f: f64) -> f64 {
     s
 }
 
+/// Position, velocity and acceleration at time `s` into a trapezoidal stroke of length `len` at
+/// `rate` with acceleration `acc` (duration `len/rate + rate/acc`).
+fn trapezoid(s: f64, len: f64, rate: f64, acc: f64) -> (f64, f64, f64) {
+    let tacc = rate / acc;
+    let dur = len / rate + tacc;
+    if s < tacc {
+        (0.5 * acc * s * s, acc * s, acc)
+    } else if s < dur - tacc {
+        (0.5 * acc * tacc * tacc + rate * (s - tacc), rate, 0.0)
+    } else {
+        let r = dur - s;
+        (len - 0.5 * acc * r * r, acc * r, -acc)
+    }
+}
+
 /// Commanded trajectory: for each rate, `cycles` trapezoidal inflate/deflate strokes 0 ↔ 550 mm³
 /// (acceleration 400 mm³/s²), 0.5 s dwell at each end. Returns (t, v, v̇, v̈) on a 1 ms grid.
 fn trajectory(rates: &[f64], cycles: usize) -> (Vec<f64>, Vec<f64>, Vec<f64>, Vec<f64>) {
@@ -72,7 +87,6 @@ fn trajectory(rates: &[f64], cycles: usize) -> (Vec<f64>, Vec<f64>, Vec<f64>, Ve
                       dir: f64,
                       rate: f64,
                       dur: f64,
-                      tacc: f64,
                       t: &mut Vec<f64>,
                       v: &mut Vec<f64>,
                       f: &mut Vec<f64>,
@@ -80,15 +94,7 @@ fn trajectory(rates: &[f64], cycles: usize) -> (Vec<f64>, Vec<f64>, Vec<f64>, Ve
                       now: &mut f64| {
         let steps = (dur / dt).round() as usize;
         for k in 0..steps {
-            let s = k as f64 * dt;
-            let (pos, vel, ac) = if s < tacc {
-                (0.5 * acc * s * s, acc * s, acc)
-            } else if s < dur - tacc {
-                (0.5 * acc * tacc * tacc + rate * (s - tacc), rate, 0.0)
-            } else {
-                let r = dur - s;
-                (vmax - 0.5 * acc * r * r, acc * r, -acc)
-            };
+            let (pos, vel, ac) = trapezoid(k as f64 * dt, vmax, rate, acc);
             t.push(*now);
             v.push(start + dir * pos);
             f.push(dir * vel);
@@ -98,20 +104,17 @@ fn trajectory(rates: &[f64], cycles: usize) -> (Vec<f64>, Vec<f64>, Vec<f64>, Ve
     };
     for &rate in rates {
         for _ in 0..cycles {
-            let tacc = rate / acc;
-            let dur = vmax / rate + tacc;
+            let dur = vmax / rate + rate / acc;
             push_phase(
-                0.0, 1.0, rate, dur, tacc, &mut t, &mut v, &mut f, &mut a, &mut now,
+                0.0, 1.0, rate, dur, &mut t, &mut v, &mut f, &mut a, &mut now,
             );
             push_phase(
-                vmax, 0.0, 0.0, 0.5, 0.0, &mut t, &mut v, &mut f, &mut a, &mut now,
+                vmax, 0.0, 0.0, 0.5, &mut t, &mut v, &mut f, &mut a, &mut now,
             );
             push_phase(
-                vmax, -1.0, rate, dur, tacc, &mut t, &mut v, &mut f, &mut a, &mut now,
+                vmax, -1.0, rate, dur, &mut t, &mut v, &mut f, &mut a, &mut now,
             );
-            push_phase(
-                0.0, 0.0, 0.0, 0.5, 0.0, &mut t, &mut v, &mut f, &mut a, &mut now,
-            );
+            push_phase(0.0, 0.0, 0.0, 0.5, &mut t, &mut v, &mut f, &mut a, &mut now);
         }
     }
     (t, v, f, a)
@@ -142,19 +145,9 @@ fn trajectory_irregular(
         let len = (target - pos).abs();
         let dir = (target - pos).signum();
         let rate = rng.random_range(lo..=hi).min((acc * len).sqrt());
-        let tacc = rate / acc;
-        let dur = len / rate + tacc;
-        let steps = (dur / dt).round() as usize;
-        for k in 0..steps {
-            let s = k as f64 * dt;
-            let (x, vel, ac) = if s < tacc {
-                (0.5 * acc * s * s, acc * s, acc)
-            } else if s < dur - tacc {
-                (0.5 * acc * tacc * tacc + rate * (s - tacc), rate, 0.0)
-            } else {
-                let r = dur - s;
-                (len - 0.5 * acc * r * r, acc * r, -acc)
-            };
+        let dur = len / rate + rate / acc;
+        for k in 0..(dur / dt).round() as usize {
+            let (x, vel, ac) = trapezoid(k as f64 * dt, len, rate, acc);
             t.push(now);
             v.push(pos + dir * x);
             f.push(dir * vel);
