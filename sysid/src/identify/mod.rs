@@ -5,12 +5,17 @@
 //! Every model is fitted on the training cycles and scored on both sets; selection uses the
 //! training metrics (as the paper does) and the held-out metrics are reported next to them.
 
+mod exp_family;
+mod nn_family;
+mod poly_ar_family;
+mod poly_family;
+
 use crate::dataset::{Columns, Dataset};
 use crate::linreg::CoefStat;
 use crate::metrics::{self, CostWeights, Metrics};
 use crate::poly::{self, PolyFit, PruneRow, Scaling, Xy};
-use crate::select::{self, CvScore, Selection, Shape};
-use crate::{exp, nn, polyar};
+use crate::select::Selection;
+use crate::{nn, polyar};
 use serde::Serialize;
 use std::collections::BTreeMap;
 use std::time::Instant;
@@ -468,12 +473,88 @@ pub fn check_fitted(rep: &ChamberReport) -> Result<(), IdentifyError> {
     }))
 }
 
+/// A model family as [`identify`] runs it: its sweep over one chamber's data, with its rows,
+/// failures and notes added to the report. One file per family (`identify/<family>.rs`), listed
+/// once in [`FAMILIES`]; the models' own math lives in [`crate::exp`], [`crate::nn`],
+/// [`crate::poly`] and [`crate::polyar`].
+pub trait ModelFamily: Sync {
+    /// Which family (its name in reports and on the command line).
+    fn family(&self) -> Family;
+    /// Sweeps the family on `cx`'s data, adding to `cx.rep`.
+    fn sweep(&self, cx: &mut Sweep<'_>);
+}
+
+/// The families in the order [`identify`] runs them (poly-ar after poly, whose selected shape it
+/// takes).
+pub const FAMILIES: [&dyn ModelFamily; 4] = [
+    &exp_family::ExpFamily,
+    &nn_family::NnFamily,
+    &poly_family::PolyFamily,
+    &poly_ar_family::PolyArFamily,
+];
+
+/// What a family's sweep works on (one chamber's data, split, and the options) and the report
+/// it adds to.
+pub struct Sweep<'a> {
+    /// The chamber's dataset.
+    pub ds: &'a Dataset,
+    /// The options.
+    pub opt: &'a Options,
+    /// Its training rows.
+    pub train: Columns,
+    /// Its held-out rows (empty without a split).
+    pub held: Columns,
+    /// The polynomial scaling of all its rows.
+    pub scaling: Result<Scaling, poly::PolyError>,
+    /// The report so far.
+    pub rep: ChamberReport,
+    /// The polynomial shape the poly family selected, once it has run.
+    pub poly_choice: Option<(usize, usize)>,
+}
+
+impl Sweep<'_> {
+    /// The held-out rows as a fit's input, if there are any.
+    pub fn held_xy(&self) -> Option<Xy<'_>> {
+        (!self.held.is_empty()).then(|| Xy::from(&self.held))
+    }
+
+    /// Records that `family`'s model `shape` could not be fitted.
+    pub fn fail(&mut self, family: Family, shape: String, e: &dyn std::fmt::Display) {
+        self.rep.failed.push(Failed {
+            family,
+            shape,
+            error: e.to_string(),
+        });
+    }
+
+    /// A row for a model with `nu` parameters from its predictions on the training and (when
+    /// given and the set is not empty) held-out rows.
+    pub fn score(
+        &self,
+        family: Family,
+        yhat_train: &[f64],
+        yhat_held: Option<&[f64]>,
+        nu: usize,
+    ) -> Result<ModelRow, metrics::MetricsError> {
+        let t = metrics::compute(&self.train.p, yhat_train, nu)?;
+        let h = match yhat_held {
+            Some(y) if !self.held.is_empty() => metrics::compute(&self.held.p, y, nu).ok(),
+            _ => None,
+        };
+        Ok(ModelRow::new(family, &t, h.as_ref(), &self.opt.weights))
+    }
+
+    /// Tells [`Options::progress`].
+    pub fn tell(&self, p: Progress<'_>) {
+        tell(self.opt, p);
+    }
+}
+
 /// Runs the selected families on one chamber's dataset.
 pub fn identify(ds: &Dataset, opt: &Options) -> ChamberReport {
-    let w = opt.weights;
     let (train, held) = (ds.train(), ds.heldout());
     let all = ds.all();
-    let mut rep = ChamberReport {
+    let rep = ChamberReport {
         chamber: ds.chamber,
         samples: ds.len(),
         train_samples: train.len(),
@@ -500,232 +581,27 @@ pub fn identify(ds: &Dataset, opt: &Options) -> ChamberReport {
         notes: Vec::new(),
         timing_s: BTreeMap::new(),
     };
-    let held_xy = (!held.is_empty()).then(|| Xy::from(&held));
-    let scaling = Scaling::from_data(&all.v, &all.vdot);
-    let fail =
-        |rep: &mut ChamberReport, family: Family, shape: String, e: &dyn std::fmt::Display| {
-            rep.failed.push(Failed {
-                family,
-                shape,
-                error: e.to_string(),
-            });
-        };
-    let score = |family: Family, yhat_train: &[f64], yhat_held: Option<&[f64]>, nu: usize| {
-        let t = metrics::compute(&train.p, yhat_train, nu)?;
-        let h = match yhat_held {
-            Some(y) if !held.is_empty() => metrics::compute(&held.p, y, nu).ok(),
-            _ => None,
-        };
-        Ok::<_, metrics::MetricsError>(ModelRow::new(family, &t, h.as_ref(), &w))
+    let mut cx = Sweep {
+        ds,
+        opt,
+        scaling: Scaling::from_data(&all.v, &all.vdot),
+        train,
+        held,
+        rep,
+        poly_choice: None,
     };
-
-    let mut poly_choice: Option<(usize, usize)> = None;
-    for family in Family::ALL.into_iter().filter(|f| opt.families.contains(f)) {
+    for fam in FAMILIES
+        .iter()
+        .filter(|f| opt.families.contains(&f.family()))
+    {
         let t0 = Instant::now();
-        match family {
-            Family::Exp => {
-                tell(
-                    opt,
-                    Progress::Working {
-                        family,
-                        what: "fitting",
-                    },
-                );
-                let fits = exp::sweep(&train.v, &train.vdot, &train.p, opt.exp_k_max);
-                tell(opt, Progress::Done { family });
-                for (i, r) in fits.into_iter().enumerate() {
-                    match r {
-                        Ok(f) => {
-                            let yt: Vec<f64> = train
-                                .v
-                                .iter()
-                                .zip(&train.vdot)
-                                .map(|(&v, &q)| f.predict(v, q))
-                                .collect();
-                            let yh: Vec<f64> = held
-                                .v
-                                .iter()
-                                .zip(&held.vdot)
-                                .map(|(&v, &q)| f.predict(v, q))
-                                .collect();
-                            match score(family, &yt, Some(&yh), 2 * f.k + 2) {
-                                Ok(mut row) => {
-                                    row.k = Some(f.k);
-                                    rep.models.push(row);
-                                }
-                                Err(e) => fail(&mut rep, family, format!("k = {}", f.k), &e),
-                            }
-                        }
-                        Err(e) => fail(&mut rep, family, format!("k = {}", i + 1), &e),
-                    }
-                }
-            }
-            Family::Nn => {
-                // As in the paper: depths d = 1..=15 without AR inputs, then AR orders
-                // p = 1..=nn_ar_max at depth `nn_ar_depth` (Table III).
-                let mut plain = opt.nn.clone();
-                plain.ar_orders = vec![0];
-                let mut ar = opt.nn.clone();
-                ar.depths = vec![opt.nn_ar_depth];
-                ar.ar_orders = (1..=opt.nn_ar_max).collect();
-                let it = nn::Inputs {
-                    v: &train.v,
-                    vdot: &train.vdot,
-                    ar_order: 0,
-                };
-                let ih = nn::Inputs {
-                    v: &held.v,
-                    vdot: &held.vdot,
-                    ar_order: 0,
-                };
-                let mut runs = vec![(plain, "depths 1..=15")];
-                if opt.nn_ar_max > 0 {
-                    runs.push((ar, "AR orders"));
-                }
-                for (cfg, what) in runs {
-                    tell(
-                        opt,
-                        Progress::Working {
-                            family,
-                            what: &format!("training {what}"),
-                        },
-                    );
-                    for r in nn::sweep(&it, &train.p, &cfg).results {
-                        let f = match r {
-                            Ok(f) => f,
-                            Err(e) => {
-                                fail(&mut rep, family, "(p, d)".into(), &e);
-                                continue;
-                            }
-                        };
-                        // The first p samples have no lagged inputs: score the rest.
-                        let p = f.ar_order;
-                        let yt = f.predict(&it);
-                        let yh = f.predict(&ih);
-                        let r = metrics::compute(
-                            &train.p[p.min(train.len())..],
-                            &yt[p.min(yt.len())..],
-                            f.n_params,
-                        )
-                        .map(|t| {
-                            let h = (held.len() > p + f.n_params + 1)
-                                .then(|| {
-                                    metrics::compute(
-                                        &held.p[p..],
-                                        &yh[p.min(yh.len())..],
-                                        f.n_params,
-                                    )
-                                    .ok()
-                                })
-                                .flatten();
-                            ModelRow::new(family, &t, h.as_ref(), &w)
-                        });
-                        match r {
-                            Ok(mut row) => {
-                                row.p = Some(f.ar_order);
-                                row.d = Some(f.depth);
-                                rep.models.push(row);
-                            }
-                            Err(e) => fail(
-                                &mut rep,
-                                family,
-                                format!("(p, d) = ({}, {})", f.ar_order, f.depth),
-                                &e,
-                            ),
-                        }
-                    }
-                }
-                tell(opt, Progress::Done { family });
-            }
-            Family::Poly => match &scaling {
-                Err(e) => fail(&mut rep, family, "all".into(), e),
-                Ok(sc) => match poly::sweep(Xy::from(&train), held_xy, sc, opt.max_n, opt.max_m) {
-                    Err(e) => fail(&mut rep, family, "all".into(), &e),
-                    Ok(entries) => {
-                        let mut idx = 0;
-                        for n in 1..=opt.max_n {
-                            for m in 1..=opt.max_m {
-                                match &entries[idx] {
-                                    Ok(e) => {
-                                        let mut row =
-                                            ModelRow::new(family, &e.train, e.heldout.as_ref(), &w);
-                                        row.n = Some(n);
-                                        row.m = Some(m);
-                                        rep.models.push(row);
-                                    }
-                                    Err(e) => fail(&mut rep, family, format!("({n}, {m})"), e),
-                                }
-                                idx += 1;
-                            }
-                        }
-                        poly_choice = choose_poly(&mut rep, ds, sc, opt);
-                    }
-                },
-            },
-            Family::PolyAr => {
-                let (n, m) = opt.ar_shape.or(poly_choice).unwrap_or((3, 2));
-                match scaling
-                    .as_ref()
-                    .map_err(|e| e.clone())
-                    .and_then(|sc| polyar::sweep(ds, n, m, opt.ar_max, sc))
-                {
-                    Err(e) => fail(&mut rep, family, format!("({n}, {m})"), &e),
-                    Ok(results) => {
-                        let mut fits = Vec::new();
-                        for (p, r) in results.into_iter().enumerate() {
-                            match r {
-                                Ok(f) => fits.push(f),
-                                Err(e) => fail(&mut rep, family, format!("({p}, {n}, {m})"), &e),
-                            }
-                        }
-                        for f in &fits {
-                            let mut row = ModelRow::new(family, &f.train, f.heldout.as_ref(), &w);
-                            row.n = Some(n);
-                            row.m = Some(m);
-                            row.p = Some(f.p);
-                            rep.models.push(row);
-                        }
-                        let best = fits
-                            .iter()
-                            .min_by(|a, b| w.cost(&a.train).total_cmp(&w.cost(&b.train)));
-                        rep.poly_ar_fit = best.cloned();
-                        rep.notes.push(format!(
-                            "poly-ar: the AR terms are past inputs v(t-k), v̇(t-k), never past pressure, so one-step-ahead and \
-                             free-run (simulation) errors are identical; all orders use the same {} training rows \
-                             (samples with {} predecessors)",
-                            fits.first().map_or(0, |f| f.train.n),
-                            opt.ar_max
-                        ));
-                    }
-                }
-            }
-        }
-        rep.timing_s
-            .insert(family.name(), t0.elapsed().as_secs_f64());
+        fam.sweep(&mut cx);
+        cx.rep
+            .timing_s
+            .insert(fam.family().name(), t0.elapsed().as_secs_f64());
     }
-
-    // Statistics and pruning of the selected polynomial (a QR refit, residuals computed directly).
-    if let Some((n, m)) = poly_choice {
-        match poly::fit(Xy::from(&train), n, m, scaling.as_ref().ok().copied()) {
-            Ok(f) => {
-                rep.poly_coefficients = f
-                    .term_names()
-                    .into_iter()
-                    .zip(&f.raw)
-                    .map(|(term, stat)| Coefficient { term, stat: *stat })
-                    .collect();
-                rep.poly_fit = Some(f);
-            }
-            Err(e) => fail(&mut rep, Family::Poly, format!("({n}, {m}) refit"), &e),
-        }
-        if opt.prune_k > 0 {
-            match poly::prune(Xy::from(&train), held_xy, n, m, opt.prune_k) {
-                Ok(rows) => rep.pruning = rows,
-                Err(e) => fail(&mut rep, Family::Poly, format!("({n}, {m}) pruning"), &e),
-            }
-        }
-    }
-
+    poly_family::statistics(&mut cx);
+    let (mut rep, poly_choice) = (cx.rep, cx.poly_choice);
     rep.best = Family::ALL
         .iter()
         .filter_map(|&f| match (f, poly_choice) {
@@ -743,56 +619,6 @@ pub fn identify(ds: &Dataset, opt: &Options) -> ChamberReport {
         .min_by(|a, b| a.cost.total_cmp(&b.cost))
         .cloned();
     rep
-}
-
-/// Cross-validates the polynomial sweep on the training cycles, notes each row's cross-validated
-/// RMSE, records the [`Selection`] and returns the chosen shape. When the cross-validation cannot
-/// run (fewer than two blocks), the lowest joint cost chooses, and a note says so.
-fn choose_poly(
-    rep: &mut ChamberReport,
-    ds: &Dataset,
-    sc: &Scaling,
-    opt: &Options,
-) -> Option<(usize, usize)> {
-    let rows = || rep.models.iter().filter(|r| r.family == Family::Poly);
-    let shape_of = |r: &ModelRow| Some(Shape::new(r.n?, r.m?));
-    let aicc = rows()
-        .min_by(|a, b| a.aicc.total_cmp(&b.aicc))
-        .and_then(shape_of);
-    let cost = rows()
-        .min_by(|a, b| a.cost.total_cmp(&b.cost))
-        .and_then(shape_of);
-    let fallback = cost.map(|s| (s.n, s.m));
-    let (blocks, scores) = match select::cross_validate(ds, sc, opt.max_n, opt.max_m) {
-        Ok(x) => x,
-        Err(e) => {
-            rep.notes.push(format!(
-                "poly: no cross-validation ({e}); the lowest joint cost chose the shape"
-            ));
-            return fallback;
-        }
-    };
-    let ok: Vec<CvScore> = scores.into_iter().flatten().collect();
-    for r in rep.models.iter_mut().filter(|r| r.family == Family::Poly) {
-        if let Some(s) = ok.iter().find(|s| Some(s.n) == r.n && Some(s.m) == r.m) {
-            r.cv_rmse = Some(s.rmse());
-            r.cv_rmse_se = Some(s.se / (2.0 * s.rmse()).max(f64::MIN_POSITIVE));
-        }
-    }
-    match select::selection(&blocks, &ok, aicc, cost, opt.weights) {
-        Some(sel) => {
-            let pick = (sel.selected.n, sel.selected.m);
-            rep.poly_selection = Some(sel);
-            Some(pick)
-        }
-        None => {
-            rep.notes.push(
-                "poly: no shape could be cross-validated; the lowest joint cost chose the shape"
-                    .into(),
-            );
-            fallback
-        }
-    }
 }
 
 fn best_of(rows: &[ModelRow], family: Family) -> Option<&ModelRow> {
