@@ -34,6 +34,8 @@ pub enum Inject {
     Backlash { play_mm3: f64 },
     /// Sinusoidal ripple.
     Ripple { amp_kpa: f64, freq_hz: f64 },
+    /// Sinusoidal ripple only while the plunger moves (a pump's vibration).
+    GatedRipple { amp_kpa: f64, freq_hz: f64 },
     /// Leak flow `λ P`.
     Leak { lambda: f64 },
 }
@@ -317,6 +319,11 @@ pub fn generate_shaped(
             }
             Inject::Ripple { amp_kpa, freq_hz } => {
                 for k in 0..n {
+                    p[k] += amp_kpa * (2.0 * std::f64::consts::PI * freq_hz * t[k] + 0.7).sin();
+                }
+            }
+            Inject::GatedRipple { amp_kpa, freq_hz } => {
+                for k in (0..n).filter(|&k| f[k] != 0.0) {
                     p[k] += amp_kpa * (2.0 * std::f64::consts::PI * freq_hz * t[k] + 0.7).sin();
                 }
             }

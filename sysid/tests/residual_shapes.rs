@@ -158,3 +158,27 @@ fn heavy_tailed_noise_raises_no_effect() {
         assert!(d.effects.is_empty(), "{what}: named {:?}", names(&d));
     }
 }
+
+#[test]
+fn a_ripple_only_while_moving_is_named() {
+    let ripple = Inject::GatedRipple {
+        amp_kpa: 0.2,
+        freq_hz: 3.7,
+    };
+    check("gated ripple", &[ripple], &["gated_ripple"], 39, Shape::default());
+}
+
+#[test]
+fn a_ripple_only_while_moving_on_irregular_strokes_is_named() {
+    let ripple = Inject::GatedRipple {
+        amp_kpa: 0.2,
+        freq_hz: 3.7,
+    };
+    check(
+        "gated ripple, irregular",
+        &[ripple],
+        &["gated_ripple"],
+        40,
+        irregular(3),
+    );
+}

@@ -114,6 +114,7 @@ pub mod air_compliance;
 pub mod backlash;
 pub mod delivery_lag;
 pub mod design;
+pub mod gated_ripple;
 pub mod hysteresis;
 pub mod inertance;
 pub mod leak;
@@ -130,6 +131,7 @@ pub use delivery_lag::DeliveryLag;
 pub use design::{
     build, sse_structured, Design, DesignGate, Effect, Inputs, Prepared, Scales, DESIGN_MEMORY,
 };
+pub use gated_ripple::GatedRipple;
 pub use hysteresis::Hysteresis;
 pub use inertance::Inertance;
 pub use leak::Leak;
@@ -159,6 +161,7 @@ pub const REGISTRY: &[EffectKind] = &[
     EffectKind(&VolumeDrift),
     EffectKind(&Backlash),
     EffectKind(&Ripple),
+    EffectKind(&GatedRipple),
     EffectKind(&PumpRipple),
     EffectKind(&Leak),
 ];
