@@ -165,7 +165,47 @@ fn a_ripple_only_while_moving_is_named() {
         amp_kpa: 0.2,
         freq_hz: 3.7,
     };
-    check("gated ripple", &[ripple], &["gated_ripple"], 39, Shape::default());
+    check(
+        "gated ripple",
+        &[ripple],
+        &["gated_ripple"],
+        39,
+        Shape::default(),
+    );
+}
+
+#[test]
+fn the_look_alike_is_reported_as_runner_up() {
+    // A gated ripple and an always-on one explain the same spectral peak: the kept one's report
+    // names the other as the round's runner-up, with a higher held-out error.
+    for (inject, kept, other) in [
+        (
+            Inject::GatedRipple {
+                amp_kpa: 0.2,
+                freq_hz: 3.7,
+            },
+            "gated_ripple",
+            "ripple",
+        ),
+        (
+            Inject::Ripple {
+                amp_kpa: 0.2,
+                freq_hz: 3.7,
+            },
+            "ripple",
+            "gated_ripple",
+        ),
+    ] {
+        let d = run(&[inject], 41, Shape::default());
+        let e = d.effects.iter().find(|e| e.name == kept).expect("kept");
+        let r = e.runner_up.as_ref().expect("a runner-up");
+        eprintln!(
+            "{kept}: held-out {:.4}, runner-up {} {:.4} ({})",
+            e.rmse_heldout_after, r.name, r.rmse_heldout, r.reason
+        );
+        assert_eq!(r.name, other);
+        assert!(r.rmse_heldout > e.rmse_heldout_after);
+    }
 }
 
 #[test]

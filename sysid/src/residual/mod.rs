@@ -266,6 +266,10 @@ pub struct EffectReport {
     pub test: NestedTest,
     /// Whether the firmware's model can run this term, and why (not).
     pub device: DeviceSupport,
+    /// The candidate that came next in the round this effect was kept in (lowest held-out RMSE
+    /// of the others), with its verdict (`reason`: "passes too", "significance" or why it is
+    /// unphysical): when two candidates explain the same structure, how close the other came.
+    pub runner_up: Option<Rejected>,
 }
 
 /// Whether an effect term can run on the device.
@@ -414,6 +418,8 @@ struct KeptStep {
     train_before: f64,
     train_after: f64,
     test: NestedTest,
+    /// The round's next-best candidate.
+    runner_up: Option<Rejected>,
 }
 
 /// What forward selection ends with.
@@ -482,7 +488,9 @@ fn select_effects(prep: &effects::Prepared, baseline: &Stage, cfg: &Config) -> S
             Some(i) => {
                 let what = "re-tuning the effects kept";
                 tell(cfg.progress, Progress::Stage { what, total: 0 });
-                keep(prep, &mut sel, round.swap_remove(i));
+                let winner = round.remove(i);
+                let runner_up = round.first().map(verdict);
+                keep(prep, &mut sel, winner, runner_up);
             }
             None => {
                 reject_round(&mut sel, &round);
@@ -542,7 +550,7 @@ fn rank_round(
 
 /// Keeps a candidate: re-tunes the model's searched parameters and records the step, its
 /// "after" being the model as kept (so each step's "after" is the next step's "before").
-fn keep(prep: &effects::Prepared, sel: &mut Selection, r: Ranked) {
+fn keep(prep: &effects::Prepared, sel: &mut Selection, r: Ranked, runner_up: Option<Rejected>) {
     let tuned = select::retune(prep, &r.cand.stage);
     let model = if tuned.fit.sse <= r.cand.stage.fit.sse
         && select::unphysical(&tuned, &prep.scales).is_none()
@@ -559,6 +567,7 @@ fn keep(prep: &effects::Prepared, sel: &mut Selection, r: Ranked) {
         train_before: sel.model.rmse_train,
         train_after: model.rmse_train,
         test: r.test,
+        runner_up,
     });
     sel.model = model;
 }
@@ -578,15 +587,22 @@ fn reject_round(sel: &mut Selection, round: &[Ranked]) {
                 ),
             });
         }
-        sel.rejected.push(Rejected {
-            name,
-            rmse_heldout: r.cand.stage.rmse_heldout,
-            p_value: r.test.p_value,
-            reason: match &r.unphysical {
-                Some(why) => format!("unphysical: {why}"),
-                None => "significance".to_string(),
-            },
-        });
+        sel.rejected.push(verdict(r));
+    }
+}
+
+/// A searched candidate as reported when not kept: its held-out RMSE, p-value and why not
+/// ("passes too" for one that would have passed, beaten by the kept one).
+fn verdict(r: &Ranked) -> Rejected {
+    Rejected {
+        name: r.cand.kind.name(),
+        rmse_heldout: r.cand.stage.rmse_heldout,
+        p_value: r.test.p_value,
+        reason: match (&r.unphysical, r.passes) {
+            (Some(why), _) => format!("unphysical: {why}"),
+            (None, true) => "passes too".to_string(),
+            (None, false) => "significance".to_string(),
+        },
     }
 }
 
@@ -607,6 +623,7 @@ fn effect_reports(prep: &effects::Prepared, sel: &Selection) -> Vec<EffectReport
             p_value: step.test.p_value,
             test: step.test,
             device: step.kind.device_support(),
+            runner_up: step.runner_up.clone(),
         })
         .collect()
 }

@@ -224,6 +224,18 @@ pub fn report(path: &Path, chamber: u8, split: &str, d: &Diagnosis) -> String {
             if e.device.runs_on_device { "yes" } else { "no" },
             e.device.reason
         );
+        if let Some(r) = &e.runner_up {
+            let _ = writeln!(
+                s,
+                "   runner-up: {}, held-out {:.4} kPa ({:+.1} % against {:.4} kPa with this one), p = {:.2e}, {}",
+                r.name,
+                r.rmse_heldout,
+                100.0 * (r.rmse_heldout / e.rmse_heldout_after - 1.0),
+                e.rmse_heldout_after,
+                r.p_value,
+                r.reason
+            );
+        }
     }
     let _ = writeln!(
         s,
