@@ -101,6 +101,10 @@ fn a_ripple_at_a_harmonic_of_the_cycle_is_not_a_ripple() {
     // Above the 20th harmonic, or without a regular cycle, the rule says nothing.
     assert_eq!(judge(21.0 / 5.0, Some(5.0)), None);
     assert_eq!(judge(2.1974, None), None);
+    // The same rule names the harmonic for the `periodic` signature of `remaining`.
+    let h = sysid::residual::effects::ripple::cycle_harmonic;
+    assert_eq!(h(2.1974, &scales(Some(5.009))), Some(11.0));
+    assert_eq!(h(2.3, &scales(Some(5.009))), None);
 }
 
 #[test]

@@ -459,17 +459,37 @@ fn spectrum(resid: &[f64], mask: &[bool], dt: f64) -> Spectrum {
     }
 }
 
-/// Structure left in a residual that no candidate explained, described by its signature.
-#[derive(Clone, Debug, Serialize)]
+/// Structure left in a residual that no candidate explained, described by its signature: a
+/// sentence, and for programs the numbers it names.
+#[derive(Clone, Debug, Default, Serialize)]
 pub struct Signature {
-    /// `autocorrelation`, `follows_input`, `periodic` or `direction`.
+    /// `autocorrelation`, `follows_input`, `periodic`, `direction` or `unphysical_fit`.
     pub kind: &'static str,
     /// One plain sentence.
     pub description: String,
+    /// The lag (s) of the largest autocorrelation, or at which the residual follows the input.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub lag_s: Option<f64>,
+    /// The input the residual follows (`v`, `vdot`, `vddot`, …).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub input: Option<&'static str>,
+    /// The spectral peak's frequency (Hz).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub frequency_hz: Option<f64>,
+    /// Whether that frequency is the cycle rate or one of its first 20 harmonics; absent when
+    /// the log's cycles do not repeat regularly.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub cycle_locked: Option<bool>,
 }
 
 /// Signatures of a residual that fails the whiteness test (`lb_p_value < alpha`); empty otherwise.
-pub fn signatures(a: &ResidualAnalysis, alpha: f64) -> Vec<Signature> {
+/// `harmonic(f)` is the harmonic of the log's cycle rate a frequency is locked to, if any, and
+/// `None` when the cycles do not repeat regularly (`effects::ripple::cycle_harmonic`).
+pub fn signatures(
+    a: &ResidualAnalysis,
+    alpha: f64,
+    harmonic: impl Fn(f64) -> Option<Option<f64>>,
+) -> Vec<Signature> {
     let mut out = Vec::new();
     let w = &a.whiteness;
     if w.lb_p_value.is_nan() || w.lb_p_value >= alpha {
@@ -506,6 +526,8 @@ pub fn signatures(a: &ResidualAnalysis, alpha: f64) -> Vec<Signature> {
             beyond,
             beyond as f64 * w.lag_s
         ),
+        lag_s: Some(k as f64 * w.lag_s),
+        ..Signature::default()
     });
     if let Some(c) = a
         .cross
@@ -523,18 +545,30 @@ pub fn signatures(a: &ResidualAnalysis, alpha: f64) -> Vec<Signature> {
                 c.peak_lag as f64 * w.lag_s,
                 if c.peak_lag >= 0 { "input" } else { "residual" }
             ),
+            lag_s: Some(c.peak_lag as f64 * w.lag_s),
+            input: Some(c.input),
+            ..Signature::default()
         });
     }
     let s = &a.spectrum;
     if s.peak_over_median > 20.0 && s.peak_share > 0.1 {
+        let locked = harmonic(s.peak_hz);
+        let lock = match locked {
+            Some(Some(h)) => format!("; locked to the cycles (harmonic {h} of the cycle rate)"),
+            Some(None) => "; not locked to the cycles".to_string(),
+            None => String::new(),
+        };
         out.push(Signature {
             kind: "periodic",
             description: format!(
-                "spectral peak at {:.3} Hz holding {:.0} % of the residual power ({:.0}× the median level)",
+                "spectral peak at {:.3} Hz holding {:.0} % of the residual power ({:.0}× the median level){lock}",
                 s.peak_hz,
                 100.0 * s.peak_share,
                 s.peak_over_median
             ),
+            frequency_hz: Some(s.peak_hz),
+            cycle_locked: locked.map(|h| h.is_some()),
+            ..Signature::default()
         });
     }
     if a.direction.t_stat.abs() > 3.29 {
@@ -544,6 +578,7 @@ pub fn signatures(a: &ResidualAnalysis, alpha: f64) -> Vec<Signature> {
                 "residual differs by direction: {:+.3} kPa inflating vs {:+.3} kPa deflating (t = {:.1})",
                 a.direction.mean_inflation, a.direction.mean_deflation, a.direction.t_stat
             ),
+            ..Signature::default()
         });
     }
     out
@@ -593,7 +628,29 @@ mod tests {
             "peak {}",
             b.spectrum.peak_hz
         );
-        assert!(signatures(&b, 0.01).iter().any(|s| s.kind == "periodic"));
+        let periodic = |h: Option<Option<f64>>| {
+            signatures(&b, 0.01, |_| h)
+                .into_iter()
+                .find(|s| s.kind == "periodic")
+                .expect("a periodic signature")
+        };
+        // Without a regular cycle the lock is not judged; otherwise it is said either way.
+        let free = periodic(None);
+        assert_eq!(
+            (free.frequency_hz, free.cycle_locked),
+            (Some(b.spectrum.peak_hz), None)
+        );
+        let locked = periodic(Some(Some(3.0)));
+        assert_eq!(locked.cycle_locked, Some(true));
+        assert!(locked.description.contains("harmonic 3 of the cycle rate"));
+        let unlocked = periodic(Some(None));
+        assert_eq!(unlocked.cycle_locked, Some(false));
+        assert!(unlocked.description.contains("not locked"));
+        // The autocorrelation's lag is a whole number of samples.
+        let ac = signatures(&b, 0.01, |_| None).remove(0);
+        assert_eq!(ac.kind, "autocorrelation");
+        let lag = ac.lag_s.expect("a lag");
+        assert!((lag / 0.04 - (lag / 0.04).round()).abs() < 1e-9 && lag > 0.0);
     }
 
     #[test]

@@ -585,6 +585,7 @@ fn reject_round(sel: &mut Selection, round: &[Ranked]) {
                     "{name} would lower held-out RMSE {:.4} → {:.4} kPa (p = {:.1e}) but its best fit is not physical ({why}); the structure it follows is left unexplained",
                     cur.rmse_heldout, r.cand.stage.rmse_heldout, r.test.p_value
                 ),
+                ..Signature::default()
             });
         }
         sel.rejected.push(verdict(r));
@@ -658,7 +659,9 @@ fn report(prep: &effects::Prepared, cfg: &Config, baseline: &Stage, sel: Selecti
     let effects = effect_reports(prep, &sel);
     let analysis_before = analyse_heldout(prep, &baseline.resid);
     let analysis_after = analyse_heldout(prep, &sel.model.resid);
-    let mut remaining = analysis::signatures(&analysis_after, cfg.whiteness_alpha);
+    let sc = &prep.scales;
+    let harmonic = |f: f64| sc.cycle_s.map(|_| effects::ripple::cycle_harmonic(f, sc));
+    let mut remaining = analysis::signatures(&analysis_after, cfg.whiteness_alpha, harmonic);
     remaining.extend(sel.unphysical);
     let cur = &sel.model;
     Diagnosis {

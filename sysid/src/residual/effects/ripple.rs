@@ -32,9 +32,7 @@ impl EffectModel for Ripple {
             return Some("ripple frequency is not finite".into());
         }
         let period = sc.cycle_s?;
-        let h = (e.theta * period).round();
-        let tol = (1.0 / sc.duration).max(0.01 * e.theta);
-        ((1.0..=20.0).contains(&h) && (e.theta - h / period).abs() <= tol).then(|| {
+        cycle_harmonic(e.theta, sc).map(|h| {
             format!(
                 "its frequency {:.4} Hz is harmonic {h} of the cycle rate ({:.4} Hz, period {period:.3} s): structure locked to the cycles is the model's misfit over a cycle, not a ripple",
                 e.theta,
@@ -76,6 +74,16 @@ impl EffectModel for Ripple {
             "depends on absolute phase of a clock the device does not share with the log",
         )
     }
+}
+
+/// The harmonic h of the log's cycle rate (1 ≤ h ≤ 20) that `f_hz` is locked to, when the log's
+/// cycles repeat regularly (`Scales::cycle_s`): within `max(1/duration, 1 % of f)` of `h/T`, the
+/// frequency resolution of the log or the cycle period's own spread at that harmonic.
+pub fn cycle_harmonic(f_hz: f64, sc: &Scales) -> Option<f64> {
+    let period = sc.cycle_s?;
+    let h = (f_hz * period).round();
+    let tol = (1.0 / sc.duration).max(0.01 * f_hz);
+    ((1.0..=20.0).contains(&h) && (f_hz - h / period).abs() <= tol).then_some(h)
 }
 
 /// Amplitude `√(a² + b²)` of a sine–cosine pair, `(a, b)` the first two columns' coefficients
