@@ -146,8 +146,7 @@ fn bad(source_name: &str, line: usize, text: &str, reason: impl Into<String>) ->
 /// other line, a line the firmware's parser refuses, or an upload without `begin`…`commit` is an
 /// error naming the line.
 pub fn parse_lines(text: &str, source_name: &str) -> Result<Vec<Upload>, DeployError> {
-    let mut out: Vec<Upload> = Vec::new();
-    let mut open: Option<Upload> = None;
+    let mut uploads = Uploads::default();
     let mut last_line = 0;
     for (i, raw) in text.lines().enumerate() {
         let no = i + 1;
@@ -156,64 +155,79 @@ pub fn parse_lines(text: &str, source_name: &str) -> Result<Vec<Upload>, DeployE
         if t.is_empty() || t.starts_with('#') || t.starts_with("//") || t.starts_with("pub const") {
             continue;
         }
+        uploads
+            .line(t)
+            .map_err(|reason| bad(source_name, no, t, reason))?;
+    }
+    uploads
+        .finish()
+        .map_err(|(text, reason)| bad(source_name, last_line, &text, reason))
+}
+
+/// [`parse_lines`]'s state: the uploads committed so far and the one open (after its `begin`).
+/// Each method's error is the reason the line is refused.
+#[derive(Default)]
+struct Uploads {
+    done: Vec<Upload>,
+    open: Option<Upload>,
+}
+
+impl Uploads {
+    /// One `model …` line.
+    fn line(&mut self, t: &str) -> Result<(), String> {
         if !t.starts_with("model") {
-            return Err(bad(
-                source_name,
-                no,
-                t,
-                "not a `model …` line of `vfp export --format lines`",
-            ));
+            return Err("not a `model …` line of `vfp export --format lines`".into());
         }
-        let cmd = command::parse(t.as_bytes()).map_err(|e| {
-            bad(
-                source_name,
-                no,
-                t,
-                format!("the firmware would refuse it ({e})"),
-            )
-        })?;
-        if let Command::ModelEffect { ch, kind, params } = &cmd {
-            let up = open
-                .as_mut()
-                .filter(|u| u.ch == *ch)
-                .ok_or_else(|| bad(source_name, no, t, "no `begin` for this channel before it"))?;
-            let e = model_core::chain::Effect::new(*kind, params).map_err(|e| {
-                bad(
-                    source_name,
-                    no,
-                    t,
-                    format!("the board would refuse it ({e})"),
+        let cmd = command::parse(t.as_bytes())
+            .map_err(|e| format!("the firmware would refuse it ({e})"))?;
+        match cmd {
+            Command::ModelEffect { ch, kind, params } => self.effect(t, ch, kind, &params),
+            Command::Model { ch, cmd } => self.model(t, ch, cmd),
+            _ => Err("not a model command".into()),
+        }
+    }
+
+    /// The open upload, if it is channel `ch`'s.
+    fn open_for(&mut self, ch: u8) -> Result<&mut Upload, String> {
+        self.open
+            .as_mut()
+            .filter(|u| u.ch == ch)
+            .ok_or_else(|| "no `begin` for this channel before it".into())
+    }
+
+    /// `model <ch> effect …`: the board's chain must take it after the effects before it.
+    fn effect(
+        &mut self,
+        t: &str,
+        ch: u8,
+        kind: model_core::chain::EffectKind,
+        params: &[f32],
+    ) -> Result<(), String> {
+        let up = self.open_for(ch)?;
+        let e = model_core::chain::Effect::new(kind, params)
+            .map_err(|e| format!("the board would refuse it ({e})"))?;
+        let mut chain = model_core::chain::Chain::new();
+        for x in up.effects.iter().chain([&e]) {
+            chain.push(*x).map_err(|err| {
+                format!(
+                    "the chain would not take it ({err}: at most {} effects, one of each kind)",
+                    model_core::chain::MAX_EFFECTS
                 )
             })?;
-            let mut chain = model_core::chain::Chain::new();
-            for x in up.effects.iter().chain([&e]) {
-                chain.push(*x).map_err(|err| {
-                    bad(
-                        source_name,
-                        no,
-                        t,
-                        format!("the chain would not take it ({err}: at most {} effects, one of each kind)", model_core::chain::MAX_EFFECTS),
-                    )
-                })?;
-            }
-            up.effects.push(e);
-            up.lines.push(t.to_string());
-            continue;
         }
-        let Command::Model { ch, cmd } = cmd else {
-            return Err(bad(source_name, no, t, "not a model command"));
-        };
+        up.effects.push(e);
+        up.lines.push(t.to_string());
+        Ok(())
+    }
+
+    /// `model <ch> begin | coef | ar | commit`; `default` and `read` are not exported lines.
+    fn model(&mut self, t: &str, ch: u8, cmd: ModelCmd) -> Result<(), String> {
         match cmd {
             ModelCmd::Begin { n, m, p, scaling } => {
-                if open.is_some() {
-                    return Err(bad(
-                        source_name,
-                        no,
-                        t,
-                        "`begin` before the previous upload's `commit`",
-                    ));
+                if self.open.is_some() {
+                    return Err("`begin` before the previous upload's `commit`".into());
                 }
-                open = Some(Upload {
+                self.open = Some(Upload {
                     ch,
                     lines: vec![t.to_string()],
                     shape: [n, m, p],
@@ -225,73 +239,54 @@ pub fn parse_lines(text: &str, source_name: &str) -> Result<Vec<Upload>, DeployE
             }
             ModelCmd::Coef { start, ref values } | ModelCmd::Ar { start, ref values } => {
                 let is_ar = matches!(cmd, ModelCmd::Ar { .. });
-                let up = open.as_mut().filter(|u| u.ch == ch).ok_or_else(|| {
-                    bad(source_name, no, t, "no `begin` for this channel before it")
-                })?;
+                let up = self.open_for(ch)?;
                 let dst = if is_ar { &mut up.ar } else { &mut up.coef };
                 let start = start as usize;
                 if start + values.len() > dst.len() {
-                    return Err(bad(
-                        source_name,
-                        no,
-                        t,
-                        format!("index past the {} values of the model's shape", dst.len()),
+                    return Err(format!(
+                        "index past the {} values of the model's shape",
+                        dst.len()
                     ));
                 }
                 dst[start..start + values.len()].copy_from_slice(values);
                 up.lines.push(t.to_string());
             }
             ModelCmd::Commit => {
-                let mut up = open
+                let mut up = self
+                    .open
                     .take()
                     .filter(|u| u.ch == ch)
-                    .ok_or_else(|| bad(source_name, no, t, "`commit` without `begin`"))?;
+                    .ok_or("`commit` without `begin`")?;
                 if up.coef.iter().chain(&up.ar).any(|x| x.is_nan()) {
-                    return Err(bad(
-                        source_name,
-                        no,
-                        t,
-                        "`commit` before every coefficient was given",
-                    ));
+                    return Err("`commit` before every coefficient was given".into());
                 }
                 up.lines.push(t.to_string());
-                out.push(up);
+                self.done.push(up);
             }
-            ModelCmd::Default => {
-                return Err(bad(
-                    source_name,
-                    no,
-                    t,
-                    "`model <ch> default` is not an exported model",
-                ))
-            }
+            ModelCmd::Default => return Err("`model <ch> default` is not an exported model".into()),
             ModelCmd::Read(_) => {
-                return Err(bad(
-                    source_name,
-                    no,
-                    t,
-                    "`model <ch> read` is not an exported model line",
-                ))
+                return Err("`model <ch> read` is not an exported model line".into())
             }
         }
+        Ok(())
     }
-    if let Some(up) = open {
-        return Err(bad(
-            source_name,
-            last_line,
-            &up.lines[0],
-            "upload never committed (`model <ch> commit` missing)",
-        ));
+
+    /// The committed uploads, or the text and reason of what is missing at the end.
+    fn finish(self) -> Result<Vec<Upload>, (String, &'static str)> {
+        if let Some(up) = self.open {
+            return Err((
+                up.lines[0].clone(),
+                "upload never committed (`model <ch> commit` missing)",
+            ));
+        }
+        if self.done.is_empty() {
+            return Err((
+                String::new(),
+                "no model lines; pipe in `vfp export LOG --format lines`",
+            ));
+        }
+        Ok(self.done)
     }
-    if out.is_empty() {
-        return Err(bad(
-            source_name,
-            last_line,
-            "",
-            "no model lines; pipe in `vfp export LOG --format lines`",
-        ));
-    }
-    Ok(out)
 }
 
 /// How a channel was confirmed.

@@ -490,11 +490,23 @@ pub fn signatures(
     alpha: f64,
     harmonic: impl Fn(f64) -> Option<Option<f64>>,
 ) -> Vec<Signature> {
-    let mut out = Vec::new();
     let w = &a.whiteness;
     if w.lb_p_value.is_nan() || w.lb_p_value >= alpha {
-        return out;
+        return Vec::new();
     }
+    [
+        Some(autocorrelation_signature(w)),
+        input_signature(a),
+        peak_signature(&a.spectrum, harmonic),
+        direction_signature(a),
+    ]
+    .into_iter()
+    .flatten()
+    .collect()
+}
+
+/// The largest autocorrelation and how many lags stay correlated.
+fn autocorrelation_signature(w: &Whiteness) -> Signature {
     let (k, r) = w
         .acf
         .iter()
@@ -513,7 +525,7 @@ pub fn signatures(
         .skip(1)
         .take_while(|r| r.abs() > w.band)
         .count();
-    out.push(Signature {
+    Signature {
         kind: "autocorrelation",
         description: format!(
             "residual is not white (Ljung–Box Q = {:.1} over {} lags, p = {:.2e}); largest autocorrelation {:.2} at lag {} ({:.3} s); correlated for {} consecutive lags ({:.2} s)",
@@ -528,60 +540,77 @@ pub fn signatures(
         ),
         lag_s: Some(k as f64 * w.lag_s),
         ..Signature::default()
-    });
-    if let Some(c) = a
+    }
+}
+
+/// The input the residual follows most (correlation over twice the whiteness band), if any.
+fn input_signature(a: &ResidualAnalysis) -> Option<Signature> {
+    let w = &a.whiteness;
+    let c = a
         .cross
         .iter()
         .filter(|c| c.peak_value.abs() > 2.0 * w.band)
-        .max_by(|x, y| x.peak_value.abs().total_cmp(&y.peak_value.abs()))
-    {
-        out.push(Signature {
-            kind: "follows_input",
-            description: format!(
-                "residual follows {} (correlation {:.2} at lag {} samples = {:.3} s, {} leading)",
-                c.input,
-                c.peak_value,
-                c.peak_lag,
-                c.peak_lag as f64 * w.lag_s,
-                if c.peak_lag >= 0 { "input" } else { "residual" }
-            ),
-            lag_s: Some(c.peak_lag as f64 * w.lag_s),
-            input: Some(c.input),
-            ..Signature::default()
-        });
+        .max_by(|x, y| x.peak_value.abs().total_cmp(&y.peak_value.abs()))?;
+    Some(Signature {
+        kind: "follows_input",
+        description: format!(
+            "residual follows {} (correlation {:.2} at lag {} samples = {:.3} s, {} leading)",
+            c.input,
+            c.peak_value,
+            c.peak_lag,
+            c.peak_lag as f64 * w.lag_s,
+            if c.peak_lag >= 0 { "input" } else { "residual" }
+        ),
+        lag_s: Some(c.peak_lag as f64 * w.lag_s),
+        input: Some(c.input),
+        ..Signature::default()
+    })
+}
+
+/// A spectral peak holding over a tenth of the power at 20× the median level, with whether it is
+/// locked to the cycles.
+fn peak_signature(
+    s: &Spectrum,
+    harmonic: impl Fn(f64) -> Option<Option<f64>>,
+) -> Option<Signature> {
+    let strong = s.peak_over_median > 20.0 && s.peak_share > 0.1;
+    if !strong {
+        return None;
     }
-    let s = &a.spectrum;
-    if s.peak_over_median > 20.0 && s.peak_share > 0.1 {
-        let locked = harmonic(s.peak_hz);
-        let lock = match locked {
-            Some(Some(h)) => format!("; locked to the cycles (harmonic {h} of the cycle rate)"),
-            Some(None) => "; not locked to the cycles".to_string(),
-            None => String::new(),
-        };
-        out.push(Signature {
-            kind: "periodic",
-            description: format!(
-                "spectral peak at {:.3} Hz holding {:.0} % of the residual power ({:.0}× the median level){lock}",
-                s.peak_hz,
-                100.0 * s.peak_share,
-                s.peak_over_median
-            ),
-            frequency_hz: Some(s.peak_hz),
-            cycle_locked: locked.map(|h| h.is_some()),
-            ..Signature::default()
-        });
+    let locked = harmonic(s.peak_hz);
+    let lock = match locked {
+        Some(Some(h)) => format!("; locked to the cycles (harmonic {h} of the cycle rate)"),
+        Some(None) => "; not locked to the cycles".to_string(),
+        None => String::new(),
+    };
+    Some(Signature {
+        kind: "periodic",
+        description: format!(
+            "spectral peak at {:.3} Hz holding {:.0} % of the residual power ({:.0}× the median level){lock}",
+            s.peak_hz,
+            100.0 * s.peak_share,
+            s.peak_over_median
+        ),
+        frequency_hz: Some(s.peak_hz),
+        cycle_locked: locked.map(|h| h.is_some()),
+        ..Signature::default()
+    })
+}
+
+/// A mean residual that differs by direction (|t| > 3.29).
+fn direction_signature(a: &ResidualAnalysis) -> Option<Signature> {
+    let differs = a.direction.t_stat.abs() > 3.29;
+    if !differs {
+        return None;
     }
-    if a.direction.t_stat.abs() > 3.29 {
-        out.push(Signature {
-            kind: "direction",
-            description: format!(
-                "residual differs by direction: {:+.3} kPa inflating vs {:+.3} kPa deflating (t = {:.1})",
-                a.direction.mean_inflation, a.direction.mean_deflation, a.direction.t_stat
-            ),
-            ..Signature::default()
-        });
-    }
-    out
+    Some(Signature {
+        kind: "direction",
+        description: format!(
+            "residual differs by direction: {:+.3} kPa inflating vs {:+.3} kPa deflating (t = {:.1})",
+            a.direction.mean_inflation, a.direction.mean_deflation, a.direction.t_stat
+        ),
+        ..Signature::default()
+    })
 }
 
 #[cfg(test)]
