@@ -30,15 +30,9 @@ fn half_range(x: &[f64]) -> (f64, f64) {
     (0.5 * (hi + lo), if half > 0.0 { half } else { 1.0 })
 }
 
-/// `T_0(x) … T_deg(x)` by the three-term recurrence `T_{k+1} = 2x T_k − T_{k−1}`.
+/// `T_0(x) … T_deg(x)` into `out[..=deg]`: the crate's one evaluator, [`crate::poly::chebyshev`].
 fn chebyshev(x: f64, deg: usize, out: &mut [f64]) {
-    out[0] = 1.0;
-    if deg >= 1 {
-        out[1] = x;
-    }
-    for k in 2..=deg {
-        out[k] = 2.0 * x * out[k - 1] - out[k - 2];
-    }
+    crate::poly::chebyshev(x, &mut out[..=deg]);
 }
 
 /// `T_0 … T_deg` of `(x − offset)/scale` for every sample, one vector per degree.
