@@ -128,13 +128,14 @@ pub fn rust_constants(ch: u8, model: &PolyModel, provenance: &str) -> String {
     s
 }
 
-/// The device model for one chamber's dataset: the requested (n, m), or by default the shape
+/// The device model for one chamber's dataset: the requested (n, m), or by default the model
 /// `vfp identify` selects ([`crate::select`]: the fewest parameters within one standard error of
-/// the best cycle-blocked cross-validated error) **if the device evaluates it faithfully** (its
-/// f32 loss, [`f32_loss`], at most a tenth of the fit's own RMSE; high degrees fitted on a few
-/// flow levels have cancelling coefficients that f32 cannot hold). Otherwise the next shape in
-/// [`crate::select::ranked`] order that passes, and the provenance names the one passed over and
-/// by how much it would have lost. `p` AR lags.
+/// the best cycle-blocked cross-validated error, then its raw terms reduced by the same rule; with
+/// AR lags, `p` > 0, the full shape) **if the device evaluates it faithfully** (its f32 loss,
+/// [`f32_loss`], at most a tenth of the fit's own RMSE; high degrees fitted on a few flow levels
+/// have cancelling coefficients that f32 cannot hold). Otherwise the full shape, then the next
+/// shapes in [`crate::select::ranked`] order, and the provenance names what was passed over and by
+/// how much it would have lost.
 pub fn model_for(
     ds: &Dataset,
     n: Option<usize>,
@@ -153,13 +154,35 @@ pub fn model_for(
     match (n, m) {
         (Some(n), Some(m)) => build(ds, n, m, p, all_samples, sc),
         (None, None) => {
-            let (_, scores) = crate::select::cross_validate(ds, &sc, 7, 7)?;
-            let ok: Vec<_> = scores.into_iter().flatten().collect();
-            let order: Vec<(usize, usize)> = crate::select::ranked(&ok)
-                .iter()
-                .map(|s| (s.n, s.m))
+            let (_, bm) = crate::select::block_moments(ds, &sc)?;
+            let ok: Vec<_> = bm
+                .sweep(poly::MAX_DEGREE, poly::MAX_DEGREE)
+                .into_iter()
+                .flatten()
                 .collect();
+            let ranked = crate::select::ranked(&ok);
+            let reduced = match (p, ranked.first(), crate::select::lowest(&ok)) {
+                (0, Some(first), Some(lowest)) => bm.reduce_terms(first.n, first.m, lowest).ok(),
+                _ => None,
+            };
+            let mut skipped = String::new();
+            if let Some(red) = reduced.filter(|r| r.nu < r.active.len()) {
+                let e = build_terms(ds, &red, all_samples)?;
+                let loss = f32_loss(&e, &ds.v, &ds.vdot, &ds.p);
+                if loss.rms <= F32_LOSS_LIMIT * loss.model_rmse {
+                    return Ok(e);
+                }
+                skipped = format!(
+                    "; the selection's {} of {} terms passed over: in f32 on the device they would add {:.4} kPa RMS to their {:.4} kPa fit error",
+                    red.nu,
+                    red.active.len(),
+                    loss.rms,
+                    loss.model_rmse
+                );
+            }
+            let order: Vec<(usize, usize)> = ranked.iter().map(|s| (s.n, s.m)).collect();
             let (mut e, passed_over) = first_carried(ds, &order, p, all_samples, sc)?;
+            e.prov.push_str(&skipped);
             if let Some((n0, m0, l0)) = passed_over {
                 e.prov.push_str(&format!(
                     "; the selection's choice (n = {n0}, m = {m0}) passed over: in f32 on the device it would add {:.4} kPa RMS to its {:.4} kPa fit error",
@@ -251,6 +274,34 @@ fn build(
             scaling: fit.scaling,
         })
     }
+}
+
+/// Fits the selection's reduced model (the raw terms `red.active` of its shape, [`poly::fit_terms`])
+/// on the training cycles (or all samples) and rounds it to the device's form.
+fn build_terms(
+    ds: &Dataset,
+    red: &crate::select::Reduction,
+    all_samples: bool,
+) -> Result<Exported, ExportError> {
+    let data = if all_samples { ds.all() } else { ds.train() };
+    let fit = poly::fit_terms(Xy::from(&data), red.n, red.m, &red.active)?;
+    let model = fit.to_model_core()?;
+    let prov = format!(
+        "n = {}, m = {}, {} of {} terms (the selection's reduction), RMSE {:.4} kPa on {} samples",
+        red.n,
+        red.m,
+        red.nu,
+        red.active.len(),
+        fit.train.rmse,
+        fit.train.n
+    );
+    Ok(Exported {
+        model,
+        prov,
+        power: fit.power.clone(),
+        ar: Vec::new(),
+        scaling: fit.scaling,
+    })
 }
 
 /// An exported model with the f64 fit it was rounded from.

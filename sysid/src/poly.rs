@@ -987,8 +987,21 @@ pub fn prune(
         .collect()
 }
 
-/// The full (n, m) fit from moments, factored once, for restricted refits (see [`prune`]).
-struct Restricted {
+/// See [`Restricted::constraint_maps`].
+pub(crate) struct ConstraintMaps {
+    /// ĉ: the full fit's centred Chebyshev coefficients.
+    pub c: DVector<f64>,
+    /// α̂: every raw coefficient of the full fit.
+    pub alpha: DVector<f64>,
+    /// M = W G⁻¹ Wᵀ.
+    pub m: DMatrix<f64>,
+    /// Q = G⁻¹ Wᵀ.
+    pub q: DMatrix<f64>,
+}
+
+/// The full (n, m) fit from moments, factored once, for restricted refits (see [`prune`] and
+/// [`crate::select::reduce_terms`]).
+pub(crate) struct Restricted {
     m: usize,
     nu: usize,
     /// Chebyshev coefficients of the centred pressure.
@@ -1008,7 +1021,7 @@ struct Restricted {
 }
 
 impl Restricted {
-    fn new(
+    pub(crate) fn new(
         mt: &Moments,
         n: usize,
         m: usize,
@@ -1043,6 +1056,34 @@ impl Restricted {
 
     fn name(&self, k: usize) -> String {
         term_name(k / (self.m + 1), k % (self.m + 1))
+    }
+
+    /// What restricted fits of many term sets share: the full fit's centred Chebyshev
+    /// coefficients ĉ, every raw coefficient α̂ = W(ĉ + centre·e₀), M = W G⁻¹ Wᵀ and
+    /// Q = G⁻¹ Wᵀ (W: Chebyshev → raw). The fit without the raw terms S is then
+    /// c_S = ĉ − Q_S λ with M_SS λ = α̂_S (see [`Restricted::without`]).
+    pub(crate) fn constraint_maps(&self) -> ConstraintMaps {
+        let all: Vec<usize> = (0..self.nu).collect();
+        let z = self.z(&all);
+        let m = z.transpose() * &z;
+        // Q = D L⁻ᵀ Z, column by column.
+        let l = self.chol.l_dirty();
+        let mut q = z;
+        for col in 0..self.nu {
+            for i in (0..self.nu).rev() {
+                let acc: f64 = (i + 1..self.nu).map(|j| l[(j, i)] * q[(j, col)]).sum();
+                q[(i, col)] = (q[(i, col)] - acc) / l[(i, i)];
+            }
+            for i in 0..self.nu {
+                q[(i, col)] *= self.d[i];
+            }
+        }
+        ConstraintMaps {
+            c: self.c.clone(),
+            alpha: DVector::from_fn(self.nu, |t, _| self.raw(t)),
+            m,
+            q,
+        }
     }
 
     /// The centred coefficients and (XᵀX)⁻¹ = D Gs⁻¹ D, when κ₁(Gs) ≤ [`MAX_GRAM_CONDITION`].
@@ -1119,7 +1160,7 @@ impl Restricted {
 
     /// The restricted fit without the raw terms `set`: its centred Chebyshev coefficients and its
     /// SSE. `None` when the constraints are degenerate.
-    fn without(&self, set: &[usize]) -> Option<(DVector<f64>, f64)> {
+    pub(crate) fn without(&self, set: &[usize]) -> Option<(DVector<f64>, f64)> {
         // The constraint is on the uncentred coefficients: W_S (ĉ + centre·e₀) = α̂_S must vanish.
         let resid = DVector::from_fn(set.len(), |s, _| self.raw(set[s]));
         let z = self.z(set);

@@ -42,6 +42,33 @@
 //!    all shapes share (a noisier breath, a faster stroke) cancels, and what is left answers "can
 //!    the data tell these two shapes apart?".
 //!
+//! # Terms
+//! A shape's (n+1)(m+1) raw terms αᵢⱼ vⁱv̇ʲ are not all needed: the paper reduces its models by
+//! dropping negligible terms while keeping their general form. The selected shape's terms are
+//! reduced by the same cross-validation and the same rule ([`BlockMoments::reduce_terms`]):
+//! 1. backward elimination on the training data: from the full shape, drop the raw term (never
+//!    the constant) whose removal raises the training SSE least, and repeat down to one term
+//!    (restricted least squares: the fit without the terms S is the full fit under the constraint
+//!    α_S = 0, as in [`crate::poly::prune`]);
+//! 2. every step of that path is cross-validated on the same blocks as the shapes: each fold's
+//!    fit without S is the fold's full fit under α_S = 0, and each block's error follows from its
+//!    own moments (still no design matrix);
+//! 3. the reduced model is the step with the fewest terms whose ē is within one paired standard
+//!    error of the lowest ē seen (the sweep's and the path's), among admissible steps.
+//!
+//! The path comes from the training fit and the cross-validation only chooses where to stop
+//! along it (as for the shapes, where the sweep is fixed and the cross-validation chooses): a
+//! path chosen by cross-validated error at every step costs ν times more and fits the blocks'
+//! noise.
+//!
+//! Dropping terms the data cannot use often *lowers* the cross-validated error (a degree-7
+//! polynomial's raw terms are nearly collinear, and the dropped ones only fit noise). On the
+//! QuickLung log in `data/real/` the selected (7, 5) keeps 33 of its 48 terms (cross-validated
+//! RMSE 0.0588 → 0.0579 kPa, held-out 0.0532 → 0.0536 kPa), where no smaller *shape* came within
+//! 7 paired standard errors: the data resolve the degree in v and v̇, not every term of it. The
+//! reduced model is what `vfp export` exports by default; the full shape is what the residual
+//! loop starts from (its effects are fitted jointly with the shape's columns).
+//!
 //! The textbook rule takes the standard error of ē_best alone (reported as `cv_limit_rmse`). On
 //! the real logs in `data/real/` that band is far wider than the differences between shapes,
 //! because breaths differ in difficulty: it took a 6-parameter (2, 1) on the bag-lung log whose
@@ -55,6 +82,7 @@
 use crate::dataset::Dataset;
 use crate::metrics::CostWeights;
 use crate::poly::{self, Moments, PolyError, Scaling, Xy};
+use nalgebra::{DMatrix, DVector};
 use serde::Serialize;
 use std::ops::Range;
 
@@ -164,43 +192,390 @@ pub fn cv_sweep(
     max_n: usize,
     max_m: usize,
 ) -> Result<Vec<Result<CvScore, PolyError>>, PolyError> {
-    if train.p.is_empty() {
-        return Err(PolyError::NoData);
-    }
-    if let Some(index) = train.p.iter().position(|x| !x.is_finite()) {
-        return Err(PolyError::NotFinite {
-            column: "pressure",
-            index,
-        });
-    }
     if max_n > poly::MAX_DEGREE || max_m > poly::MAX_DEGREE {
         return Err(PolyError::Degree { n: max_n, m: max_m });
     }
-    if blocks.len() < 2 {
-        return Err(PolyError::NoData);
+    Ok(BlockMoments::new(train, blocks, scaling)?.sweep(max_n, max_m))
+}
+
+/// What every fold's fit and every block's error come from: each block's Chebyshev moments and
+/// each fold's sum of the other folds' blocks (module docs, step 2).
+pub struct BlockMoments {
+    per_block: Vec<Moments>,
+    fold_fits: Vec<Moments>,
+    scaling: Scaling,
+    centre: f64,
+    var_p: f64,
+}
+
+impl BlockMoments {
+    /// One pass over `train` cut into `blocks`. `Err` on no samples, non-finite pressure or fewer
+    /// than two blocks.
+    pub fn new(
+        train: Xy,
+        blocks: &[Range<usize>],
+        scaling: &Scaling,
+    ) -> Result<BlockMoments, PolyError> {
+        if train.p.is_empty() {
+            return Err(PolyError::NoData);
+        }
+        if let Some(index) = train.p.iter().position(|x| !x.is_finite()) {
+            return Err(PolyError::NotFinite {
+                column: "pressure",
+                index,
+            });
+        }
+        if blocks.len() < 2 {
+            return Err(PolyError::NoData);
+        }
+        let centre = train.p.iter().sum::<f64>() / train.p.len() as f64;
+        let var_p =
+            train.p.iter().map(|p| (p - centre).powi(2)).sum::<f64>() / train.p.len() as f64;
+        let per_block = gather_blocks(train, scaling, centre, blocks);
+        let folds = MAX_FOLDS.min(blocks.len());
+        let fold_fits: Vec<Moments> = (0..folds)
+            .map(|k| {
+                let mut s = Moments::zero();
+                for (b, mb) in per_block.iter().enumerate() {
+                    if b % folds != k {
+                        s.add(mb);
+                    }
+                }
+                s
+            })
+            .collect();
+        Ok(BlockMoments {
+            per_block,
+            fold_fits,
+            scaling: *scaling,
+            centre,
+            var_p,
+        })
     }
-    let centre = train.p.iter().sum::<f64>() / train.p.len() as f64;
-    let var_p = train.p.iter().map(|p| (p - centre).powi(2)).sum::<f64>() / train.p.len() as f64;
-    let per_block = gather_blocks(train, scaling, centre, blocks);
-    let folds = MAX_FOLDS.min(blocks.len());
-    let fold_fits: Vec<Moments> = (0..folds)
-        .map(|k| {
-            let mut s = Moments::zero();
-            for (b, mb) in per_block.iter().enumerate() {
-                if b % folds != k {
-                    s.add(mb);
+
+    /// Every (n, m) up to (`max_n`, `max_m`), row-major in n (see [`cv_sweep`]).
+    pub fn sweep(&self, max_n: usize, max_m: usize) -> Vec<Result<CvScore, PolyError>> {
+        let mut out = Vec::with_capacity(max_n * max_m);
+        for n in 1..=max_n {
+            for m in 1..=max_m {
+                out.push(score_shape(
+                    &self.per_block,
+                    &self.fold_fits,
+                    n,
+                    m,
+                    self.var_p,
+                ));
+            }
+        }
+        out
+    }
+}
+
+impl BlockMoments {
+    /// The raw terms of the (n, m) model reduced by the selection's own rule (module docs,
+    /// "Terms"): backward elimination on the training fit, each step cross-validated, then the
+    /// fewest terms within one paired standard error of the lowest error seen, `reference` (the
+    /// sweep's lowest) included.
+    /// `Err` when the full shape cannot be fitted on some fold.
+    pub fn reduce_terms(
+        &self,
+        n: usize,
+        m: usize,
+        reference: &CvScore,
+    ) -> Result<Reduction, PolyError> {
+        let nu = (n + 1) * (m + 1);
+        let folds: Vec<FoldMaps> = (0..self.fold_fits.len())
+            .map(|f| self.fold_maps(f, n, m))
+            .collect::<Result<_, _>>()?;
+        let block_n: Vec<usize> = self.per_block.iter().map(|b| b.n).collect();
+        let score = |dropped: &[usize]| -> Option<CvScore> {
+            let mut block_sse = vec![0.0; self.per_block.len()];
+            for f in &folds {
+                for (b, e) in f.block_errors(dropped)? {
+                    block_sse[b] = e;
                 }
             }
-            s
+            Some(self.score_of(n, m, nu - dropped.len(), block_sse, &block_n))
+        };
+        let full = score(&[]).ok_or(PolyError::Fit {
+            n,
+            m,
+            source: crate::linreg::FitError::RankDeficient {
+                term: poly::term_name(n, m),
+            },
+        })?;
+        let mut path = vec![(None, full)];
+        let mut dropped: Vec<usize> = Vec::new();
+        for t in self.elimination_order(n, m)? {
+            dropped.push(t);
+            match score(&dropped) {
+                Some(s) => path.push((Some(t), s)),
+                None => break,
+            }
+        }
+        let mut lowest = reference;
+        for (_, s) in &path {
+            if s.admissible && s.mse < lowest.mse {
+                lowest = s;
+            }
+        }
+        let pick = path
+            .iter()
+            .enumerate()
+            .filter(|(_, (_, s))| s.admissible && within_one_se(s, lowest))
+            .min_by(|(_, a), (_, b)| a.1.nu.cmp(&b.1.nu).then(a.1.mse.total_cmp(&b.1.mse)))
+            .map_or(0, |(k, _)| k);
+        let (mse_excess, mse_excess_paired_se) = paired_difference(&path[pick].1, lowest);
+        let gone: Vec<usize> = path[1..=pick].iter().filter_map(|(t, _)| *t).collect();
+        let name = |t: usize| poly::term_name(t / (m + 1), t % (m + 1));
+        Ok(Reduction {
+            n,
+            m,
+            nu: nu - gone.len(),
+            active: (0..nu).map(|t| !gone.contains(&t)).collect(),
+            kept: (0..nu).filter(|t| !gone.contains(t)).map(name).collect(),
+            dropped: gone.iter().map(|&t| name(t)).collect(),
+            cv_rmse: path[pick].1.rmse(),
+            cv_lowest_rmse: lowest.rmse(),
+            mse_excess,
+            mse_excess_paired_se,
+            rmse_heldout: None,
+            path: path
+                .iter()
+                .map(|(t, s)| TermStep {
+                    dropped: t.map(name),
+                    nu: s.nu,
+                    cv_rmse: s.rmse(),
+                    admissible: s.admissible,
+                })
+                .collect(),
         })
-        .collect();
-    let mut out = Vec::with_capacity(max_n * max_m);
-    for n in 1..=max_n {
-        for m in 1..=max_m {
-            out.push(score_shape(&per_block, &fold_fits, n, m, var_p));
+    }
+
+    /// RMSE on `held` of the reduction `red` fitted on all the training blocks (restricted least
+    /// squares on their summed moments, scored on `held`'s moments: no design matrix). `None`
+    /// without held-out samples or when the constraints are degenerate.
+    pub fn heldout_rmse(&self, red: &Reduction, held: Xy) -> Option<f64> {
+        if held.p.is_empty() {
+            return None;
+        }
+        let mut total = Moments::zero();
+        for b in &self.per_block {
+            total.add(b);
+        }
+        let r = poly::Restricted::new(&total, red.n, red.m, &self.scaling, self.centre).ok()?;
+        let dropped: Vec<usize> = (0..red.active.len()).filter(|&t| !red.active[t]).collect();
+        let (c, _) = r.without(&dropped)?;
+        let mh = Moments::gather(held, &self.scaling, self.centre);
+        Some((mh.sse(red.n, red.m, &c) / mh.n as f64).sqrt())
+    }
+
+    /// The order in which backward elimination drops the raw terms of the (n, m) fit on all the
+    /// training blocks (never the constant): at each step the term whose removal raises the
+    /// training SSE least. The SSE without the terms S exceeds the full fit's by
+    /// α̂_Sᵀ M_SS⁻¹ α̂_S = |L⁻¹α̂_S|² (M_SS = L Lᵀ, [`poly::ConstraintMaps`]), so a candidate t
+    /// costs one triangular solve against the factor of the terms already dropped, which grows by
+    /// one row per step. Stops early if the remaining constraints are degenerate.
+    fn elimination_order(&self, n: usize, m: usize) -> Result<Vec<usize>, PolyError> {
+        let mut total = Moments::zero();
+        for b in &self.per_block {
+            total.add(b);
+        }
+        let maps =
+            poly::Restricted::new(&total, n, m, &self.scaling, self.centre)?.constraint_maps();
+        let nu = maps.alpha.len();
+        // Jacobi scaling of M (and α̂ with it) keeps the factor's pivots comparable.
+        let d: Vec<f64> = (0..nu)
+            .map(|t| 1.0 / maps.m[(t, t)].max(f64::MIN_POSITIVE).sqrt())
+            .collect();
+        let ms = |a: usize, b: usize| maps.m[(a, b)] * d[a] * d[b];
+        let mut order: Vec<usize> = Vec::new();
+        // Rows of L (lower triangular, row k for order[k]) and y = L⁻¹ α̂_S.
+        let mut l: Vec<Vec<f64>> = Vec::new();
+        let mut y: Vec<f64> = Vec::new();
+        while order.len() + 2 <= nu {
+            let mut best: Option<(f64, usize, Vec<f64>, f64, f64)> = None;
+            for t in (1..nu).filter(|t| !order.contains(t)) {
+                // w = L⁻¹ M_S,t (forward substitution).
+                let mut w = Vec::with_capacity(order.len());
+                for (k, row) in l.iter().enumerate() {
+                    let acc: f64 = (0..k).map(|j| row[j] * w[j]).sum();
+                    w.push((ms(order[k], t) - acc) / row[k]);
+                }
+                let pivot = ms(t, t) - w.iter().map(|x| x * x).sum::<f64>();
+                if pivot <= 1e-12 {
+                    continue;
+                }
+                let diag = pivot.sqrt();
+                let yt = (maps.alpha[t] * d[t] - w.iter().zip(&y).map(|(a, b)| a * b).sum::<f64>())
+                    / diag;
+                if best.as_ref().is_none_or(|b| yt * yt < b.0) {
+                    best = Some((yt * yt, t, w, diag, yt));
+                }
+            }
+            let Some((_, t, mut w, diag, yt)) = best else {
+                break;
+            };
+            w.push(diag);
+            l.push(w);
+            y.push(yt);
+            order.push(t);
+        }
+        Ok(order)
+    }
+
+    /// Fold `f`'s full (n, m) fit and, for each block it leaves out, what its error under a
+    /// restricted fit needs (see [`FoldMaps::block_errors`]).
+    fn fold_maps(&self, f: usize, n: usize, m: usize) -> Result<FoldMaps, PolyError> {
+        let r = poly::Restricted::new(&self.fold_fits[f], n, m, &self.scaling, self.centre)?;
+        let maps = r.constraint_maps();
+        let folds = self.fold_fits.len();
+        let blocks = (0..self.per_block.len())
+            .filter(|b| b % folds == f)
+            .map(|b| {
+                let mb = &self.per_block[b];
+                let g = mb.gram(n, m);
+                let resid = mb.xty(n, m) - &g * &maps.c;
+                HeldBlock {
+                    index: b,
+                    sse: mb.sse(n, m, &maps.c),
+                    g: maps.q.transpose() * resid,
+                    h: maps.q.transpose() * &g * &maps.q,
+                }
+            })
+            .collect();
+        Ok(FoldMaps {
+            alpha: maps.alpha,
+            m: maps.m,
+            blocks,
+        })
+    }
+
+    /// A [`CvScore`] from block errors (pooled ē, its SE, admissibility; module docs).
+    fn score_of(
+        &self,
+        n: usize,
+        m: usize,
+        nu: usize,
+        block_sse: Vec<f64>,
+        block_n: &[usize],
+    ) -> CvScore {
+        let errs: Vec<(f64, usize)> = block_sse
+            .iter()
+            .copied()
+            .zip(block_n.iter().copied())
+            .collect();
+        let (mse, se) = pooled(&errs);
+        CvScore {
+            n,
+            m,
+            nu,
+            mse,
+            se,
+            admissible: errs
+                .iter()
+                .all(|&(e, nb)| nb == 0 || e / nb as f64 <= self.var_p),
+            block_sse,
+            block_n: block_n.to_vec(),
         }
     }
-    Ok(out)
+}
+
+/// One fold's full fit in the form restricted fits need ([`poly::ConstraintMaps`]).
+struct FoldMaps {
+    alpha: DVector<f64>,
+    m: DMatrix<f64>,
+    blocks: Vec<HeldBlock>,
+}
+
+/// A block the fold leaves out: its SSE under the full fit ĉ, g = Qᵀ(b − Gĉ) and H = QᵀGQ on its
+/// own moments (G, b), so that the SSE of c = ĉ − Q_Sλ is sse + 2λᵀg_S + λᵀH_SSλ.
+struct HeldBlock {
+    index: usize,
+    sse: f64,
+    g: DVector<f64>,
+    h: DMatrix<f64>,
+}
+
+impl FoldMaps {
+    /// Each held-out block's SSE under the fold's fit without the raw terms `dropped`
+    /// (α_S = 0: M_SS λ = α̂_S, solved Jacobi-scaled). `None` when the constraints are degenerate.
+    fn block_errors(&self, dropped: &[usize]) -> Option<Vec<(usize, f64)>> {
+        let k = dropped.len();
+        let lambda = if k == 0 {
+            DVector::zeros(0)
+        } else {
+            let d = DVector::from_fn(k, |i, _| {
+                1.0 / self.m[(dropped[i], dropped[i])]
+                    .max(f64::MIN_POSITIVE)
+                    .sqrt()
+            });
+            let ms = DMatrix::from_fn(k, k, |i, j| self.m[(dropped[i], dropped[j])] * d[i] * d[j]);
+            let rhs = DVector::from_fn(k, |i, _| self.alpha[dropped[i]] * d[i]);
+            let mu = ms.cholesky()?.solve(&rhs);
+            mu.component_mul(&d)
+        };
+        Some(
+            self.blocks
+                .iter()
+                .map(|b| {
+                    let lin: f64 = (0..k).map(|i| lambda[i] * b.g[dropped[i]]).sum();
+                    let quad: f64 = (0..k)
+                        .map(|i| {
+                            lambda[i]
+                                * (0..k)
+                                    .map(|j| b.h[(dropped[i], dropped[j])] * lambda[j])
+                                    .sum::<f64>()
+                        })
+                        .sum();
+                    (b.index, (b.sse + 2.0 * lin + quad).max(0.0))
+                })
+                .collect(),
+        )
+    }
+}
+
+/// One step of the backward elimination of raw terms ([`BlockMoments::reduce_terms`]).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct TermStep {
+    /// The raw term dropped at this step (none for the full shape).
+    pub dropped: Option<String>,
+    /// Terms left.
+    pub nu: usize,
+    /// Cross-validated RMSE of the model with the terms left, kPa.
+    pub cv_rmse: f64,
+    /// Every block's error at most the training pressure's variance (module docs).
+    pub admissible: bool,
+}
+
+/// The selected shape with the terms its data cannot use taken out (module docs, "Terms").
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Reduction {
+    /// Highest power of v of the shape reduced.
+    pub n: usize,
+    /// Highest power of v̇.
+    pub m: usize,
+    /// Terms kept: the reduced model's parameters.
+    pub nu: usize,
+    /// Which raw terms αᵢⱼ are kept, at index i·(m+1)+j.
+    pub active: Vec<bool>,
+    /// The kept terms' names.
+    pub kept: Vec<String>,
+    /// The dropped terms' names, in the order they were dropped.
+    pub dropped: Vec<String>,
+    /// The reduced model's cross-validated RMSE, kPa.
+    pub cv_rmse: f64,
+    /// The lowest cross-validated RMSE of the sweep and the elimination, kPa.
+    pub cv_lowest_rmse: f64,
+    /// ē_reduced − ē_lowest, kPa².
+    pub mse_excess: f64,
+    /// Its standard error paired across blocks, kPa².
+    pub mse_excess_paired_se: f64,
+    /// The reduced model refitted on the training cycles and scored on the held-out ones, kPa
+    /// (filled by [`crate::identify`]).
+    pub rmse_heldout: Option<f64>,
+    /// Every step of the elimination, the full shape first.
+    pub path: Vec<TermStep>,
 }
 
 /// Per-block moments, the blocks shared among the available cores for large data.
@@ -244,17 +619,30 @@ fn score_shape(
         .iter()
         .map(|f| poly::solve_chebyshev(f, n, m))
         .collect::<Result<_, _>>()?;
-    let (mut sse, mut total) = (0.0, 0usize);
     let errs: Vec<(f64, usize)> = per_block
         .iter()
         .enumerate()
-        .map(|(b, mb)| {
-            let e = mb.sse(n, m, &coefs[b % folds]);
-            sse += e;
-            total += mb.n;
-            (e, mb.n)
-        })
+        .map(|(b, mb)| (mb.sse(n, m, &coefs[b % folds]), mb.n))
         .collect();
+    let (mse, se) = pooled(&errs);
+    Ok(CvScore {
+        n,
+        m,
+        nu: (n + 1) * (m + 1),
+        mse,
+        se,
+        admissible: errs
+            .iter()
+            .all(|&(e, nb)| nb == 0 || e / nb as f64 <= var_p),
+        block_sse: errs.iter().map(|e| e.0).collect(),
+        block_n: errs.iter().map(|e| e.1).collect(),
+    })
+}
+
+/// Pooled ē = Σ SSE_b / Σ n_b over (SSE_b, n_b) and its standard error across blocks, kPa².
+fn pooled(errs: &[(f64, usize)]) -> (f64, f64) {
+    let sse: f64 = errs.iter().map(|e| e.0).sum();
+    let total: usize = errs.iter().map(|e| e.1).sum();
     let mse = sse / total.max(1) as f64;
     let big_b = errs.len() as f64;
     let var: f64 = errs
@@ -267,18 +655,7 @@ fn score_shape(
         .sum::<f64>()
         * big_b
         / (big_b - 1.0);
-    Ok(CvScore {
-        n,
-        m,
-        nu: (n + 1) * (m + 1),
-        mse,
-        se: var.sqrt(),
-        admissible: errs
-            .iter()
-            .all(|&(e, nb)| nb == 0 || e / nb as f64 <= var_p),
-        block_sse: errs.iter().map(|e| e.0).collect(),
-        block_n: errs.iter().map(|e| e.1).collect(),
-    })
+    (mse, var.sqrt())
 }
 
 /// ē_a − ē_b and its standard error across the (common) blocks, kPa².
@@ -311,8 +688,8 @@ fn candidates(scores: &[CvScore]) -> Vec<&CvScore> {
     }
 }
 
-/// The candidate with the lowest ē.
-fn lowest(scores: &[CvScore]) -> Option<&CvScore> {
+/// The candidate with the lowest ē (module docs: admissible shapes first).
+pub fn lowest(scores: &[CvScore]) -> Option<&CvScore> {
     candidates(scores)
         .into_iter()
         .min_by(|a, b| a.mse.total_cmp(&b.mse))
@@ -381,6 +758,9 @@ pub struct Selection {
     pub aicc_pick: Option<Shape>,
     /// The shape with the lowest joint cost J (eq. (8) here) under `weights`.
     pub joint_cost_pick: Option<Shape>,
+    /// The selected shape's raw terms reduced by the same rule (module docs, "Terms"): the
+    /// model `vfp export` exports by default.
+    pub reduced: Option<Reduction>,
     /// The joint cost's weights.
     pub weights: CostWeights,
     /// What the blocks are.
@@ -403,6 +783,15 @@ pub fn cross_validate(
     let blocks = training_blocks(ds);
     let scores = cv_sweep(Xy::from(&train), &blocks.ranges, scaling, max_n, max_m)?;
     Ok((blocks, scores))
+}
+
+/// The blocks of `ds`'s training cycles and their moments, for [`BlockMoments::sweep`] and
+/// [`BlockMoments::reduce_terms`].
+pub fn block_moments(ds: &Dataset, scaling: &Scaling) -> Result<(Blocks, BlockMoments), PolyError> {
+    let train = ds.train();
+    let blocks = training_blocks(ds);
+    let bm = BlockMoments::new(Xy::from(&train), &blocks.ranges, scaling)?;
+    Ok((blocks, bm))
 }
 
 /// The [`Selection`] from cross-validated `scores` and the training metrics' picks.
@@ -430,6 +819,7 @@ pub fn selection(
         mse_excess_paired_se,
         aicc_pick,
         joint_cost_pick,
+        reduced: None,
         weights,
         blocks: blocks.kind,
         n_blocks: blocks.ranges.len(),

@@ -369,13 +369,7 @@ fn nothing_runnable_exports_the_refitted_baseline_and_says_so() {
     assert_eq!(x.device.model.shape().p, 0);
     // It is the baseline least-squares fit on the training cycles: a second implementation
     // (sysid::poly::fit, same basis scaling) predicts the same to rounding.
-    let b = &x.device.host.basis;
-    let sc = sysid::poly::Scaling {
-        v_offset: b.v_offset,
-        v_scale: b.v_scale,
-        f_offset: b.f_offset,
-        f_scale: b.f_scale,
-    };
+    let sc = x.device.host.basis.scaling;
     let other = sysid::poly::fit(sysid::poly::Xy::from(&ds.train()), 3, 2, Some(sc)).expect("fit");
     for k in (0..series.len()).step_by(7) {
         let mine = x

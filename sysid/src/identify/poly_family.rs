@@ -56,7 +56,7 @@ fn choose_poly(cx: &mut Sweep<'_>, sc: &poly::Scaling) -> Option<(usize, usize)>
         .min_by(|a, b| a.cost.total_cmp(&b.cost))
         .and_then(shape_of);
     let fallback = cost.map(|s| (s.n, s.m));
-    let (blocks, scores) = match select::cross_validate(ds, sc, opt.max_n, opt.max_m) {
+    let (blocks, bm) = match select::block_moments(ds, sc) {
         Ok(x) => x,
         Err(e) => {
             rep.notes.push(format!(
@@ -65,7 +65,11 @@ fn choose_poly(cx: &mut Sweep<'_>, sc: &poly::Scaling) -> Option<(usize, usize)>
             return fallback;
         }
     };
-    let ok: Vec<CvScore> = scores.into_iter().flatten().collect();
+    let ok: Vec<CvScore> = bm
+        .sweep(opt.max_n, opt.max_m)
+        .into_iter()
+        .flatten()
+        .collect();
     for r in rep.models.iter_mut().filter(|r| r.family == Family::Poly) {
         if let Some(s) = ok.iter().find(|s| Some(s.n) == r.n && Some(s.m) == r.m) {
             r.cv_rmse = Some(s.rmse());
@@ -73,8 +77,16 @@ fn choose_poly(cx: &mut Sweep<'_>, sc: &poly::Scaling) -> Option<(usize, usize)>
         }
     }
     match select::selection(&blocks, &ok, aicc, cost, opt.weights) {
-        Some(sel) => {
+        Some(mut sel) => {
             let pick = (sel.selected.n, sel.selected.m);
+            let lowest = select::lowest(&ok).expect("a selection has a lowest score");
+            match bm.reduce_terms(pick.0, pick.1, lowest) {
+                Ok(mut red) => {
+                    red.rmse_heldout = bm.heldout_rmse(&red, Xy::from(&cx.held));
+                    sel.reduced = Some(red);
+                }
+                Err(e) => rep.notes.push(format!("poly: terms not reduced ({e})")),
+            }
             rep.poly_selection = Some(sel);
             Some(pick)
         }

@@ -3,31 +3,18 @@
 //! paper's monomials `vⁱ v̇ʲ` (Table II, multivariate polynomial), so a fit in it is the paper's
 //! model, but its columns are nearly orthogonal on a protocol's data where raw `v⁷` would not be.
 
-/// Chebyshev tensor basis of shape (n, m) with its input scaling.
+use crate::poly::{PolyError, Scaling};
+
+/// Chebyshev tensor basis of shape (n, m) with its input scaling (the crate's one
+/// [`Scaling`]: `x = (v − v_offset)/v_scale`, `y = (v̇ − f_offset)/f_scale`).
 #[derive(Clone, Debug, PartialEq)]
 pub struct PolyBasis {
     /// Highest degree in volume.
     pub n: usize,
     /// Highest degree in flow.
     pub m: usize,
-    /// `x = (v − v_offset)/v_scale`.
-    pub v_offset: f64,
-    /// Half the volume range (mm³).
-    pub v_scale: f64,
-    /// `y = (v̇ − f_offset)/f_scale`.
-    pub f_offset: f64,
-    /// Half the flow range (mm³/s).
-    pub f_scale: f64,
-}
-
-fn half_range(x: &[f64]) -> (f64, f64) {
-    let (lo, hi) = x
-        .iter()
-        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &v| {
-            (lo.min(v), hi.max(v))
-        });
-    let half = 0.5 * (hi - lo);
-    (0.5 * (hi + lo), if half > 0.0 { half } else { 1.0 })
+    /// The map of volume and flow onto [−1, 1].
+    pub scaling: Scaling,
 }
 
 /// `T_0(x) … T_deg(x)` into `out[..=deg]`: the crate's one evaluator, [`crate::poly::chebyshev`].
@@ -52,18 +39,15 @@ fn chebyshev_columns(x: &[f64], offset: f64, scale: f64, deg: usize) -> Vec<Vec<
 }
 
 impl PolyBasis {
-    /// Basis with the scaling that maps the given data's ranges onto [−1, 1].
-    pub fn for_data(v: &[f64], vdot: &[f64], n: usize, m: usize) -> Self {
-        let (v_offset, v_scale) = half_range(v);
-        let (f_offset, f_scale) = half_range(vdot);
-        Self {
+    /// Basis with the scaling that maps the given data's ranges onto [−1, 1]
+    /// ([`Scaling::from_data`]: an error on constant volume or flow, no data or non-finite
+    /// values).
+    pub fn for_data(v: &[f64], vdot: &[f64], n: usize, m: usize) -> Result<Self, PolyError> {
+        Ok(Self {
             n,
             m,
-            v_offset,
-            v_scale,
-            f_offset,
-            f_scale,
-        }
+            scaling: Scaling::from_data(v, vdot)?,
+        })
     }
 
     /// Number of columns, (n + 1)(m + 1).
@@ -84,8 +68,8 @@ impl PolyBasis {
     /// Columns (column-major) evaluated on the given inputs.
     pub fn columns(&self, v: &[f64], vdot: &[f64]) -> Vec<Vec<f64>> {
         // Column-wise (each loop a plain vectorisable pass; the same operations as `chebyshev`).
-        let tx = chebyshev_columns(v, self.v_offset, self.v_scale, self.n);
-        let ty = chebyshev_columns(vdot, self.f_offset, self.f_scale, self.m);
+        let tx = chebyshev_columns(v, self.scaling.v_offset, self.scaling.v_scale, self.n);
+        let ty = chebyshev_columns(vdot, self.scaling.f_offset, self.scaling.f_scale, self.m);
         let mut cols = Vec::with_capacity(self.len());
         for a in &tx {
             for b in &ty {
@@ -106,8 +90,8 @@ impl PolyBasis {
         dy: usize,
     ) -> (Vec<Vec<f64>>, Vec<Vec<f64>>) {
         (
-            chebyshev_columns(v, self.v_offset, self.v_scale, dx),
-            chebyshev_columns(vdot, self.f_offset, self.f_scale, dy),
+            chebyshev_columns(v, self.scaling.v_offset, self.scaling.v_scale, dx),
+            chebyshev_columns(vdot, self.scaling.f_offset, self.scaling.f_scale, dy),
         )
     }
 
@@ -115,8 +99,9 @@ impl PolyBasis {
     pub fn eval(&self, beta: &[f64], v: f64, vdot: f64) -> f64 {
         let mut tx = [0.0; 16];
         let mut ty = [0.0; 16];
-        chebyshev((v - self.v_offset) / self.v_scale, self.n, &mut tx);
-        chebyshev((vdot - self.f_offset) / self.f_scale, self.m, &mut ty);
+        let (x, y) = self.scaling.apply(v, vdot);
+        chebyshev(x, self.n, &mut tx);
+        chebyshev(y, self.m, &mut ty);
         let mut s = 0.0;
         for i in 0..=self.n {
             for j in 0..=self.m {
@@ -130,20 +115,44 @@ impl PolyBasis {
     /// volume half-range: the model is a polynomial of degree ≤ 15, so the truncation error,
     /// ~h²·P‴/6, is far below any noise).
     pub fn stiffness(&self, beta: &[f64], v: f64, vdot: f64) -> f64 {
-        let h = 1e-4 * self.v_scale;
+        let h = 1e-4 * self.scaling.v_scale;
         (self.eval(beta, v + h, vdot) - self.eval(beta, v - h, vdot)) / (2.0 * h)
     }
 
     /// Damping `∂P/∂v̇` of `Σ β T_i T_j` at one point (central difference over 10⁻⁴ of the flow
     /// half-range: exact to rounding for a polynomial of degree ≤ 2 in v̇, and far below noise above).
     pub fn damping(&self, beta: &[f64], v: f64, vdot: f64) -> f64 {
-        let h = 1e-4 * self.f_scale;
+        let h = 1e-4 * self.scaling.f_scale;
         (self.eval(beta, v, vdot + h) - self.eval(beta, v, vdot - h)) / (2.0 * h)
     }
 }
 
 #[cfg(test)]
 mod tests {
+    use crate::poly::PolyError;
+
+    /// One scaling for the crate: the residual basis refuses what the polynomial fit refuses
+    /// (it once fell back to a scale of 1.0 on constant data) and maps data exactly as it does.
+    #[test]
+    fn the_basis_scales_as_the_polynomial_fit_does() {
+        let v = [10.0, 10.0, 10.0];
+        let f = [-5.0, 0.0, 5.0];
+        assert_eq!(
+            PolyBasis::for_data(&v, &f, 3, 2),
+            Err(PolyError::ConstantVolume { value: 10.0 })
+        );
+        assert_eq!(
+            PolyBasis::for_data(&f, &[0.0; 3], 3, 2),
+            Err(PolyError::ZeroFlow)
+        );
+        let v = [0.0, 100.0, 550.0];
+        let b = PolyBasis::for_data(&v, &f, 3, 2).unwrap();
+        // The volume range [0, 550] onto [−1, 1] by hand: centre 275, half-width 275.
+        assert_eq!(b.scaling.apply(550.0, 5.0), (1.0, 1.0));
+        assert_eq!(b.scaling.apply(0.0, -5.0), (-1.0, -1.0));
+        assert_eq!(b.scaling.v_offset, 275.0);
+    }
+
     use super::*;
 
     #[test]
@@ -163,10 +172,12 @@ mod tests {
         let b = PolyBasis {
             n: 3,
             m: 2,
-            v_offset: 275.0,
-            v_scale: 275.0,
-            f_offset: 0.0,
-            f_scale: 100.0,
+            scaling: Scaling {
+                v_offset: 275.0,
+                v_scale: 275.0,
+                f_offset: 0.0,
+                f_scale: 100.0,
+            },
         };
         let v = [0.0, 100.0, 300.0, 550.0];
         let f = [-100.0, 20.0, 0.0, 60.0];
@@ -188,10 +199,12 @@ mod tests {
         let b = PolyBasis {
             n: 1,
             m: 2,
-            v_offset: 0.0,
-            v_scale: 1.0,
-            f_offset: 0.0,
-            f_scale: 1.0,
+            scaling: Scaling {
+                v_offset: 0.0,
+                v_scale: 1.0,
+                f_offset: 0.0,
+                f_scale: 1.0,
+            },
         };
         // P = T0(x)T2(y) = 2y² − 1 → ∂P/∂y = 4y.
         let beta = [0.0, 0.0, 1.0, 0.0, 0.0, 0.0];

@@ -372,16 +372,18 @@ pub fn device_model_with(
             .map(|k| (series.vdot[k] - series.vdot[k - 1]) / dt)
             .collect();
     }
-    let mut prep = Prepared::new(dev, n, m);
     // Round the scaling to f32 first, so host and device scale the inputs identically.
     let r = |x: f64| f64::from(x as f32);
-    prep.basis = PolyBasis {
-        v_offset: r(prep.basis.v_offset),
-        v_scale: r(prep.basis.v_scale),
-        f_offset: r(prep.basis.f_offset),
-        f_scale: r(prep.basis.f_scale),
-        ..prep.basis
+    let mut basis = PolyBasis::for_data(&dev.v, &dev.vdot, n, m)
+        .map_err(|e| ExportError::Degenerate(e.to_string()))?;
+    let sc = basis.scaling;
+    basis.scaling = crate::poly::Scaling {
+        v_offset: r(sc.v_offset),
+        v_scale: r(sc.v_scale),
+        f_offset: r(sc.f_offset),
+        f_scale: r(sc.f_scale),
     };
+    let prep = Prepared::new(dev, basis);
     let mut effects: Vec<Effect> = carry.iter().map(|&k| Effect::new(k, 0.0)).collect();
     effects.extend(chain.iter().map(|e| from_row(e, k0)));
     device_form(&prep, &mut effects, carry.len());
@@ -407,16 +409,11 @@ pub fn device_model_with(
     let mut ar = Vec::new();
     if let Some(l) = l {
         // γ·y(t) − γ·y(t−1), γ = L·f_s/Δt (module docs); index 1 is b_01, the v̇-linear term.
-        let gamma = l * basis.f_scale / dt;
+        let gamma = l * basis.scaling.f_scale / dt;
         power[1] += gamma;
         ar.push([0.0, -gamma]);
     }
-    let scaling = crate::poly::Scaling {
-        v_offset: basis.v_offset,
-        v_scale: basis.v_scale,
-        f_offset: basis.f_offset,
-        f_scale: basis.f_scale,
-    };
+    let scaling = basis.scaling;
     let model = crate::poly::to_model_core(n, m, &power, &ar, &scaling)
         .map_err(|e| ExportError::Device(e.to_string()))?;
     Ok(DeviceModel {

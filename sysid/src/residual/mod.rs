@@ -453,7 +453,9 @@ pub fn diagnose(series: Series, cfg: &Config) -> Result<Diagnosis, DiagnoseError
     }
     let say = |what: &str| tell(cfg.progress, Progress::Stage { what, total: 0 });
     say("baseline fit");
-    let mut prep = effects::Prepared::new(series, cfg.n, cfg.m);
+    let basis = PolyBasis::for_data(&series.v, &series.vdot, cfg.n, cfg.m)
+        .map_err(|e| DiagnoseError::Degenerate(e.to_string()))?;
+    let mut prep = effects::Prepared::new(series, basis);
     prep.gate = effects::DesignGate::new(cfg.design_memory);
     let baseline = select::fit_stage(&prep, &[]).ok_or_else(|| {
         DiagnoseError::Degenerate(

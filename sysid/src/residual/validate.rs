@@ -74,8 +74,7 @@ const CLOCK_BOUND: [&str; 3] = ["offset_drift", "volume_drift", "ripple"];
 /// Evaluates `d`'s models on `series` (another log's chamber, named `log`).
 pub fn validate(d: &Diagnosis, series: Series, log: String) -> Result<Validation, DiagnoseError> {
     let samples = series.len();
-    let mut prep = Prepared::new(series, d.baseline.n, d.baseline.m);
-    prep.basis = d.basis.clone();
+    let prep = Prepared::new(series, d.basis.clone());
     let rmse: Vec<f64> = d.models.iter().map(|m| rmse_on(&prep, m)).collect();
     let (Some(&baseline_rmse), Some(&final_rmse)) = (rmse.first(), rmse.last()) else {
         return Err(DiagnoseError::Degenerate(

@@ -5,7 +5,7 @@ use crate::opts::{family_parser, num, opt, LogInput, OutputOpts};
 use crate::Error;
 use sysid::identify::{self, ChamberReport, Family, ModelRow, Options};
 use sysid::metrics::CostWeights;
-use sysid::select::{BlockKind, Selection, Shape};
+use sysid::select::{BlockKind, Reduction, Selection, Shape};
 
 /// Identify volume-flow-pressure models from a log (Tables I, II and IV of the paper).
 #[derive(Debug, Clone, clap::Args)]
@@ -338,6 +338,24 @@ fn render_selection(sel: &Selection) -> String {
         sel.folds,
         pick(&sel.aicc_pick),
         pick(&sel.joint_cost_pick),
+    ) + &sel.reduced.as_ref().map_or(String::new(), render_reduction)
+}
+
+/// The selected shape's terms reduced by the selection's rule: what `vfp export` exports.
+fn render_reduction(r: &Reduction) -> String {
+    let dropped = if r.dropped.is_empty() {
+        "none".to_string()
+    } else {
+        r.dropped.join(", ")
+    };
+    format!(
+        "  terms: {} of {} kept (fewest within one paired SE of the lowest cross-validated error, \
+         {} kPa): cross-validated RMSE {} kPa, held-out {} kPa; dropped {dropped}\n",
+        r.nu,
+        r.active.len(),
+        num(r.cv_lowest_rmse),
+        num(r.cv_rmse),
+        opt(r.rmse_heldout),
     )
 }
 

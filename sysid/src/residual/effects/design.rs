@@ -108,9 +108,8 @@ impl Prepared {
 }
 
 impl Prepared {
-    /// Prepares a series for a baseline of shape (n, m).
-    pub fn new(series: Series, n: usize, m: usize) -> Self {
-        let basis = PolyBasis::for_data(&series.v, &series.vdot, n, m);
+    /// Prepares a series for a baseline `basis` (usually [`PolyBasis::for_data`] on the series).
+    pub fn new(series: Series, basis: PolyBasis) -> Self {
         // Unsmoothed: noise enters δ and τ only through factors ≪ 1 (V_a/P_atm·σ), while smoothing
         // would blur the pressure jumps at reversals where the air pocket matters most.
         let p_sched = series.p.clone();
@@ -125,7 +124,7 @@ impl Prepared {
         let mut dts: Vec<f64> = series.t.windows(2).map(|w| w[1] - w[0]).collect();
         dts.sort_by(f64::total_cmp);
         let dt = dts[dts.len() / 2];
-        let v_range = 2.0 * basis.v_scale;
+        let v_range = 2.0 * basis.scaling.v_scale;
         let p_integral = *p_int.last().unwrap_or(&0.0);
         let train_rows = (0..series.len()).filter(|&k| series.train[k]).collect();
         let held_rows = (0..series.len()).filter(|&k| !series.train[k]).collect();
@@ -296,7 +295,7 @@ pub fn sse_structured(prep: &Prepared, effects: &[Effect]) -> Option<f64> {
     // whatever the affine scaling, and so is the SSE; scaling onto the transformed inputs' own
     // range keeps the Gram matrix well conditioned when a transform (leak, drift) moves them
     // outside the baseline's [−1, 1].
-    let b = &PolyBasis::for_data(&v, &f, prep.basis.n, prep.basis.m);
+    let b = &PolyBasis::for_data(&v, &f, prep.basis.n, prep.basis.m).ok()?;
     let (mut extra, mut labels, mut owner) = (Vec::new(), Vec::new(), Vec::new());
     added_and_filters(prep, effects, &mut extra, &mut labels, &mut owner);
     let extra: Vec<Vec<f64>> = extra.iter().map(|c| gather(c)).collect();
@@ -396,7 +395,9 @@ mod tests {
             .map(|k| 2.0 + 0.01 * v[k] + 0.002 * f[k] + 0.05 * (1.7 * t[k]).sin())
             .collect();
         let train: Vec<bool> = (0..len).map(|k| (k / 300) % 5 != 4).collect();
-        Prepared::new(Series::new(t, v, f, p, train).unwrap(), 3, 2)
+        let series = Series::new(t, v, f, p, train).unwrap();
+        let basis = PolyBasis::for_data(&series.v, &series.vdot, 3, 2).unwrap();
+        Prepared::new(series, basis)
     }
 
     #[test]

@@ -36,7 +36,7 @@ impl EffectModel for Hysteresis {
         let hx: Vec<f64> = h
             .iter()
             .zip(v)
-            .map(|(h, v)| h * (v - prep.basis.v_offset) / prep.basis.v_scale)
+            .map(|(h, v)| h * (v - prep.basis.scaling.v_offset) / prep.basis.scaling.v_scale)
             .collect();
         vec![
             Column::new(h, "hysteresis h_w"),
