@@ -25,6 +25,9 @@ use crate::linreg::{self, CoefStat, FitError};
 use crate::metrics::{self, Metrics};
 use nalgebra::{DMatrix, DVector};
 
+/// Samples per block of [`Moments`]' gathering (its matrix products).
+const GATHER_ROWS: usize = 256;
+
 /// Highest degree in v or v̇ the sweep supports (the paper's 7).
 pub const MAX_DEGREE: usize = 7;
 const K: usize = 2 * MAX_DEGREE + 1;
@@ -731,36 +734,52 @@ impl Moments {
         }
     }
 
+    /// Σ T_r(x)T_s(y), Σ Tᵢ(x)Tⱼ(y)(P − centre) and Σ (P − centre)² over `range`, in one thread.
+    /// A block of [`GATHER_ROWS`] samples at a time: the Chebyshev values of x (K × rows) and of y
+    /// with y·(P − centre) beside them (rows × (K + MAX_DEGREE + 1)) are filled, and one matrix
+    /// product adds all their cross sums (nalgebra's `gemm`, vectorised by `matrixmultiply`).
     fn gather_serial(
         data: Xy,
         scaling: &Scaling,
         centre: f64,
         range: std::ops::Range<usize>,
     ) -> Moments {
+        const W: usize = K + MAX_DEGREE + 1;
+        let mut acc = DMatrix::<f64>::zeros(K, W);
+        let mut tx = DMatrix::<f64>::zeros(K, GATHER_ROWS);
+        let mut ty = DMatrix::<f64>::zeros(GATHER_ROWS, W);
+        let mut yy = 0.0;
+        let mut t = [0.0f64; K];
+        let mut start = range.start;
+        while start < range.end {
+            let rows = GATHER_ROWS.min(range.end - start);
+            for k in 0..rows {
+                let r = start + k;
+                let (x, y) = scaling.apply(data.v[r], data.vdot[r]);
+                chebyshev(x, tx.column_mut(k).as_mut_slice());
+                chebyshev(y, &mut t);
+                let p = data.p[r] - centre;
+                yy += p * p;
+                for (s, &u) in t.iter().enumerate() {
+                    ty[(k, s)] = u;
+                }
+                for (s, &u) in t[..=MAX_DEGREE].iter().enumerate() {
+                    ty[(k, K + s)] = u * p;
+                }
+            }
+            acc.gemm(1.0, &tx.columns(0, rows), &ty.rows(0, rows), 1.0);
+            start += rows;
+        }
         let mut mu = [[0.0f64; K]; K];
         let mut b = [[0.0f64; MAX_DEGREE + 1]; MAX_DEGREE + 1];
-        let mut yy = 0.0;
-        let mut tx = [0.0f64; K];
-        let mut ty = [0.0f64; K];
-        for r in range {
-            let (x, y) = scaling.apply(data.v[r], data.vdot[r]);
-            chebyshev(x, &mut tx);
-            chebyshev(y, &mut ty);
-            let p = data.p[r] - centre;
-            yy += p * p;
-            for (row, &t) in mu.iter_mut().zip(&tx) {
-                for (acc, &u) in row.iter_mut().zip(&ty) {
-                    *acc += t * u;
-                }
+        for (r, row) in mu.iter_mut().enumerate() {
+            for (s, x) in row.iter_mut().enumerate() {
+                *x = acc[(r, s)];
             }
-            let mut typ = [0.0f64; MAX_DEGREE + 1];
-            for (o, &u) in typ.iter_mut().zip(&ty) {
-                *o = u * p;
-            }
-            for (row, &t) in b.iter_mut().zip(&tx) {
-                for (acc, &u) in row.iter_mut().zip(&typ) {
-                    *acc += t * u;
-                }
+        }
+        for (i, row) in b.iter_mut().enumerate() {
+            for (j, x) in row.iter_mut().enumerate() {
+                *x = acc[(i, K + j)];
             }
         }
         Moments {
@@ -792,9 +811,28 @@ impl Moments {
     /// SSE of Chebyshev coefficients `c` (for centred pressure) on these data: yy − 2cᵀb + cᵀGc,
     /// clamped at zero.
     pub fn sse(&self, n: usize, m: usize, c: &DVector<f64>) -> f64 {
-        let g = self.gram(n, m);
-        let b = self.xty(n, m);
-        (self.yy - 2.0 * c.dot(&b) + c.dot(&(&g * c))).max(0.0)
+        // cᵀGc straight from the moments (no Gram matrix built): G's entry for (i, j), (k, l) is
+        // ¼(μ[i+k][j+l] + μ[i+k][|j−l|] + μ[|i−k|][j+l] + μ[|i−k|][|j−l|]).
+        let w = m + 1;
+        let mut quad = 0.0;
+        let mut lin = 0.0;
+        for i in 0..=n {
+            for j in 0..=m {
+                lin += c[i * w + j] * self.b[i][j];
+            }
+            for k in 0..=n {
+                let (sum, diff) = (&self.mu[i + k], &self.mu[i.abs_diff(k)]);
+                for j in 0..=m {
+                    let mut acc = 0.0;
+                    for l in 0..=m {
+                        let (sy, dy) = (j + l, j.abs_diff(l));
+                        acc += c[k * w + l] * (sum[sy] + sum[dy] + diff[sy] + diff[dy]);
+                    }
+                    quad += c[i * w + j] * acc;
+                }
+            }
+        }
+        (self.yy - 2.0 * lin + 0.25 * quad).max(0.0)
     }
 }
 
