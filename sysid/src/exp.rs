@@ -604,9 +604,26 @@ struct Projected {
 
 impl Projected {
     fn new(red: &Reduced) -> Self {
+        let (g, by) = Self::gram(red);
+        let (to_q, y_q, theta_s) = Self::whiten(g, &by);
+        let nodes = CHEB_DEGREE + 1;
+        let theta = |j: usize| std::f64::consts::PI * (j as f64 + 0.5) / nodes as f64;
+        let cos = DMatrix::from_fn(nodes, nodes, |n, j| (n as f64 * theta(j)).cos());
+        let nodes_u = (0..nodes).map(|j| 0.5 * (theta(j).cos() + 1.0)).collect();
+        Projected {
+            to_q,
+            y_q,
+            unreachable: Self::unreachable(red, &theta_s),
+            cos,
+            nodes_u,
+        }
+    }
+
+    /// The Gram matrix G of B = [T₀..T_D, v̇] on the grouped rows and Bᵀy, from one pass:
+    /// Σ n T_d (d ≤ 2D), Σ n v̇ T_d, Σ n P T_d (d ≤ D), and the v̇, P products.
+    fn gram(red: &Reduced) -> (DMatrix<f64>, DVector<f64>) {
         const D: usize = CHEB_DEGREE;
-        let nb = D + 2; // T₀..T_D and v̇
-                        // One pass: Σ n T_d (d ≤ 2D), Σ n v̇ T_d, Σ n P T_d (d ≤ D), and the v̇, P products.
+        let nb = D + 2;
         let mut m = vec![0.0; 2 * D + 1];
         let (mut mq, mut mp) = (vec![0.0; D + 1], vec![0.0; D + 1]);
         let (mut qq, mut qp) = (red.svv, red.svp);
@@ -635,8 +652,16 @@ impl Projected {
             g[(D + 1, a)] = mq[a];
         }
         g[(D + 1, D + 1)] = qq;
-        let mut by = DVector::<f64>::from_iterator(nb, mp.iter().copied().chain([qp]));
-        // Unit-diagonal scaling, then eigen-decomposition: Q = B S⁻¹ V Λ^{−1/2}.
+        let by = DVector::<f64>::from_iterator(nb, mp.iter().copied().chain([qp]));
+        (g, by)
+    }
+
+    /// Unit-diagonal scaling, then eigen-decomposition of G: the map to the orthonormal
+    /// coordinates, Q = B S⁻¹ V Λ^{−1/2} (directions with eigenvalue below 10⁻¹³ of the largest
+    /// dropped), y's coordinates in Q, and θ_S, the least-squares coefficients of y on B.
+    fn whiten(mut g: DMatrix<f64>, by: &DVector<f64>) -> (DMatrix<f64>, DVector<f64>, Vec<f64>) {
+        let nb = g.nrows();
+        let mut by = by.clone();
         let sc: Vec<f64> = (0..nb)
             .map(|i| {
                 let d = g[(i, i)];
@@ -660,7 +685,6 @@ impl Projected {
             .collect();
         let mut to_q = DMatrix::<f64>::zeros(keep.len(), nb);
         let mut y_q = DVector::<f64>::zeros(keep.len());
-        // θ_S: least-squares coefficients of y on S, for the directly computed residual.
         let mut theta_s = vec![0.0; nb];
         for (r, &i) in keep.iter().enumerate() {
             let (l, vi) = (eig.eigenvalues[i], eig.eigenvectors.column(i));
@@ -673,7 +697,13 @@ impl Projected {
                 theta_s[c] += vi[c] * z / sc[c];
             }
         }
-        // ‖y − B θ_S‖² on the grouped rows (Clenshaw for the Chebyshev part) and the γ row.
+        (to_q, y_q, theta_s)
+    }
+
+    /// ‖y − B θ_S‖² on the grouped rows (Clenshaw for the Chebyshev part) and the γ row: the
+    /// part of the error no model in the span can remove.
+    fn unreachable(red: &Reduced, theta_s: &[f64]) -> f64 {
+        const D: usize = CHEB_DEGREE;
         let mut unreachable = 0.0;
         for j in 0..red.len() {
             let x = 2.0 * red.u[j] - 1.0;
@@ -689,17 +719,7 @@ impl Projected {
         }
         let gamma_s = theta_s[D + 1];
         unreachable += gamma_s * gamma_s * red.svv - 2.0 * gamma_s * red.svp + red.spp;
-        let nodes = D + 1;
-        let theta = |j: usize| std::f64::consts::PI * (j as f64 + 0.5) / nodes as f64;
-        let cos = DMatrix::from_fn(nodes, nodes, |n, j| (n as f64 * theta(j)).cos());
-        let nodes_u = (0..nodes).map(|j| 0.5 * (theta(j).cos() + 1.0)).collect();
-        Projected {
-            to_q,
-            y_q,
-            unreachable: unreachable.max(0.0),
-            cos,
-            nodes_u,
-        }
+        unreachable.max(0.0)
     }
 
     /// Coordinates in Q of the column whose values at the Chebyshev nodes are `f`.

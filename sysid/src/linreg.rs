@@ -136,6 +136,29 @@ pub fn lstsq(x: DMatrix<f64>, y: &[f64], names: &[String]) -> Result<LinearFit, 
     fits.pop().expect("one prefix requested")
 }
 
+/// Scales every column of `x` to unit norm (a zero column stays zero) and returns the factors;
+/// an error names the first non-finite entry.
+fn unit_columns(x: &mut DMatrix<f64>) -> Result<Vec<f64>, FitError> {
+    let mut scale = vec![0.0; x.ncols()];
+    for (j, s) in scale.iter_mut().enumerate() {
+        let col = x.column(j);
+        if let Some(index) = col.iter().position(|v| !v.is_finite()) {
+            return Err(FitError::NotFinite {
+                what: "design matrix",
+                index,
+            });
+        }
+        let norm = col.norm();
+        *s = if norm > 0.0 { 1.0 / norm } else { 0.0 };
+    }
+    for (j, &s) in scale.iter().enumerate() {
+        if s != 0.0 {
+            x.column_mut(j).scale_mut(s);
+        }
+    }
+    Ok(scale)
+}
+
 /// Least squares for each column prefix `x[.., ..q]`, q in `prefixes`, from one QR of `x`.
 /// The outer error concerns the data as a whole; a prefix that reaches a dependent column is an
 /// inner error while the shorter prefixes still fit.
@@ -161,23 +184,7 @@ pub fn lstsq_prefixes(
             index,
         });
     }
-    let mut scale = vec![0.0; nu];
-    for (j, s) in scale.iter_mut().enumerate() {
-        let col = x.column(j);
-        if let Some(index) = col.iter().position(|v| !v.is_finite()) {
-            return Err(FitError::NotFinite {
-                what: "design matrix",
-                index,
-            });
-        }
-        let norm = col.norm();
-        *s = if norm > 0.0 { 1.0 / norm } else { 0.0 };
-    }
-    for (j, &s) in scale.iter().enumerate() {
-        if s != 0.0 {
-            x.column_mut(j).scale_mut(s);
-        }
-    }
+    let scale = unit_columns(&mut x)?;
     let qr = x.qr();
     let r = qr.r();
     // Columns have unit norm, so |Rⱼⱼ| is the part of column j not explained by columns < j.

@@ -104,6 +104,25 @@ fn design_row(ds: &Dataset, sc: &Scaling, n: usize, m: usize, p: usize, i: usize
     }
 }
 
+/// Names of the design's `width` columns: the `base` Chebyshev products of the (·, m) polynomial,
+/// then v(t−k), v̇(t−k) for k = 1, 2, ….
+fn column_names(m: usize, base: usize, width: usize) -> Vec<String> {
+    (0..width)
+        .map(|c| {
+            if c < base {
+                format!("T{}(x)T{}(y)", c / (m + 1), c % (m + 1))
+            } else {
+                let k = (c - base) / 2 + 1;
+                if (c - base).is_multiple_of(2) {
+                    format!("v(t-{k})")
+                } else {
+                    format!("vdot(t-{k})")
+                }
+            }
+        })
+        .collect()
+}
+
 /// Fits orders p = 0..=p_max of the (n, m) polynomial with AR inputs on the dataset's training
 /// rows and scores each on its held-out rows.
 /// The outer error concerns the data as a whole; an order whose lag columns are not identifiable
@@ -140,20 +159,7 @@ pub fn sweep(
     };
     let x = build(&train_rows);
     let y: Vec<f64> = train_rows.iter().map(|&i| ds.p[i]).collect();
-    let names: Vec<String> = (0..width)
-        .map(|c| {
-            if c < base {
-                format!("T{}(x)T{}(y)", c / (m + 1), c % (m + 1))
-            } else {
-                let k = (c - base) / 2 + 1;
-                if (c - base).is_multiple_of(2) {
-                    format!("v(t-{k})")
-                } else {
-                    format!("vdot(t-{k})")
-                }
-            }
-        })
-        .collect();
+    let names = column_names(m, base, width);
     let prefixes: Vec<usize> = (0..=p_max).map(|p| base + 2 * p).collect();
     let fits = linreg::lstsq_prefixes(x.clone(), &y, &names, &prefixes)
         .map_err(|source| PolyError::Fit { n, m, source })?;

@@ -228,12 +228,10 @@ pub fn export_dataset(
     augmented_export(super::series_from_dataset(ds)?, cfg)
 }
 
-/// Exports the model of a finished diagnosis of `series` (the same series it was run on).
-pub fn from_diagnosis(
-    diagnosis: Diagnosis,
-    series: &Series,
-) -> Result<AugmentedExport, ExportError> {
-    let (n, m) = (diagnosis.baseline.n, diagnosis.baseline.m);
+/// The diagnosis' kept effects sorted by how the device takes them: folded into the polynomial
+/// (`carry`), run in the board's chain (with the loop's searched θ, at most
+/// [`model_core::chain::MAX_EFFECTS`]), or left on the host with the reason.
+fn sort_for_device(diagnosis: &Diagnosis) -> (Vec<EffectKind>, Vec<Effect>, Vec<Dropped>) {
     let mut carry = Vec::new();
     let mut chain = Vec::new();
     let mut dropped = Vec::new();
@@ -270,6 +268,16 @@ pub fn from_diagnosis(
             });
         }
     }
+    (carry, chain, dropped)
+}
+
+/// Exports the model of a finished diagnosis of `series` (the same series it was run on).
+pub fn from_diagnosis(
+    diagnosis: Diagnosis,
+    series: &Series,
+) -> Result<AugmentedExport, ExportError> {
+    let (n, m) = (diagnosis.baseline.n, diagnosis.baseline.m);
+    let (carry, chain, dropped) = sort_for_device(&diagnosis);
     let device = device_model_with(series, n, m, &carry, &chain)?;
     let mut carried: Vec<Carried> = device
         .host
@@ -359,31 +367,7 @@ pub fn device_model_with(
     // firmware reports no estimate before its history holds one frame.
     let first_row = usize::from(inertance);
     let k0 = first_row;
-    let mut dev = Series::new(
-        series.t[k0..].to_vec(),
-        series.v[k0..].to_vec(),
-        series.vdot[k0..].to_vec(),
-        series.p[k0..].to_vec(),
-        series.train[k0..].to_vec(),
-    )?;
-    if inertance {
-        // The backward difference at the frame interval: what the device can compute.
-        dev.vddot = (k0..series.len())
-            .map(|k| (series.vdot[k] - series.vdot[k - 1]) / dt)
-            .collect();
-    }
-    // Round the scaling to f32 first, so host and device scale the inputs identically.
-    let r = |x: f64| f64::from(x as f32);
-    let mut basis = PolyBasis::for_data(&dev.v, &dev.vdot, n, m)
-        .map_err(|e| ExportError::Degenerate(e.to_string()))?;
-    let sc = basis.scaling;
-    basis.scaling = crate::poly::Scaling {
-        v_offset: r(sc.v_offset),
-        v_scale: r(sc.v_scale),
-        f_offset: r(sc.f_offset),
-        f_scale: r(sc.f_scale),
-    };
-    let prep = Prepared::new(dev, basis);
+    let prep = device_prepared(series, n, m, k0, inertance.then_some(dt))?;
     let mut effects: Vec<Effect> = carry.iter().map(|&k| Effect::new(k, 0.0)).collect();
     effects.extend(chain.iter().map(|e| from_row(e, k0)));
     device_form(&prep, &mut effects, carry.len());
@@ -428,6 +412,41 @@ pub fn device_model_with(
         refit,
         first_row,
     })
+}
+
+/// The series from row `k0` on, prepared with the (n, m) basis whose scaling is rounded to f32 (so
+/// host and device scale the inputs identically); with `backward_dt`, v̈ is the backward
+/// difference of v̇ at that frame interval, what the device can compute.
+fn device_prepared(
+    series: &Series,
+    n: usize,
+    m: usize,
+    k0: usize,
+    backward_dt: Option<f64>,
+) -> Result<Prepared, ExportError> {
+    let mut dev = Series::new(
+        series.t[k0..].to_vec(),
+        series.v[k0..].to_vec(),
+        series.vdot[k0..].to_vec(),
+        series.p[k0..].to_vec(),
+        series.train[k0..].to_vec(),
+    )?;
+    if let Some(dt) = backward_dt {
+        dev.vddot = (k0..series.len())
+            .map(|k| (series.vdot[k] - series.vdot[k - 1]) / dt)
+            .collect();
+    }
+    let r = |x: f64| f64::from(x as f32);
+    let mut basis = PolyBasis::for_data(&dev.v, &dev.vdot, n, m)
+        .map_err(|e| ExportError::Degenerate(e.to_string()))?;
+    let sc = basis.scaling;
+    basis.scaling = crate::poly::Scaling {
+        v_offset: r(sc.v_offset),
+        v_scale: r(sc.v_scale),
+        f_offset: r(sc.f_offset),
+        f_scale: r(sc.f_scale),
+    };
+    Ok(Prepared::new(dev, basis))
 }
 
 /// The chain effects whose θ the export searches again in the board's form: the lags, whose

@@ -387,19 +387,24 @@ pub fn pump_ripple_periods(prep: &Prepared, resid: &[f64], k: &[f64], c: &[f64])
             (a11 * g0 * g0 - 2.0 * a01 * g0 * g1 + a00 * g1 * g1) / det
         });
     }
+    Scan {
+        starts: top_periods(&power, k_lo, dk),
+        step: dk,
+    }
+}
+
+/// The periods 1/κ of the three highest local maxima of `power` on the grid κ = k_lo + i·dk,
+/// highest first.
+fn top_periods(power: &[f64], k_lo: f64, dk: f64) -> Vec<f64> {
     let mut peaks: Vec<usize> = (1..power.len().saturating_sub(1))
         .filter(|&i| power[i] > power[i - 1] && power[i] >= power[i + 1])
         .collect();
     peaks.sort_by(|&a, &b| power[b].total_cmp(&power[a]));
-    let periods = peaks
+    peaks
         .into_iter()
         .take(3)
         .map(|i| 1.0 / (k_lo + i as f64 * dk))
-        .collect();
-    Scan {
-        starts: periods,
-        step: dk,
-    }
+        .collect()
 }
 
 /// Most spatial frequencies the pump-ripple periodogram scans.
