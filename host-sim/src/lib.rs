@@ -40,9 +40,11 @@ pub mod scenario;
 pub mod sim;
 
 pub use law::Design;
-pub use plant::{ChamberTruth, Effects, ForcePush, PlantConfig, SensorSpec, EFFECT_PRESETS};
+pub use plant::{
+    ChamberTruth, Effects, ForcePush, NoiseTails, PlantConfig, SensorSpec, EFFECT_PRESETS,
+};
 pub use scenario::{
-    FaultInjection, PresetOptions, Protocol, Scenario, SerialFault, SerialFaultKind,
+    FaultInjection, PresetOptions, Protocol, Scenario, SerialFault, SerialFaultKind, Strokes,
     TelemetryStall, TimedCommand,
 };
 pub use sim::{simulate, simulate_with, FrameTruth, LogRow, RunStats, SimRun, LOG_COLUMNS};

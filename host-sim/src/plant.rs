@@ -231,6 +231,31 @@ pub struct SensorSpec {
     pub noise_kpa: f64,
     /// Zero offset of each sensor, kPa (within the ±1 %FS of an amplified gauge sensor).
     pub offset_kpa: [f64; CHAMBERS],
+    /// The noise's shape beyond its Gaussian core (default: Gaussian).
+    pub tails: NoiseTails,
+}
+
+/// The shape of the sensor noise at each ADC conversion: Gaussian of σ = `noise_kpa` by default,
+/// or heavier-tailed, as a sensor with a loose connector or a noisy supply gives.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+pub enum NoiseTails {
+    /// Gaussian, σ = `noise_kpa`.
+    #[default]
+    Gaussian,
+    /// Student's t with `dof` degrees of freedom times `noise_kpa` (variance
+    /// noise²·dof/(dof − 2); `dof` > 2).
+    StudentT {
+        /// Degrees of freedom.
+        dof: f64,
+    },
+    /// The Gaussian plus, on a `fraction` of the conversions, a spike of ±`size_kpa` (random sign).
+    Spikes {
+        /// Share of conversions spiked, 0..=1.
+        fraction: f64,
+        /// Height of a spike, kPa.
+        size_kpa: f64,
+    },
 }
 
 impl Default for SensorSpec {
@@ -238,6 +263,7 @@ impl Default for SensorSpec {
         Self {
             noise_kpa: 0.05,
             offset_kpa: [0.42, -0.31, 0.18],
+            tails: NoiseTails::Gaussian,
         }
     }
 }
@@ -437,6 +463,26 @@ impl PlantConfig {
         )?;
         let s = &self.sensor;
         check("sensor.noise_kpa", s.noise_kpa, s.noise_kpa >= 0.0, nonneg)?;
+        match s.tails {
+            NoiseTails::Gaussian => {}
+            NoiseTails::StudentT { dof } => {
+                check("sensor.tails.dof", dof, dof > 2.0, "must be finite and > 2")?;
+            }
+            NoiseTails::Spikes { fraction, size_kpa } => {
+                check(
+                    "sensor.tails.fraction",
+                    fraction,
+                    (0.0..=1.0).contains(&fraction),
+                    "must be in 0..=1",
+                )?;
+                check(
+                    "sensor.tails.size_kpa",
+                    size_kpa,
+                    size_kpa.abs() < 50.0,
+                    "must be finite and within ±50 kPa",
+                )?;
+            }
+        }
         for &o in &s.offset_kpa {
             check(
                 "sensor.offset_kpa",
@@ -977,6 +1023,32 @@ impl Plant {
         self.ch[i].unplugged = unplugged;
     }
 
+    /// One conversion's noise on chamber `i`, kPa, of the sensor's [`NoiseTails`].
+    fn noise_sample(&mut self, i: usize) -> f64 {
+        use rand::RngExt;
+        let rng = &mut self.ch[i].rng;
+        match self.cfg.sensor.tails {
+            NoiseTails::Gaussian => self.noise.sample(rng),
+            NoiseTails::StudentT { dof } => {
+                // Validated: dof > 2.
+                let t = rand_distr::StudentT::new(dof).map_or(0.0, |d| d.sample(rng));
+                t * self.cfg.sensor.noise_kpa
+            }
+            NoiseTails::Spikes { fraction, size_kpa } => {
+                let n = self.noise.sample(rng);
+                if rng.random_bool(fraction) {
+                    n + if rng.random_bool(0.5) {
+                        size_kpa
+                    } else {
+                        -size_kpa
+                    }
+                } else {
+                    n
+                }
+            }
+        }
+    }
+
     /// Sensor output of chamber `i` in kPa (lagged pressure + offset + drift + noise); draws noise.
     fn sensor_kpa(&mut self, i: usize) -> f64 {
         let t = self.ch[i].t_us as f64 * 1e-6;
@@ -984,7 +1056,7 @@ impl Plant {
             Some(d) => d.offset_change_kpa * (1.0 - libm::exp(-t / d.time_constant_s)),
             None => 0.0,
         };
-        let n = self.noise.sample(&mut self.ch[i].rng);
+        let n = self.noise_sample(i);
         self.delayed_sensed(i) + self.cfg.sensor.offset_kpa[i] + drift + n
     }
 

@@ -265,6 +265,66 @@ impl Protocol {
     }
 }
 
+/// Irregular strokes, unlike the paper's protocol: `moves` moves of all three axes to random
+/// volumes in `v_low..=v_high`, each at a random flow in `flow_low..=flow_high` mm³/s, each
+/// followed by a random dwell of up to `dwell_max_s`; drawn from `seed`. The protocol's trajectory
+/// visits five flow levels, each on full strokes; these visit every flow, on strokes of every
+/// length, and rest at every volume.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Strokes {
+    /// Number of moves.
+    pub moves: usize,
+    /// Lowest target volume, mm³.
+    pub v_low: f64,
+    /// Highest target volume, mm³.
+    pub v_high: f64,
+    /// Slowest flow, mm³/s.
+    pub flow_low: f64,
+    /// Fastest flow, mm³/s.
+    pub flow_high: f64,
+    /// Longest dwell after a move, s.
+    pub dwell_max_s: f64,
+    /// Seed of the draws.
+    pub seed: u64,
+}
+
+impl Default for Strokes {
+    /// 120 moves over the paper's range and rates (0–550 mm³, 20–100 mm³/s), dwells up to 1 s.
+    fn default() -> Self {
+        Self {
+            moves: 120,
+            v_low: 0.0,
+            v_high: 550.0,
+            flow_low: 20.0,
+            flow_high: 100.0,
+            dwell_max_s: 1.0,
+            seed: 1,
+        }
+    }
+}
+
+impl Strokes {
+    /// The `move all V F` command lines, timed from [`START_S`]: each sent when the one before
+    /// has had time to finish (its length over its flow, plus 0.3 s for the ramps) and dwell;
+    /// and the time the last one is done, s.
+    pub fn commands(&self) -> (Vec<TimedCommand>, f64) {
+        use rand::{RngExt, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(self.seed);
+        let (mut t, mut v) = (START_S, 0.0f64);
+        let mut out = Vec::with_capacity(self.moves);
+        for _ in 0..self.moves {
+            let target = self.v_low + (self.v_high - self.v_low) * rng.random::<f64>();
+            let flow = self.flow_low + (self.flow_high - self.flow_low) * rng.random::<f64>();
+            let target = (target * 10.0).round() / 10.0;
+            let flow = (flow * 10.0).round() / 10.0;
+            out.push(TimedCommand::new(t, &format!("move all {target} {flow}")));
+            t += (target - v).abs() / flow + 0.3 + self.dwell_max_s * rng.random::<f64>();
+            v = target;
+        }
+        (out, t)
+    }
+}
+
 /// The settings of [`Scenario::preset`] beyond its name.
 #[derive(Debug, Clone, PartialEq)]
 pub struct PresetOptions {
@@ -391,6 +451,29 @@ impl Scenario {
             ),
             duration_s: START_S + 1.5 * protocol.duration_s() + 10.0,
             stop_on: Some("protocol-done".into()),
+            plant,
+            commands,
+            ..Self::default()
+        }
+    }
+
+    /// Run `strokes` on all three chambers of `plant` (see [`Strokes`]), ending 2 s after the
+    /// last move is done.
+    pub fn strokes(name: &str, plant: PlantConfig, strokes: &Strokes) -> Self {
+        let (commands, end) = strokes.commands();
+        Self {
+            name: name.into(),
+            description: format!(
+                "{} irregular strokes, {}–{} mm³ at {}–{} mm³/s, dwells up to {} s (seed {})",
+                strokes.moves,
+                strokes.v_low,
+                strokes.v_high,
+                strokes.flow_low,
+                strokes.flow_high,
+                strokes.dwell_max_s,
+                strokes.seed
+            ),
+            duration_s: end + 2.0,
             plant,
             commands,
             ..Self::default()

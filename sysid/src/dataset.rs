@@ -592,12 +592,11 @@ impl LogData {
             file: file.clone(),
             source,
         })?;
-        let mut rows = crate::log::LogReader::new(std::io::BufReader::new(f), &file, opts)?;
+        let rows = crate::log::LogReader::new(std::io::BufReader::new(f), &file, opts)?;
         let flags_col = rows.extra_columns().iter().position(|c| c == "flags");
-        while let Some(s) = rows.next_sample()? {
-            collect.push(&s, flags_col.map(|k| rows.extra_cell(k)));
-        }
-        collect.finish(rows.into_comments(), cfg)
+        let comments =
+            rows.for_each(|s, row| collect.push(s, flags_col.map(|k| row.extra_cell(k))))?;
+        collect.finish(comments, cfg)
     }
 
     /// The same for a log already parsed (`path` names it in messages and reports).

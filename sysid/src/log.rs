@@ -467,6 +467,135 @@ impl<R: BufRead> LogReader<R> {
     }
 }
 
+/// A row as [`LogReader::for_each`] hands it on, for its extra cells.
+pub struct Row<'a> {
+    rec: &'a csv::StringRecord,
+    extra: &'a [usize],
+}
+
+impl<'a> Row<'a> {
+    /// The row's cell of extra column `k` (as [`LogReader::extra_cell`]).
+    pub fn extra_cell(&self, k: usize) -> &'a str {
+        self.extra.get(k).map_or("", |&i| cell(self.rec, i))
+    }
+}
+
+/// Records per batch of [`LogReader::for_each`]'s reading thread.
+const BATCH_ROWS: usize = 512;
+
+/// Batches in flight between [`LogReader::for_each`]'s two threads (memory stays a few batches of
+/// rows, whatever the file's length).
+const BATCHES_IN_FLIGHT: usize = 4;
+
+impl<R: BufRead + Send> LogReader<R> {
+    /// Every remaining row, checked as [`LogReader::next_sample`] checks it, handed in file order
+    /// to `f` with the row (for its extra cells, [`Row::extra_cell`]); then returns the
+    /// comment lines (as [`LogReader::into_comments`]). Two threads: one reads the lines and cuts
+    /// them into fields, a few batches of [`BATCH_ROWS`] ahead, while this one parses and checks
+    /// the numbers and calls `f`, so a long file is read in about the time of the slower half.
+    /// The first error in file order is returned, with the same message as `next_sample`'s.
+    pub fn for_each(self, mut f: impl FnMut(&Sample, Row<'_>)) -> Result<Vec<String>, LogError> {
+        let LogReader {
+            mut csv,
+            cols,
+            mut last_time,
+            mut rows,
+            file,
+            ..
+        } = self;
+        type Batch = Vec<csv::StringRecord>;
+        let (full_tx, full_rx) =
+            std::sync::mpsc::sync_channel::<Result<Batch, LogError>>(BATCHES_IN_FLIGHT);
+        let (empty_tx, empty_rx) = std::sync::mpsc::channel::<Batch>();
+        std::thread::scope(|scope| {
+            let reading = scope.spawn(move || loop {
+                let mut batch = empty_rx.try_recv().unwrap_or_default();
+                batch.resize_with(BATCH_ROWS, csv::StringRecord::new);
+                let mut filled = 0;
+                let mut failed = None;
+                while filled < BATCH_ROWS {
+                    match csv.read_record(&mut batch[filled]) {
+                        Ok(true) => filled += 1,
+                        Ok(false) => break,
+                        Err(e) => {
+                            failed = Some(csv.get_mut().take_error(e));
+                            break;
+                        }
+                    }
+                }
+                let end = filled < BATCH_ROWS;
+                batch.truncate(filled);
+                if !batch.is_empty() && full_tx.send(Ok(batch)).is_err() {
+                    return csv;
+                }
+                if let Some(e) =
+                    failed.or_else(|| end.then(|| csv.get_mut().error.take()).flatten())
+                {
+                    let _ = full_tx.send(Err(e));
+                    return csv;
+                }
+                if end {
+                    return csv;
+                }
+            });
+            let mut outcome = Ok(());
+            for batch in full_rx.iter() {
+                let batch = match batch {
+                    Ok(b) => b,
+                    Err(e) => {
+                        outcome = Err(e);
+                        break;
+                    }
+                };
+                for rec in &batch {
+                    let sample = match cols.sample(rec, &file) {
+                        Ok(s) => s,
+                        Err(e) => {
+                            outcome = Err(e);
+                            break;
+                        }
+                    };
+                    let c = sample.chamber as usize;
+                    if sample.time_s <= last_time[c] {
+                        outcome = Err(LogError::TimeNotIncreasing {
+                            file: file.clone(),
+                            line: line_of(rec),
+                            chamber: sample.chamber,
+                            time: sample.time_s,
+                            previous: last_time[c],
+                        });
+                        break;
+                    }
+                    last_time[c] = sample.time_s;
+                    rows += 1;
+                    f(
+                        &sample,
+                        Row {
+                            rec,
+                            extra: &cols.extra,
+                        },
+                    );
+                }
+                if outcome.is_err() {
+                    break;
+                }
+                let _ = empty_tx.send(batch);
+            }
+            // Dropping the receiver stops the reading thread at its next batch.
+            drop(full_rx);
+            let csv = reading.join().expect("the reading thread panicked");
+            outcome?;
+            if rows == 0 {
+                return Err(LogError::Empty {
+                    file: file.clone(),
+                    what: "no data rows",
+                });
+            }
+            Ok(csv.into_inner().comments)
+        })
+    }
+}
+
 /// The file's lines on their way to the CSV reader: checked for UTF-8 one line at a time (an
 /// error names the line), a leading byte-order mark dropped, and each `#` comment line's text
 /// kept as it passes.

@@ -266,3 +266,95 @@ fn comments_anywhere_are_kept_and_lines_stay_the_files() {
     let e = parse_log(&bytes[..], "bad.csv").unwrap_err();
     assert_eq!(e.to_string(), "bad.csv:3: invalid UTF-8");
 }
+
+/// What a reading loop produced: every (sample, extra cell) and then the comments or the first
+/// error's message.
+type Outcome = (Vec<(Sample, String)>, Result<Vec<String>, String>);
+
+fn read_row_by_row(bytes: &[u8]) -> Outcome {
+    let opts = sysid::log::ReadOptions::default();
+    let mut rows = match sysid::log::LogReader::new(bytes, "t.csv", &opts) {
+        Ok(r) => r,
+        Err(e) => return (Vec::new(), Err(e.to_string())),
+    };
+    let mut out = Vec::new();
+    loop {
+        match rows.next_sample() {
+            Ok(Some(s)) => out.push((s, rows.extra_cell(0).to_string())),
+            Ok(None) => return (out, Ok(rows.into_comments())),
+            Err(e) => return (out, Err(e.to_string())),
+        }
+    }
+}
+
+fn read_two_threads(bytes: &[u8]) -> Outcome {
+    let opts = sysid::log::ReadOptions::default();
+    let rows = match sysid::log::LogReader::new(bytes, "t.csv", &opts) {
+        Ok(r) => r,
+        Err(e) => return (Vec::new(), Err(e.to_string())),
+    };
+    let mut out = Vec::new();
+    let end = rows.for_each(|s, row| out.push((s.clone(), row.extra_cell(0).to_string())));
+    (out, end.map_err(|e| e.to_string()))
+}
+
+/// The file reader's two-thread loop (`LogReader::for_each`, used by `LogData::read`) gives what
+/// the one-row loop (`next_sample`) gives: the same samples, extra cells and comments, and the
+/// same first error wherever it sits (in the first batch of rows, many batches in, on the last
+/// line, past comment lines). The one-row loop stops at its first error; so does the other, and
+/// the rows before it are the same.
+#[test]
+fn the_two_thread_reader_matches_the_row_loop() {
+    let rows = 1_300;
+    let line = |i: usize| {
+        format!(
+            "{},{},{},{},{},n{i}\n",
+            0.04 * (i / 3) as f64 + 0.001,
+            i % 3,
+            (i % 97) as f64 * 1.5,
+            (i % 13) as f64 - 6.0,
+            0.01 * (i % 41) as f64
+        )
+    };
+    let log = |bad: Option<(usize, &str)>| -> Vec<u8> {
+        let mut s =
+            String::from("# rig=A\ntime_s,chamber,volume_mm3,flow_mm3_s,pressure_kpa,note\n");
+        for i in 0..rows {
+            if i % 250 == 7 {
+                s += &format!("# comment {i}\n");
+            }
+            match bad {
+                Some((k, text)) if k == i => s += text,
+                _ => s += &line(i),
+            }
+        }
+        s += "# last\n";
+        s.into_bytes()
+    };
+    let mut cases = vec![log(None)];
+    for at in [0, 3, 511, 512, 700, 1_299] {
+        cases.push(log(Some((at, "1e9,0,x,0,0,bad\n"))));
+        cases.push(log(Some((at, "0.5,0,1,2\n"))));
+        if at > 3 {
+            // Time going back within its chamber (not an error on the chamber's first row).
+            cases.push(log(Some((at, "0,1,1,1,1,early\n"))));
+        }
+    }
+    let mut utf8 = log(None);
+    let at = utf8.len() / 2;
+    utf8[at] = 0xff;
+    cases.push(utf8);
+    cases.push(b"time_s,volume_mm3,pressure_kpa\n# nothing\n".to_vec());
+    for (k, bytes) in cases.iter().enumerate() {
+        let one = read_row_by_row(bytes);
+        let two = read_two_threads(bytes);
+        assert_eq!(one.1, two.1, "case {k}");
+        assert_eq!(one.0.len(), two.0.len(), "case {k}");
+        assert!(one.0 == two.0, "case {k}: the rows differ");
+    }
+    // The good file and the errors are what the cases meant.
+    let good = read_two_threads(&cases[0]);
+    assert_eq!(good.0.len(), rows);
+    assert_eq!(good.1.as_ref().unwrap().len(), 8);
+    assert!(cases[1..].iter().all(|c| read_two_threads(c).1.is_err()));
+}

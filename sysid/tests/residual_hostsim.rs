@@ -15,20 +15,12 @@
 //! Every effect is named (with its parameter against the injected truth) and every log ends
 //! within 15 % of σ.
 
+mod hostsim_common;
+
 use host_sim::plant::Drive;
 use host_sim::{simulate, Effects, PlantConfig, Protocol, Scenario, SimRun};
-use sysid::dataset::{Dataset, DatasetConfig};
-use sysid::log::parse_log;
-use sysid::residual::series_from_dataset;
-use sysid::residual::{diagnose, Config, Diagnosis};
-
-/// The run, its diagnosis on chamber 0 and σ from truth on the held-out frames.
-struct Outcome {
-    d: Diagnosis,
-    sigma: f64,
-    /// First and last frame time, s.
-    span: (f64, f64),
-}
+use hostsim_common::{names, run, Outcome};
+use sysid::residual::Diagnosis;
 
 fn scenario(name: &str, effects: Effects, drive: Drive, seed: u64) -> Scenario {
     let plant = PlantConfig {
@@ -46,68 +38,8 @@ fn scenario(name: &str, effects: Effects, drive: Drive, seed: u64) -> Scenario {
     }
 }
 
-fn sigma_from_truth(run: &SimRun, ds: &Dataset) -> f64 {
-    let drift = run.scenario.plant.effects.thermal_drift;
-    let e: Vec<f64> = (0..ds.t.len())
-        .filter(|&k| ds.heldout[k])
-        .map(|k| {
-            // The frames before the pressure zero are not in the dataset; the rest line up.
-            let f = &run.truth[k + ds.not_zeroed];
-            let t = f.t_us as f64 * 1e-6;
-            let d = drift.map_or(0.0, |d| {
-                d.offset_change_kpa * (1.0 - (-t / d.time_constant_s).exp())
-            });
-            ds.p[k] - f.chambers[0].sensed_kpa - d
-        })
-        .collect();
-    let mean = e.iter().sum::<f64>() / e.len() as f64;
-    (e.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / e.len() as f64).sqrt()
-}
-
-fn run(sc: &Scenario) -> Outcome {
-    let sim = simulate(sc).expect("scenario runs");
-    assert!(
-        sim.first_event("fault").is_none(),
-        "{}: the firmware faulted",
-        sc.name
-    );
-    let mut bytes = Vec::new();
-    sim.write_log(&mut bytes).expect("in memory");
-    let log = parse_log(&bytes[..], &sc.name).expect("the simulator's log parses");
-    let ds = Dataset::from_log(&log, 0, &DatasetConfig::default()).expect("dataset");
-    // One row per frame, in order, after the boot frames that take the pressure zero: the truth
-    // lines up by index from there.
-    assert!(ds.not_zeroed > 0, "the log's flags mark the zeroing frames");
-    assert_eq!(ds.t.len() + ds.not_zeroed, sim.truth.len());
-    let sigma = sigma_from_truth(&sim, &ds);
-    let series = series_from_dataset(&ds).expect("series");
-    let d = diagnose(series, &Config::default()).expect("diagnosis");
-    eprintln!(
-        "{}: σ {:.4} kPa, baseline {:.4} → final {:.4} kPa ({:.3} σ), effects {:?}, remaining {:?}",
-        sc.name,
-        sigma,
-        d.baseline.rmse_heldout,
-        d.final_model.rmse_heldout,
-        d.final_model.rmse_heldout / sigma,
-        d.effects
-            .iter()
-            .map(|e| (e.name, e.params.iter().map(|p| p.value).collect::<Vec<_>>()))
-            .collect::<Vec<_>>(),
-        d.remaining.iter().map(|r| r.kind).collect::<Vec<_>>()
-    );
-    Outcome {
-        d,
-        sigma,
-        span: (ds.t[0], ds.t[ds.t.len() - 1]),
-    }
-}
-
 fn preset(name: &str) -> Effects {
     Effects::preset(name).expect("known preset")
-}
-
-fn names(d: &Diagnosis) -> Vec<&'static str> {
-    d.effects.iter().map(|e| e.name).collect()
 }
 
 /// The first effect's parameter `param`.

@@ -26,7 +26,8 @@ fn names(d: &Diagnosis) -> Vec<&'static str> {
     d.effects.iter().map(|e| e.name).collect()
 }
 
-/// Every name in `expect` is found, and the held-out RMSE ends within 1.15 σ.
+/// Every name in `expect` is found, and the held-out RMSE ends within 10 % of σ (issue #17's
+/// acceptance).
 fn check(what: &str, effects: &[Inject], expect: &[&str], seed: u64, shape: Shape) {
     let d = run(effects, seed, shape);
     let found = names(&d);
@@ -38,10 +39,10 @@ fn check(what: &str, effects: &[Inject], expect: &[&str], seed: u64, shape: Shap
         assert!(found.contains(e), "{what}: {e} not named, found {found:?}");
     }
     assert!(
-        d.final_model.rmse_heldout <= 1.15 * SIGMA,
-        "{what}: held-out RMSE after {:.4} kPa exceeds 1.15 σ = {:.4}",
+        d.final_model.rmse_heldout <= 1.10 * SIGMA,
+        "{what}: held-out RMSE after {:.4} kPa exceeds 1.10 σ = {:.4}",
         d.final_model.rmse_heldout,
-        1.15 * SIGMA
+        1.10 * SIGMA
     );
 }
 

@@ -15,9 +15,12 @@
 //! 2. held-out RMSE falls by at least `min_gain` (relative).
 //!
 //! If the best-ranked candidate fails, the next is tried; the loop ends when none passes. After an
-//! effect is accepted, the parameters θ of the effects already in the model are re-tuned once
-//! (golden section in a bracket around their values), since each was found while the other effects
-//! were still missing.
+//! effect is accepted, the parameters θ of the effects already in the model are re-tuned, since
+//! each was found while the other effects were still missing: coordinate descent (golden section
+//! in a bracket around each value) with Hooke and Jeeves' pattern move after each sweep, until a
+//! sweep gains less than [`RETUNE_TOL`] ([`retune`]). Two effects that trade against each other
+//! (an air pocket's lag and a sensor lag) walk their valley together; with one pass of brackets,
+//! three effects at once on host-sim ended at 4.6 σ, with this at 1.6 σ.
 //!
 //! **Physical admissibility.** A candidate is kept only if every effect of the augmented model is
 //! physically possible ([`unphysical`]): searched parameters are positive by construction (lags,
@@ -458,9 +461,66 @@ fn grid_search(coord: Coord, grid: Vec<f64>, objective: &impl Fn(f64) -> f64) ->
     }
 }
 
-/// Re-tunes each searched parameter once, in a bracket around its current value.
+/// Re-tunes the searched parameters by coordinate descent: sweeps over the effects, each parameter
+/// searched in a bracket around its current value, until a sweep improves the training SSE by
+/// less than [`RETUNE_TOL`] (relative) or after [`RETUNE_SWEEPS`] sweeps. Two effects that trade
+/// against each other (an air pocket's lag and a sensor lag) walk together towards their joint
+/// optimum, a bracket's width at a time.
 pub fn retune(prep: &Prepared, stage: &Stage) -> Stage {
     let mut effects = stage.effects.clone();
+    let mut sse = stage.fit.sse;
+    for _ in 0..RETUNE_SWEEPS {
+        let (start, before) = (effects.clone(), sse);
+        sse = retune_sweep(prep, &mut effects, sse);
+        if sse > before * (1.0 - RETUNE_TOL) {
+            break;
+        }
+        sse = pattern_move(prep, &start, &mut effects, sse);
+    }
+    fit_stage(prep, &effects).unwrap_or_else(|| stage.clone())
+}
+
+/// Most coordinate-descent sweeps of [`retune`].
+pub const RETUNE_SWEEPS: usize = 12;
+
+/// Relative SSE gain below which [`retune`] stops.
+pub const RETUNE_TOL: f64 = 1e-6;
+
+/// The pattern move of Hooke and Jeeves after a sweep that went from `start` to `effects`: the
+/// same step again, doubled while it keeps lowering the training SSE (searched parameters in
+/// their search coordinate: log for positive ones). Coordinate steps alone crawl along the
+/// valley two trading parameters make; this walks it. Returns the SSE where it stopped.
+fn pattern_move(prep: &Prepared, start: &[Effect], effects: &mut Vec<Effect>, mut sse: f64) -> f64 {
+    let mut scale = 1.0;
+    for _ in 0..4 {
+        let trial: Vec<Effect> = effects
+            .iter()
+            .zip(start)
+            .map(|(e, s)| {
+                let mut t = e.clone();
+                t.theta = match e.kind.search(&prep.scales) {
+                    Search::Log(..) if e.theta > 0.0 && s.theta > 0.0 => {
+                        (e.theta.ln() + scale * (e.theta.ln() - s.theta.ln())).exp()
+                    }
+                    Search::Signed(..) | Search::Spectral => e.theta + scale * (e.theta - s.theta),
+                    _ => e.theta,
+                };
+                t
+            })
+            .collect();
+        let s = sse_of(prep, &trial);
+        if s.is_nan() || s >= sse {
+            break;
+        }
+        *effects = trial;
+        sse = s;
+        scale *= 2.0;
+    }
+    sse
+}
+
+/// One sweep of [`retune`]; the training SSE after it (`sse` when nothing moved).
+fn retune_sweep(prep: &Prepared, effects: &mut [Effect], mut sse: f64) -> f64 {
     for i in 0..effects.len() {
         let e = effects[i].clone();
         let (coord, lo, hi) = match e.kind.search(&prep.scales) {
@@ -474,7 +534,7 @@ pub fn retune(prep: &Prepared, stage: &Stage) -> Stage {
         };
         let (lo, hi) = if lo <= hi { (lo, hi) } else { (hi, lo) };
         let objective = |x: f64| {
-            let mut trial = effects.clone();
+            let mut trial = effects.to_vec();
             trial[i].theta = coord.to(x);
             sse_of(prep, &trial)
         };
@@ -485,9 +545,10 @@ pub fn retune(prep: &Prepared, stage: &Stage) -> Stage {
         let (u, s) = golden(lo, hi, 10, objective);
         if s < current {
             effects[i].theta = coord.to(u);
+            sse = s;
         }
     }
-    fit_stage(prep, &effects).unwrap_or_else(|| stage.clone())
+    sse
 }
 
 /// Why a fitted model is not physically possible (the first offending effect: its index and the
