@@ -245,13 +245,7 @@ fn build(
             "n = {n}, m = {m}, RMSE {:.4} kPa on {} samples",
             fit.train.rmse, fit.train.n
         );
-        Ok(Exported {
-            model,
-            prov,
-            power: fit.power.clone(),
-            ar: Vec::new(),
-            scaling: fit.scaling,
-        })
+        Ok(Exported::polynomial(model, prov, &fit))
     } else {
         let mut d = ds.clone();
         if all_samples {
@@ -295,13 +289,7 @@ fn build_terms(
         fit.train.rmse,
         fit.train.n
     );
-    Ok(Exported {
-        model,
-        prov,
-        power: fit.power.clone(),
-        ar: Vec::new(),
-        scaling: fit.scaling,
-    })
+    Ok(Exported::polynomial(model, prov, &fit))
 }
 
 /// An exported model with the f64 fit it was rounded from.
@@ -317,6 +305,19 @@ pub struct Exported {
     pub ar: Vec<[f64; 2]>,
     /// The fit's scaling (f64).
     pub scaling: Scaling,
+}
+
+impl Exported {
+    /// A polynomial without AR terms, rounded to `model`, with the f64 `fit` it came from.
+    fn polynomial(model: PolyModel, prov: String, fit: &poly::PolyFit) -> Exported {
+        Exported {
+            model,
+            prov,
+            power: fit.power.clone(),
+            ar: Vec::new(),
+            scaling: fit.scaling,
+        }
+    }
 }
 
 /// What the device's f32 arithmetic and storage lose against the f64 fit on a log.

@@ -12,6 +12,18 @@ use sysid::poly::{self, Xy};
 use sysid::select;
 use sysid::synth::{self, Protocol, SBA1_RAW};
 
+/// `identify` with the polynomial family only and no pruning table.
+fn poly_only(ds: &Dataset) -> identify::ChamberReport {
+    identify::identify(
+        ds,
+        &Options {
+            families: vec![Family::Poly],
+            prune_k: 0,
+            ..Options::default()
+        },
+    )
+}
+
 fn plant(raw: &[f64], n: usize, m: usize, samples: usize, sigma: f64, seed: u64) -> Dataset {
     let tr = Protocol {
         samples,
@@ -30,14 +42,7 @@ fn the_rule_picks_the_true_order_of_a_low_order_plant() {
     for (raw, n, m, sigma) in [(&SBA1_RAW[..], 3, 2, 0.5), (&low[..], 2, 1, 0.3)] {
         for seed in [3, 4] {
             let ds = plant(raw, n, m, 30_000, sigma, seed);
-            let rep = identify::identify(
-                &ds,
-                &Options {
-                    families: vec![Family::Poly],
-                    prune_k: 0,
-                    ..Options::default()
-                },
-            );
+            let rep = poly_only(&ds);
             let sel = rep.poly_selection.expect("a selection");
             assert_eq!(
                 (sel.selected.n, sel.selected.m),
@@ -160,14 +165,7 @@ fn real_logs_select_at_most_40_parameters_within_10_percent_of_the_best() {
     assert!(files.len() >= 3);
     for f in &files {
         let data = LogData::read(f, None, &DatasetConfig::default()).unwrap();
-        let rep = identify::identify(
-            data.first(),
-            &Options {
-                families: vec![Family::Poly],
-                prune_k: 0,
-                ..Options::default()
-            },
-        );
+        let rep = poly_only(data.first());
         let sel = rep.poly_selection.as_ref().expect("a selection");
         let red = sel.reduced.as_ref().expect("a reduction");
         let best = rep
@@ -271,14 +269,7 @@ fn the_reduction_keeps_the_laws_terms_and_drops_the_absent_ones() {
     }
     for seed in [21, 22] {
         let ds = plant(&raw, 3, 2, 30_000, 0.2, seed);
-        let rep = identify::identify(
-            &ds,
-            &Options {
-                families: vec![Family::Poly],
-                prune_k: 0,
-                ..Options::default()
-            },
-        );
+        let rep = poly_only(&ds);
         let sel = rep.poly_selection.expect("a selection");
         assert_eq!((sel.selected.n, sel.selected.m), (3, 2), "seed {seed}");
         let red = sel.reduced.expect("a reduction");
