@@ -342,14 +342,74 @@ pub fn run_plan(plan: Plan, seed: u64, out: &Path) -> Result<DemoReport, Error> 
     std::fs::create_dir_all(out.join("figures"))
         .map_err(|e| Error::Msg(format!("{}: {e}", out.display())))?;
     let mut stages = Vec::new();
+    let ident_run = stage_simulate(&plan, seed, &mut stages)?;
+    let capture = stage_capture(&ident_run, out, &mut stages)?;
+    let (rec, log_path) = stage_record(&capture, out, &mut stages)?;
+    let (datasets, reports) = stage_identify(&plan, &log_path, &mut stages)?;
+    let (diagnosis, diagnosis_error) = stage_diagnose(&datasets, &mut stages);
+    let dep = stage_deploy(
+        &plan,
+        seed,
+        &datasets,
+        &reports,
+        diagnosis.as_ref(),
+        &mut stages,
+    )?;
+    let forces = stage_force(&plan, &dep, diagnosis.as_ref(), &mut stages);
 
-    // 1. simulate
+    // 8. report
+    let st = Stage::start(8, "report", "figures, report.md, report.json");
+    let figures = write_figures(
+        &plan,
+        out,
+        &datasets,
+        &reports,
+        diagnosis.as_ref(),
+        &dep,
+        &forces,
+    )?;
+    let mut report = DemoReport {
+        plan,
+        planted: match plant().effects.hysteresis {
+            Some(h) => format!(
+                "{PLANTED_EFFECT} (half-height {} kPa, so a {} kPa gap between inflation and deflation; \
+                 transition {} mm³)",
+                h.amplitude_kpa,
+                2.0 * h.amplitude_kpa,
+                h.transition_mm3
+            ),
+            None => format!("{PLANTED_EFFECT} (preset missing in host-sim)"),
+        },
+        stages,
+        record: (rec.frames, rec.missing_frames(), rec.corrupted.len()),
+        identify: reports,
+        diagnosis,
+        diagnosis_error,
+        deployed: dep.deployed,
+        force: forces.bare,
+        augmented: dep.augmented,
+        force_augmented: forces.augmented,
+        total_seconds: 0.0,
+    };
+    st.done(format!("{} figures", figures.len()), &mut report.stages);
+    report.total_seconds = total.elapsed().as_secs_f64();
+    let md = markdown(&report, &figures);
+    std::fs::write(out.join("report.md"), md)
+        .map_err(|e| Error::Msg(format!("{}: {e}", out.join("report.md").display())))?;
+    let json = serde_json::to_string_pretty(&report).map_err(fail)?;
+    std::fs::write(out.join("report.json"), json)
+        .map_err(|e| Error::Msg(format!("{}: {e}", out.join("report.json").display())))?;
+    Ok(report)
+}
+
+/// Stage 1: the firmware's tasks run the identification protocol on the simulated rig.
+fn stage_simulate(plan: &Plan, seed: u64, stages: &mut Vec<StageReport>) -> Result<SimRun, Error> {
     let st = Stage::start(
         1,
         "simulate",
         "firmware tasks on the simulated rig, paper protocol",
     );
-    let scenario = identification_scenario(&plan, seed);
+    let scenario = identification_scenario(plan, seed);
     let ident_run = simulate(&scenario).map_err(fail)?;
     st.done(
         format!(
@@ -360,17 +420,24 @@ pub fn run_plan(plan: Plan, seed: u64, out: &Path) -> Result<DemoReport, Error> 
             plan.cycles,
             plan.flows
         ),
-        &mut stages,
+        stages,
     );
+    Ok(ident_run)
+}
 
-    // 2. capture
+/// Stage 2: the run's telemetry as `probe-rs run` prints it, into `out/telemetry.txt`.
+fn stage_capture(
+    ident_run: &SimRun,
+    out: &Path,
+    stages: &mut Vec<StageReport>,
+) -> Result<std::path::PathBuf, Error> {
     let st = Stage::start(2, "capture", "telemetry as printed by probe-rs");
     let capture = out.join("telemetry.txt");
     {
         let f = std::fs::File::create(&capture)
             .map_err(|e| Error::Msg(format!("{}: {e}", capture.display())))?;
         let mut w = std::io::BufWriter::new(f);
-        probe_rs_capture(&ident_run, &mut w)
+        probe_rs_capture(ident_run, &mut w)
             .and_then(|_| w.flush())
             .map_err(|e| Error::Msg(format!("{}: {e}", capture.display())))?;
     }
@@ -380,12 +447,19 @@ pub fn run_plan(plan: Plan, seed: u64, out: &Path) -> Result<DemoReport, Error> 
             ident_run.telemetry.len(),
             capture.display()
         ),
-        &mut stages,
+        stages,
     );
+    Ok(capture)
+}
 
-    // 3. record
+/// Stage 3: the capture converted to a log, `out/identification.csv`.
+fn stage_record(
+    capture: &Path,
+    out: &Path,
+    stages: &mut Vec<StageReport>,
+) -> Result<(sysid::record::Recording, std::path::PathBuf), Error> {
     let st = Stage::start(3, "record", "capture → log");
-    let rec = sysid::record::convert_file(&capture).map_err(fail)?;
+    let rec = sysid::record::convert_file(capture).map_err(fail)?;
     let log_path = out.join("identification.csv");
     sysid::log::write_log(&log_path, &rec.log).map_err(fail)?;
     st.done(
@@ -396,12 +470,19 @@ pub fn run_plan(plan: Plan, seed: u64, out: &Path) -> Result<DemoReport, Error> 
             rec.missing_frames(),
             rec.corrupted.len()
         ),
-        &mut stages,
+        stages,
     );
+    Ok((rec, log_path))
+}
 
-    // 4. identify
+/// Stage 4: the plan's model families identified on every chamber of the log.
+fn stage_identify(
+    plan: &Plan,
+    log_path: &Path,
+    stages: &mut Vec<StageReport>,
+) -> Result<(Vec<Dataset>, Vec<ChamberReport>), Error> {
     let st = Stage::start(4, "identify", "model families per chamber");
-    let datasets = LogData::read(&log_path, None, &DatasetConfig::default())
+    let datasets = LogData::read(log_path, None, &DatasetConfig::default())
         .map_err(fail)?
         .datasets;
     let opts = identify::Options {
@@ -410,7 +491,7 @@ pub fn run_plan(plan: Plan, seed: u64, out: &Path) -> Result<DemoReport, Error> 
         max_m: plan.max_degree,
         ar_max: plan.ar_max,
         exp_k_max: plan.exp_k_max,
-        nn: nn_config(&plan),
+        nn: nn_config(plan),
         nn_ar_max: 0,
         progress: None,
         ..identify::Options::default()
@@ -433,9 +514,16 @@ pub fn run_plan(plan: Plan, seed: u64, out: &Path) -> Result<DemoReport, Error> 
             format!("ch{} poly ({n}, {m}) RMSE {rmse:.3} kPa", r.chamber)
         })
         .collect();
-    st.done(sel.join("; "), &mut stages);
+    st.done(sel.join("; "), stages);
+    Ok((datasets, reports))
+}
 
-    // 5. diagnose
+/// Stage 5: the residual loop on chamber 0 with the paper's (3, 2) baseline; the diagnosis, or
+/// why it did not run.
+fn stage_diagnose(
+    datasets: &[Dataset],
+    stages: &mut Vec<StageReport>,
+) -> (Option<residual::Diagnosis>, Option<String>) {
     let st = Stage::start(5, "diagnose", "residual loop on chamber 0, (3, 2) baseline");
     let (diagnosis, diagnosis_error) = match datasets.first() {
         None => (None, Some("no chamber in the log".to_string())),
@@ -471,9 +559,32 @@ pub fn run_plan(plan: Plan, seed: u64, out: &Path) -> Result<DemoReport, Error> 
         (None, Some(e)) => format!("not run: {e}"),
         (None, None) => "not run".into(),
     };
-    st.done(found, &mut stages);
+    st.done(found, stages);
+    (diagnosis, diagnosis_error)
+}
 
-    // 6. deploy
+/// What stage 6 deployed and the force runs of the boards that ran it.
+struct Deployment {
+    /// The bare polynomials, board against sysid.
+    deployed: Vec<Deployed>,
+    /// The pushes on the board running the bare polynomials.
+    force_run: SimRun,
+    /// Per chamber the effects the augmented chain carries.
+    augmented: Vec<ChamberEffects>,
+    /// The pushes on the board running the augmented models, with the lines it acknowledged.
+    aug_run: Option<(SimRun, usize)>,
+}
+
+/// Stage 6: each chamber's polynomial exported and sent to a fresh board (and the augmented
+/// models to another), both then pushed on.
+fn stage_deploy(
+    plan: &Plan,
+    seed: u64,
+    datasets: &[Dataset],
+    reports: &[ChamberReport],
+    diagnosis: Option<&residual::Diagnosis>,
+    stages: &mut Vec<StageReport>,
+) -> Result<Deployment, Error> {
     let st = Stage::start(
         6,
         "deploy",
@@ -481,7 +592,7 @@ pub fn run_plan(plan: Plan, seed: u64, out: &Path) -> Result<DemoReport, Error> 
     );
     let mut fits = Vec::new();
     let mut lines = Vec::new();
-    for (ds, rep) in datasets.iter().zip(&reports) {
+    for (ds, rep) in datasets.iter().zip(reports) {
         let (n, m) = chosen_shape(rep);
         let fit = deploy_fit(ds, n, m)?;
         let model = fit.to_model_core().map_err(fail)?;
@@ -490,17 +601,17 @@ pub fn run_plan(plan: Plan, seed: u64, out: &Path) -> Result<DemoReport, Error> 
         fits.push(fit);
     }
     let all_lines: Vec<String> = lines.iter().flatten().cloned().collect();
-    let (force_run, acked) = run_deployed(&plan, seed, &all_lines)?;
-    let (aug_lines, augmented) = match &diagnosis {
-        Some(d) => augmented_lines(&datasets, d)?,
+    let (force_run, acked) = run_deployed(plan, seed, &all_lines)?;
+    let (aug_lines, augmented) = match diagnosis {
+        Some(d) => augmented_lines(datasets, d)?,
         None => (Vec::new(), Vec::new()),
     };
     let aug_run = if aug_lines.is_empty() {
         None
     } else {
-        Some(run_deployed(&plan, seed, &aug_lines)?)
+        Some(run_deployed(plan, seed, &aug_lines)?)
     };
-    let deployed = compare_p_hat(&datasets, &fits, &lines, &force_run);
+    let deployed = compare_p_hat(datasets, &fits, &lines, &force_run);
     let worst = deployed
         .iter()
         .map(|d| d.max_p_hat_rel_diff)
@@ -515,18 +626,38 @@ pub fn run_plan(plan: Plan, seed: u64, out: &Path) -> Result<DemoReport, Error> 
             aug_run.as_ref().map_or(0, |r| r.1),
             effects_summary(&augmented)
         ),
-        &mut stages,
+        stages,
     );
+    Ok(Deployment {
+        deployed,
+        force_run,
+        augmented,
+        aug_run,
+    })
+}
 
-    // 7. force
+/// The force estimates of stage 7 with their traces.
+struct Forces {
+    bare: Option<ForceResult>,
+    bare_trace: Trace,
+    augmented: Option<ForceResult>,
+    augmented_trace: Trace,
+}
+
+/// Stage 7: the boards' force estimates during the pushes against the truth.
+fn stage_force(
+    plan: &Plan,
+    dep: &Deployment,
+    diagnosis: Option<&residual::Diagnosis>,
+    stages: &mut Vec<StageReport>,
+) -> Forces {
     let st = Stage::start(7, "force", "pushes on the tip: estimate vs truth");
     let predicted_bias = diagnosis
-        .as_ref()
         .and_then(hysteresis_amplitude)
         .map(|a| 3.0 * f64::from(model_core::force::DEFAULT_AREA_MM2) * a);
-    let (force, trace) = force_stats(&plan, &force_run, predicted_bias);
-    let (force_augmented, aug_trace) = match aug_run.as_ref() {
-        Some((run, _)) => force_stats(&plan, run, None),
+    let (bare, bare_trace) = force_stats(plan, &dep.force_run, predicted_bias);
+    let (augmented, augmented_trace) = match dep.aug_run.as_ref() {
+        Some((run, _)) => force_stats(plan, run, None),
         None => (None, Trace::new()),
     };
     let line = |f: &Option<ForceResult>| match f {
@@ -537,79 +668,68 @@ pub fn run_plan(plan: Plan, seed: u64, out: &Path) -> Result<DemoReport, Error> 
         None => "no frames in the push window".into(),
     };
     st.done(
-        format!(
-            "bare: {}; augmented: {}",
-            line(&force),
-            line(&force_augmented)
-        ),
-        &mut stages,
+        format!("bare: {}; augmented: {}", line(&bare), line(&augmented)),
+        stages,
     );
+    Forces {
+        bare,
+        bare_trace,
+        augmented,
+        augmented_trace,
+    }
+}
 
-    // 8. report
-    let st = Stage::start(8, "report", "figures, report.md, report.json");
+/// The report's figures (identification and diagnosis of chamber 0, the force panels), each
+/// with its path relative to `out` and its caption: every file written is linked from the report.
+fn write_figures(
+    plan: &Plan,
+    out: &Path,
+    datasets: &[Dataset],
+    reports: &[ChamberReport],
+    diagnosis: Option<&residual::Diagnosis>,
+    dep: &Deployment,
+    forces: &Forces,
+) -> Result<Vec<(String, String)>, Error> {
     let fig = out.join("figures");
-    let mut figures: Vec<(String, String)> = Vec::new();
-    // Every file written is linked from the report, with a caption by its name.
     let mut written = Vec::new();
     let format = plan.plot_format;
     if let (Some(ds), Some(rep)) = (datasets.first(), reports.first()) {
         written.extend(crate::plots::identify::write_all(&fig, format, ds, rep)?);
     }
-    if let Some(d) = &diagnosis {
+    if let Some(d) = diagnosis {
         written.extend(super::diagnose::write_plots(&fig, format, d)?);
     }
     let force_path = fig.join(format.file("force"));
-    let mut panels = vec![ForcePanel::new("bare polynomials", &force, &trace)];
-    if !aug_trace.is_empty() {
-        let title = format!("augmented ({})", carried_union(&augmented));
-        panels.push(ForcePanel::new(&title, &force_augmented, &aug_trace));
+    let mut panels = vec![ForcePanel::new(
+        "bare polynomials",
+        &forces.bare,
+        &forces.bare_trace,
+    )];
+    if !forces.augmented_trace.is_empty() {
+        let title = format!("augmented ({})", carried_union(&dep.augmented));
+        panels.push(ForcePanel::new(
+            &title,
+            &forces.augmented,
+            &forces.augmented_trace,
+        ));
     }
     force_figure(&force_path, format, &panels)
         .map_err(|e| Error::Msg(format!("{}: {e}", force_path.display())))?;
     written.push(force_path);
-    for p in &written {
-        let name = p
-            .file_name()
-            .map(|n| n.to_string_lossy().into_owned())
-            .unwrap_or_default();
-        let stem = p
-            .file_stem()
-            .map(|n| n.to_string_lossy().into_owned())
-            .unwrap_or_default();
-        figures.push((format!("figures/{name}"), caption(&stem)));
-    }
-    let mut report = DemoReport {
-        plan,
-        planted: match plant().effects.hysteresis {
-            Some(h) => format!(
-                "{PLANTED_EFFECT} (half-height {} kPa, so a {} kPa gap between inflation and deflation; \
-                 transition {} mm³)",
-                h.amplitude_kpa,
-                2.0 * h.amplitude_kpa,
-                h.transition_mm3
-            ),
-            None => format!("{PLANTED_EFFECT} (preset missing in host-sim)"),
-        },
-        stages,
-        record: (rec.frames, rec.missing_frames(), rec.corrupted.len()),
-        identify: reports,
-        diagnosis,
-        diagnosis_error,
-        deployed,
-        force,
-        augmented,
-        force_augmented,
-        total_seconds: 0.0,
-    };
-    st.done(format!("{} figures", figures.len()), &mut report.stages);
-    report.total_seconds = total.elapsed().as_secs_f64();
-    let md = markdown(&report, &figures);
-    std::fs::write(out.join("report.md"), md)
-        .map_err(|e| Error::Msg(format!("{}: {e}", out.join("report.md").display())))?;
-    let json = serde_json::to_string_pretty(&report).map_err(fail)?;
-    std::fs::write(out.join("report.json"), json)
-        .map_err(|e| Error::Msg(format!("{}: {e}", out.join("report.json").display())))?;
-    Ok(report)
+    Ok(written
+        .iter()
+        .map(|p| {
+            let name = p
+                .file_name()
+                .map(|n| n.to_string_lossy().into_owned())
+                .unwrap_or_default();
+            let stem = p
+                .file_stem()
+                .map(|n| n.to_string_lossy().into_owned())
+                .unwrap_or_default();
+            (format!("figures/{name}"), caption(&stem))
+        })
+        .collect())
 }
 
 /// A chamber and the effects its deployed chain carries.

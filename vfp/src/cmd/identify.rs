@@ -161,7 +161,29 @@ pub fn render(r: &ChamberReport, file: &str, options: &Options) -> String {
         w.w_rmse, w.w_r2, w.w_aicc
     );
 
-    let t = &r.table1;
+    s.push_str(&render_table1(&r.table1));
+    s.push_str(&render_table2(r));
+    if let Some(f) = &r.poly_fit {
+        s.push_str(&render_coefficients(r, f));
+    }
+    if let Some(sel) = &r.selected {
+        let _ = writeln!(
+            s,
+            "Selected: {} {} (nu = {}): RMSE {} kPa training, {} kPa held-out\n",
+            sel.family.name(),
+            sel.shape(),
+            sel.nu,
+            num(sel.rmse),
+            opt(sel.rmse_heldout)
+        );
+    }
+    s
+}
+
+/// Table I: the correlations and the PCA of the normalised [v, v̇, v̈, P].
+fn render_table1(t: &identify::Table1) -> String {
+    use std::fmt::Write;
+    let mut s = String::new();
     let _ = writeln!(
         s,
         "Table I. Correlations and PCA of the normalised [v, vdot, vddot, P]"
@@ -196,6 +218,14 @@ pub fn render(r: &ChamberReport, file: &str, options: &Options) -> String {
     }
     let _ = writeln!(s);
 
+    s
+}
+
+/// Table II: every family's sweep (training | held-out), failures, notes and the polynomial
+/// selection.
+fn render_table2(r: &ChamberReport) -> String {
+    use std::fmt::Write;
+    let mut s = String::new();
     let _ = writeln!(
         s,
         "Table II. Regression performances (training | held-out); * = the family's choice (poly: see below; others: lowest cost)"
@@ -249,69 +279,63 @@ pub fn render(r: &ChamberReport, file: &str, options: &Options) -> String {
     }
     let _ = writeln!(s);
 
-    if let Some(f) = &r.poly_fit {
+    s
+}
+
+/// Table IV: the selected polynomial's coefficients with their statistics, and the pruning table.
+fn render_coefficients(r: &ChamberReport, f: &sysid::poly::PolyFit) -> String {
+    use std::fmt::Write;
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "Table IV. Coefficients of the polynomial model (n = {}, m = {}), paper units (kPa, mm3, mm3/s)",
+        f.n, f.m
+    );
+    let _ = writeln!(
+        s,
+        "  {:>14} {:>13} {:>11} {:>9} {:>10}",
+        "term", "coeff.", "SE", "t", "p"
+    );
+    for c in &r.poly_coefficients {
         let _ = writeln!(
             s,
-            "Table IV. Coefficients of the polynomial model (n = {}, m = {}), paper units (kPa, mm3, mm3/s)",
-            f.n, f.m
-        );
-        let _ = writeln!(
-            s,
-            "  {:>14} {:>13} {:>11} {:>9} {:>10}",
-            "term", "coeff.", "SE", "t", "p"
-        );
-        for c in &r.poly_coefficients {
-            let _ = writeln!(
-                s,
-                "  {:>14} {:>13.4e} {:>11.3e} {:>9.2} {:>10.2e}",
-                c.term, c.stat.estimate, c.stat.se, c.stat.t, c.stat.p
-            );
-        }
-        if !r.pruning.is_empty() {
-            let _ = writeln!(
-                s,
-                "  Reduced models (least significant terms excluded, refitted)"
-            );
-            let _ = writeln!(
-                s,
-                "  {:>26} {:>4} {:>9} {:>8} {:>11} | {:>9}",
-                "excluded term(s)", "nu", "RMSE", "R2adj", "AICc", "RMSE ho"
-            );
-            let _ = writeln!(
-                s,
-                "  {:>26} {:>4} {:>9} {:>8.4} {:>11} |",
-                "(none)",
-                f.nu,
-                num(f.train.rmse),
-                f.train.r2_adj,
-                format!("{:.4e}", f.train.aicc)
-            );
-            for p in &r.pruning {
-                let _ = writeln!(
-                    s,
-                    "  {:>26} {:>4} {:>9} {:>8.4} {:>11} | {:>9}",
-                    p.excluded.join(", "),
-                    p.nu,
-                    num(p.train.rmse),
-                    p.train.r2_adj,
-                    format!("{:.4e}", p.train.aicc),
-                    opt(p.heldout.map(|h| h.rmse))
-                );
-            }
-        }
-        let _ = writeln!(s);
-    }
-    if let Some(sel) = &r.selected {
-        let _ = writeln!(
-            s,
-            "Selected: {} {} (nu = {}): RMSE {} kPa training, {} kPa held-out\n",
-            sel.family.name(),
-            sel.shape(),
-            sel.nu,
-            num(sel.rmse),
-            opt(sel.rmse_heldout)
+            "  {:>14} {:>13.4e} {:>11.3e} {:>9.2} {:>10.2e}",
+            c.term, c.stat.estimate, c.stat.se, c.stat.t, c.stat.p
         );
     }
+    if !r.pruning.is_empty() {
+        let _ = writeln!(
+            s,
+            "  Reduced models (least significant terms excluded, refitted)"
+        );
+        let _ = writeln!(
+            s,
+            "  {:>26} {:>4} {:>9} {:>8} {:>11} | {:>9}",
+            "excluded term(s)", "nu", "RMSE", "R2adj", "AICc", "RMSE ho"
+        );
+        let _ = writeln!(
+            s,
+            "  {:>26} {:>4} {:>9} {:>8.4} {:>11} |",
+            "(none)",
+            f.nu,
+            num(f.train.rmse),
+            f.train.r2_adj,
+            format!("{:.4e}", f.train.aicc)
+        );
+        for p in &r.pruning {
+            let _ = writeln!(
+                s,
+                "  {:>26} {:>4} {:>9} {:>8.4} {:>11} | {:>9}",
+                p.excluded.join(", "),
+                p.nu,
+                num(p.train.rmse),
+                p.train.r2_adj,
+                format!("{:.4e}", p.train.aicc),
+                opt(p.heldout.map(|h| h.rmse))
+            );
+        }
+    }
+    let _ = writeln!(s);
     s
 }
 
