@@ -378,9 +378,58 @@ pub struct LogReader<R: BufRead> {
     cols: Columns,
     extra_columns: Vec<String>,
     rec: csv::StringRecord,
+    checks: RowChecks,
+    file: String,
+}
+
+/// The checks across rows: time increasing within each chamber, and at least one data row.
+struct RowChecks {
     last_time: [f64; MAX_CHAMBERS as usize],
     rows: usize,
-    file: String,
+}
+
+impl RowChecks {
+    fn new() -> Self {
+        Self {
+            last_time: [f64::NEG_INFINITY; MAX_CHAMBERS as usize],
+            rows: 0,
+        }
+    }
+
+    /// The sample of `rec`, its numbers and chamber checked by `cols` and its time against the
+    /// chamber's previous row.
+    fn row(
+        &mut self,
+        cols: &Columns,
+        rec: &csv::StringRecord,
+        file: &str,
+    ) -> Result<Sample, LogError> {
+        let sample = cols.sample(rec, file)?;
+        let c = sample.chamber as usize;
+        if sample.time_s <= self.last_time[c] {
+            return Err(LogError::TimeNotIncreasing {
+                file: file.into(),
+                line: line_of(rec),
+                chamber: sample.chamber,
+                time: sample.time_s,
+                previous: self.last_time[c],
+            });
+        }
+        self.last_time[c] = sample.time_s;
+        self.rows += 1;
+        Ok(sample)
+    }
+
+    /// At the end of the rows: an [`LogError::Empty`] when there was none.
+    fn end(&self, file: &str) -> Result<(), LogError> {
+        if self.rows == 0 {
+            return Err(LogError::Empty {
+                file: file.into(),
+                what: "no data rows",
+            });
+        }
+        Ok(())
+    }
 }
 
 impl<R: BufRead> LogReader<R> {
@@ -404,8 +453,7 @@ impl<R: BufRead> LogReader<R> {
             csv,
             cols,
             rec: csv::StringRecord::new(),
-            last_time: [f64::NEG_INFINITY; MAX_CHAMBERS as usize],
-            rows: 0,
+            checks: RowChecks::new(),
             file: file.into(),
         })
     }
@@ -426,38 +474,20 @@ impl<R: BufRead> LogReader<R> {
             if let Some(e) = self.csv.get_mut().error.take() {
                 return Err(e);
             }
-            if self.rows == 0 {
-                return Err(LogError::Empty {
-                    file: self.file.clone(),
-                    what: "no data rows",
-                });
-            }
+            self.checks.end(&self.file)?;
             return Ok(None);
         }
-        let sample = self.cols.sample(&self.rec, &self.file)?;
-        let c = sample.chamber as usize;
-        if sample.time_s <= self.last_time[c] {
-            return Err(LogError::TimeNotIncreasing {
-                file: self.file.clone(),
-                line: line_of(&self.rec),
-                chamber: sample.chamber,
-                time: sample.time_s,
-                previous: self.last_time[c],
-            });
-        }
-        self.last_time[c] = sample.time_s;
-        self.rows += 1;
-        Ok(Some(sample))
+        self.checks.row(&self.cols, &self.rec, &self.file).map(Some)
     }
 
     /// The current row's cell of extra column `k` (`""` before the first row and once the rows
     /// are exhausted).
     pub fn extra_cell(&self, k: usize) -> &str {
-        self.cols
-            .extra
-            .get(k)
-            .map(|&i| cell(&self.rec, i))
-            .unwrap_or("")
+        Row {
+            rec: &self.rec,
+            extra: &self.cols.extra,
+        }
+        .extra_cell(k)
     }
 
     /// The comment lines read so far (every one once the rows are exhausted), without `#` and one
@@ -498,8 +528,7 @@ impl<R: BufRead + Send> LogReader<R> {
         let LogReader {
             mut csv,
             cols,
-            mut last_time,
-            mut rows,
+            mut checks,
             file,
             ..
         } = self;
@@ -538,59 +567,22 @@ impl<R: BufRead + Send> LogReader<R> {
                     return csv;
                 }
             });
-            let mut outcome = Ok(());
-            for batch in full_rx.iter() {
-                let batch = match batch {
-                    Ok(b) => b,
-                    Err(e) => {
-                        outcome = Err(e);
-                        break;
+            // The receiver is dropped when this returns, which stops the reading thread at its
+            // next batch.
+            let outcome = (move || -> Result<(), LogError> {
+                for batch in full_rx {
+                    let batch = batch?;
+                    for rec in &batch {
+                        let sample = checks.row(&cols, rec, &file)?;
+                        let extra = &cols.extra;
+                        f(&sample, Row { rec, extra });
                     }
-                };
-                for rec in &batch {
-                    let sample = match cols.sample(rec, &file) {
-                        Ok(s) => s,
-                        Err(e) => {
-                            outcome = Err(e);
-                            break;
-                        }
-                    };
-                    let c = sample.chamber as usize;
-                    if sample.time_s <= last_time[c] {
-                        outcome = Err(LogError::TimeNotIncreasing {
-                            file: file.clone(),
-                            line: line_of(rec),
-                            chamber: sample.chamber,
-                            time: sample.time_s,
-                            previous: last_time[c],
-                        });
-                        break;
-                    }
-                    last_time[c] = sample.time_s;
-                    rows += 1;
-                    f(
-                        &sample,
-                        Row {
-                            rec,
-                            extra: &cols.extra,
-                        },
-                    );
+                    let _ = empty_tx.send(batch);
                 }
-                if outcome.is_err() {
-                    break;
-                }
-                let _ = empty_tx.send(batch);
-            }
-            // Dropping the receiver stops the reading thread at its next batch.
-            drop(full_rx);
+                checks.end(&file)
+            })();
             let csv = reading.join().expect("the reading thread panicked");
             outcome?;
-            if rows == 0 {
-                return Err(LogError::Empty {
-                    file: file.clone(),
-                    what: "no data rows",
-                });
-            }
             Ok(csv.into_inner().comments)
         })
     }

@@ -1105,16 +1105,11 @@ impl Restricted {
         let z = self.z(&all);
         let m = z.transpose() * &z;
         // Q = D L⁻ᵀ Z, column by column.
-        let l = self.chol.l_dirty();
         let mut q = z;
         for col in 0..self.nu {
-            for i in (0..self.nu).rev() {
-                let acc: f64 = (i + 1..self.nu).map(|j| l[(j, i)] * q[(j, col)]).sum();
-                q[(i, col)] = (q[(i, col)] - acc) / l[(i, i)];
-            }
-            for i in 0..self.nu {
-                q[(i, col)] *= self.d[i];
-            }
+            let mut column = q.column_mut(col);
+            self.lt_solve(column.as_mut_slice());
+            column.component_mul_assign(&self.d);
         }
         ConstraintMaps {
             c: self.c.clone(),
@@ -1143,6 +1138,15 @@ impl Restricted {
                 DMatrix::from_fn(self.nu, self.nu, |i, j| inv[(i, j)] * self.d[i] * self.d[j]);
             (self.c.clone(), xtx_inv)
         })
+    }
+
+    /// u ← L⁻ᵀ u in place (L: the scaled Gram's Cholesky factor; back substitution).
+    fn lt_solve(&self, u: &mut [f64]) {
+        let l = self.chol.l_dirty();
+        for i in (0..self.nu).rev() {
+            let acc: f64 = (i + 1..self.nu).map(|j| l[(j, i)] * u[j]).sum();
+            u[i] = (u[i] - acc) / l[(i, i)];
+        }
     }
 
     /// Z = L⁻¹ D W_Sᵀ, so that W_S G⁻¹ W_Sᵀ = ZᵀZ.
@@ -1207,11 +1211,7 @@ impl Restricted {
         let dsse = resid.dot(&lambda);
         // G⁻¹W_Sᵀλ = D L⁻ᵀ Z λ.
         let mut u = &z * &lambda;
-        let l = self.chol.l_dirty();
-        for i in (0..self.nu).rev() {
-            let acc: f64 = (i + 1..self.nu).map(|j| l[(j, i)] * u[j]).sum();
-            u[i] = (u[i] - acc) / l[(i, i)];
-        }
+        self.lt_solve(u.as_mut_slice());
         let c = DVector::from_fn(self.nu, |i, _| self.c[i] - self.d[i] * u[i]);
         Some((c, self.sse + dsse))
     }

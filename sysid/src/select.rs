@@ -203,6 +203,8 @@ pub fn cv_sweep(
 pub struct BlockMoments {
     per_block: Vec<Moments>,
     fold_fits: Vec<Moments>,
+    /// The sum over every block: the training data's moments.
+    total: Moments,
     scaling: Scaling,
     centre: f64,
     var_p: f64,
@@ -244,9 +246,14 @@ impl BlockMoments {
                 s
             })
             .collect();
+        let mut total = Moments::zero();
+        for b in &per_block {
+            total.add(b);
+        }
         Ok(BlockMoments {
             per_block,
             fold_fits,
+            total,
             scaling: *scaling,
             centre,
             var_p,
@@ -295,7 +302,14 @@ impl BlockMoments {
                     block_sse[b] = e;
                 }
             }
-            Some(self.score_of(n, m, nu - dropped.len(), block_sse, &block_n))
+            Some(cv_score(
+                n,
+                m,
+                nu - dropped.len(),
+                block_sse,
+                block_n.clone(),
+                self.var_p,
+            ))
         };
         let full = score(&[]).ok_or(PolyError::Fit {
             n,
@@ -359,11 +373,8 @@ impl BlockMoments {
         if held.p.is_empty() {
             return None;
         }
-        let mut total = Moments::zero();
-        for b in &self.per_block {
-            total.add(b);
-        }
-        let r = poly::Restricted::new(&total, red.n, red.m, &self.scaling, self.centre).ok()?;
+        let r =
+            poly::Restricted::new(&self.total, red.n, red.m, &self.scaling, self.centre).ok()?;
         let dropped: Vec<usize> = (0..red.active.len()).filter(|&t| !red.active[t]).collect();
         let (c, _) = r.without(&dropped)?;
         let mh = Moments::gather(held, &self.scaling, self.centre);
@@ -377,12 +388,8 @@ impl BlockMoments {
     /// costs one triangular solve against the factor of the terms already dropped, which grows by
     /// one row per step. Stops early if the remaining constraints are degenerate.
     fn elimination_order(&self, n: usize, m: usize) -> Result<Vec<usize>, PolyError> {
-        let mut total = Moments::zero();
-        for b in &self.per_block {
-            total.add(b);
-        }
         let maps =
-            poly::Restricted::new(&total, n, m, &self.scaling, self.centre)?.constraint_maps();
+            poly::Restricted::new(&self.total, n, m, &self.scaling, self.centre)?.constraint_maps();
         let nu = maps.alpha.len();
         // Jacobi scaling of M (and α̂ with it) keeps the factor's pivots comparable.
         let d: Vec<f64> = (0..nu)
@@ -449,35 +456,6 @@ impl BlockMoments {
             m: maps.m,
             blocks,
         })
-    }
-
-    /// A [`CvScore`] from block errors (pooled ē, its SE, admissibility; module docs).
-    fn score_of(
-        &self,
-        n: usize,
-        m: usize,
-        nu: usize,
-        block_sse: Vec<f64>,
-        block_n: &[usize],
-    ) -> CvScore {
-        let errs: Vec<(f64, usize)> = block_sse
-            .iter()
-            .copied()
-            .zip(block_n.iter().copied())
-            .collect();
-        let (mse, se) = pooled(&errs);
-        CvScore {
-            n,
-            m,
-            nu,
-            mse,
-            se,
-            admissible: errs
-                .iter()
-                .all(|&(e, nb)| nb == 0 || e / nb as f64 <= self.var_p),
-            block_sse,
-            block_n: block_n.to_vec(),
-        }
     }
 }
 
@@ -619,24 +597,43 @@ fn score_shape(
         .iter()
         .map(|f| poly::solve_chebyshev(f, n, m))
         .collect::<Result<_, _>>()?;
-    let errs: Vec<(f64, usize)> = per_block
+    let block_sse = per_block
         .iter()
         .enumerate()
-        .map(|(b, mb)| (mb.sse(n, m, &coefs[b % folds]), mb.n))
+        .map(|(b, mb)| mb.sse(n, m, &coefs[b % folds]))
+        .collect();
+    let block_n = per_block.iter().map(|mb| mb.n).collect();
+    Ok(cv_score(n, m, (n + 1) * (m + 1), block_sse, block_n, var_p))
+}
+
+/// A [`CvScore`] of ν parameters from each block's SSE and samples: pooled ē, its standard
+/// error, and admissibility (every block's error at most `var_p`, module docs).
+fn cv_score(
+    n: usize,
+    m: usize,
+    nu: usize,
+    block_sse: Vec<f64>,
+    block_n: Vec<usize>,
+    var_p: f64,
+) -> CvScore {
+    let errs: Vec<(f64, usize)> = block_sse
+        .iter()
+        .copied()
+        .zip(block_n.iter().copied())
         .collect();
     let (mse, se) = pooled(&errs);
-    Ok(CvScore {
+    CvScore {
         n,
         m,
-        nu: (n + 1) * (m + 1),
+        nu,
         mse,
         se,
         admissible: errs
             .iter()
             .all(|&(e, nb)| nb == 0 || e / nb as f64 <= var_p),
-        block_sse: errs.iter().map(|e| e.0).collect(),
-        block_n: errs.iter().map(|e| e.1).collect(),
-    })
+        block_sse,
+        block_n,
+    }
 }
 
 /// Pooled ē = Σ SSE_b / Σ n_b over (SSE_b, n_b) and its standard error across blocks, kPa².
@@ -779,10 +776,11 @@ pub fn cross_validate(
     max_n: usize,
     max_m: usize,
 ) -> Result<(Blocks, Vec<Result<CvScore, PolyError>>), PolyError> {
-    let train = ds.train();
-    let blocks = training_blocks(ds);
-    let scores = cv_sweep(Xy::from(&train), &blocks.ranges, scaling, max_n, max_m)?;
-    Ok((blocks, scores))
+    if max_n > poly::MAX_DEGREE || max_m > poly::MAX_DEGREE {
+        return Err(PolyError::Degree { n: max_n, m: max_m });
+    }
+    let (blocks, bm) = block_moments(ds, scaling)?;
+    Ok((blocks, bm.sweep(max_n, max_m)))
 }
 
 /// The blocks of `ds`'s training cycles and their moments, for [`BlockMoments::sweep`] and

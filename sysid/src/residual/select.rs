@@ -209,6 +209,24 @@ enum Coord {
 }
 
 impl Coord {
+    /// The coordinate search walks re-tuning: none for parameters searched another way.
+    fn of_search(search: Search) -> Option<Coord> {
+        match search {
+            Search::Log(..) => Some(Coord::Log),
+            Search::Signed(..) | Search::Spectral => Some(Coord::Lin),
+            Search::VolumeSpectral | Search::Degree(_) | Search::None => None,
+        }
+    }
+
+    /// The coordinate u of a parameter value θ (the inverse of [`Coord::to`]).
+    fn from(self, theta: f64) -> f64 {
+        match self {
+            Coord::Log => theta.ln(),
+            Coord::Lin => theta,
+        }
+    }
+
+    /// The parameter value θ at coordinate u.
     fn to(self, u: f64) -> f64 {
         match self {
             Coord::Log => u.exp(),
@@ -447,10 +465,7 @@ fn grid_search(coord: Coord, grid: Vec<f64>, objective: &impl Fn(f64) -> f64) ->
         (0, f64::INFINITY),
         |a, (i, &v)| if v < a.1 { (i, v) } else { a },
     );
-    let u: Vec<f64> = match coord {
-        Coord::Log => grid.iter().map(|g| g.ln()).collect(),
-        Coord::Lin => grid.clone(),
-    };
+    let u: Vec<f64> = grid.iter().map(|&g| coord.from(g)).collect();
     let lo = u[i.saturating_sub(1)];
     let hi = u[(i + 1).min(u.len() - 1)];
     let (ub, sb) = golden(lo, hi, 9, |x| objective(coord.to(x)));
@@ -498,13 +513,15 @@ fn pattern_move(prep: &Prepared, start: &[Effect], effects: &mut Vec<Effect>, mu
             .zip(start)
             .map(|(e, s)| {
                 let mut t = e.clone();
-                t.theta = match e.kind.search(&prep.scales) {
-                    Search::Log(..) if e.theta > 0.0 && s.theta > 0.0 => {
-                        (e.theta.ln() + scale * (e.theta.ln() - s.theta.ln())).exp()
-                    }
-                    Search::Signed(..) | Search::Spectral => e.theta + scale * (e.theta - s.theta),
-                    _ => e.theta,
+                let walks = match Coord::of_search(e.kind.search(&prep.scales)) {
+                    Some(Coord::Log) if e.theta > 0.0 && s.theta > 0.0 => Some(Coord::Log),
+                    Some(Coord::Lin) => Some(Coord::Lin),
+                    _ => None,
                 };
+                if let Some(c) = walks {
+                    let (u, u0) = (c.from(e.theta), c.from(s.theta));
+                    t.theta = c.to(u + scale * (u - u0));
+                }
                 t
             })
             .collect();
@@ -538,10 +555,7 @@ fn retune_sweep(prep: &Prepared, effects: &mut [Effect], mut sse: f64) -> f64 {
             trial[i].theta = coord.to(x);
             sse_of(prep, &trial)
         };
-        let current = objective(match coord {
-            Coord::Log => e.theta.ln(),
-            Coord::Lin => e.theta,
-        });
+        let current = objective(coord.from(e.theta));
         let (u, s) = golden(lo, hi, 10, objective);
         if s < current {
             effects[i].theta = coord.to(u);
