@@ -77,8 +77,10 @@ pub fn hysteresis(v: &[f64]) -> f64 {
     if s.len() < 2 {
         return 0.0;
     }
-    s.sort_by(f64::total_cmp);
-    let q = |p: f64| s[((s.len() - 1) as f64 * p).round() as usize];
+    let mut q = |p: f64| {
+        let k = ((s.len() - 1) as f64 * p).round() as usize;
+        crate::dataset::order_statistic(&mut s, k).expect("k < len")
+    };
     TURN_FRACTION * (q(0.95) - q(0.05))
 }
 

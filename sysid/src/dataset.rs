@@ -656,8 +656,8 @@ impl LogData {
 /// boundaries where the volume turns ([`crate::cycles`]).
 fn cycles(t: &[f64], v: &[f64], vdot: &[f64], cfg: &DatasetConfig) -> (Vec<usize>, f64) {
     let mut dts: Vec<f64> = t.windows(2).map(|w| w[1] - w[0]).collect();
-    dts.sort_by(f64::total_cmp);
-    let dt = dts.get(dts.len() / 2).copied().unwrap_or(1.0);
+    let middle = dts.len() / 2;
+    let dt = order_statistic(&mut dts, middle).unwrap_or(1.0);
     let samples = |secs: f64| ((secs / dt).round() as usize).max(1);
     let smooth = moving_average(vdot, samples(cfg.phase_smooth_s) / 2);
     let deadband = cfg.deadband.unwrap_or_else(|| default_deadband(&smooth));
@@ -686,9 +686,14 @@ fn moving_average(x: &[f64], h: usize) -> Vec<f64> {
 /// 5 % of the 95th percentile of |v̇|; zero when the flow is zero everywhere.
 fn default_deadband(vdot: &[f64]) -> f64 {
     let mut a: Vec<f64> = vdot.iter().map(|x| x.abs()).collect();
-    a.sort_by(f64::total_cmp);
-    let q = a[((a.len() - 1) as f64 * 0.95).round() as usize];
-    0.05 * q
+    let k = ((a.len() - 1) as f64 * 0.95).round() as usize;
+    0.05 * order_statistic(&mut a, k).unwrap_or(0.0)
+}
+
+/// The `k`-th smallest of `x` (from 0, in `f64::total_cmp`'s order: the element a sort would put
+/// at `k`), found in linear time; `x` is reordered. `None` when `k` is out of range.
+pub(crate) fn order_statistic(x: &mut [f64], k: usize) -> Option<f64> {
+    (k < x.len()).then(|| *x.select_nth_unstable_by(k, f64::total_cmp).1)
 }
 
 /// First and second derivatives of `y(t)` by a local quadratic least-squares fit over
@@ -834,4 +839,30 @@ fn holdout_mask(cycle: &[usize], n_cycles: usize, k: usize) -> (Vec<bool>, Split
     }
     let cut = n - n / 5;
     ((0..n).map(|i| i >= cut).collect(), Split::LastFifth)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::order_statistic;
+    use proptest::prelude::*;
+
+    proptest! {
+        /// The k-th order statistic is the element a full sort puts at k (ties, signed zeros and
+        /// infinities in `total_cmp`'s order), for every k.
+        #[test]
+        fn order_statistic_is_the_sorted_element(
+            x in prop::collection::vec(
+                prop_oneof![-1e3..1e3f64, Just(0.0), Just(-0.0), Just(f64::INFINITY), Just(1.5)],
+                1..60,
+            ),
+        ) {
+            let mut sorted = x.clone();
+            sorted.sort_by(f64::total_cmp);
+            for (k, want) in sorted.iter().enumerate() {
+                let got = order_statistic(&mut x.clone(), k).unwrap();
+                prop_assert_eq!(got.to_bits(), want.to_bits());
+            }
+            prop_assert!(order_statistic(&mut x.clone(), x.len()).is_none());
+        }
+    }
 }

@@ -27,6 +27,7 @@ pub mod log;
 pub mod metrics;
 pub mod nn;
 pub mod packets;
+mod par;
 pub mod poly;
 pub mod polyar;
 pub mod progress;

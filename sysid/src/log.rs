@@ -588,17 +588,25 @@ impl<R: BufRead + Send> LogReader<R> {
     }
 }
 
-/// The file's lines on their way to the CSV reader: checked for UTF-8 one line at a time (an
-/// error names the line), a leading byte-order mark dropped, and each `#` comment line's text
-/// kept as it passes.
+/// Bytes of whole lines [`Lines`] loads at a time once the header is found.
+const BLOCK_BYTES: usize = 64 * 1024;
+
+/// The file's lines on their way to the CSV reader: checked for UTF-8 (an error names the line),
+/// a leading byte-order mark dropped, and each `#` comment line's text kept as it passes. Up to
+/// the header a line at a time; after it, blocks of whole lines of about [`BLOCK_BYTES`], each
+/// checked at once, so that a long file costs a few passes over its bytes rather than a few
+/// calls per line.
 struct Lines<R> {
     inner: R,
     file: String,
-    /// Bytes of the current line not yet handed on.
+    /// Bytes of the current line or block not yet handed on.
     line: Vec<u8>,
     at: usize,
+    /// Lines loaded so far.
     number: u64,
     comments: Vec<String>,
+    /// An error found in the current block, after the lines before it (handed on first).
+    pending: Option<LogError>,
     /// The first error met (the CSV reader sees an I/O error; [`LogReader`] reports this).
     error: Option<LogError>,
 }
@@ -612,7 +620,23 @@ impl<R: BufRead> Lines<R> {
             at: 0,
             number: 0,
             comments: Vec::new(),
+            pending: None,
             error: None,
+        }
+    }
+
+    fn io_error(&self, source: std::io::Error) -> LogError {
+        LogError::Io {
+            file: self.file.clone(),
+            source,
+        }
+    }
+
+    fn bad_utf8(&self, line: u64) -> LogError {
+        LogError::Malformed {
+            file: self.file.clone(),
+            line,
+            message: "invalid UTF-8".into(),
         }
     }
 
@@ -622,10 +646,7 @@ impl<R: BufRead> Lines<R> {
         self.at = 0;
         self.inner
             .read_until(b'\n', &mut self.line)
-            .map_err(|source| LogError::Io {
-                file: self.file.clone(),
-                source,
-            })?;
+            .map_err(|e| self.io_error(e))?;
         if self.line.is_empty() {
             return Ok(());
         }
@@ -633,18 +654,76 @@ impl<R: BufRead> Lines<R> {
         if self.number == 1 && self.line.starts_with("\u{feff}".as_bytes()) {
             self.line.drain(..3);
         }
-        let text = std::str::from_utf8(&self.line).map_err(|_| LogError::Malformed {
-            file: self.file.clone(),
-            line: self.number,
-            message: "invalid UTF-8".into(),
-        })?;
-        if let Some(c) = text.trim_start().strip_prefix('#') {
-            let c = c.trim_end_matches('\n').trim_end_matches('\r');
-            // Passed on as it is: the CSV reader skips (and counts) a line starting with `#`.
-            self.comments
-                .push(c.strip_prefix(' ').unwrap_or(c).to_string());
+        if std::str::from_utf8(&self.line).is_err() {
+            return Err(self.bad_utf8(self.number));
         }
+        self.keep_comments();
         Ok(())
+    }
+
+    /// Loads the next block of whole lines into `line` (empty at the end of the input). A line
+    /// that is not UTF-8 ends the block before it, and its error is `pending`.
+    fn next_block(&mut self) -> Result<(), LogError> {
+        self.line.clear();
+        self.at = 0;
+        while self.line.len() < BLOCK_BYTES {
+            let got = match self.inner.fill_buf() {
+                Ok(got) => got,
+                Err(source) => {
+                    return Err(LogError::Io {
+                        file: self.file.clone(),
+                        source,
+                    })
+                }
+            };
+            if got.is_empty() {
+                break;
+            }
+            let take = got.len().min(BLOCK_BYTES - self.line.len());
+            self.line.extend_from_slice(&got[..take]);
+            self.inner.consume(take);
+        }
+        if self.line.last().is_some_and(|&b| b != b'\n') {
+            self.inner
+                .read_until(b'\n', &mut self.line)
+                .map_err(|e| self.io_error(e))?;
+        }
+        let first = self.number + 1;
+        if let Err(e) = std::str::from_utf8(&self.line) {
+            let start = memchr::memrchr(b'\n', &self.line[..e.valid_up_to()]).map_or(0, |i| i + 1);
+            self.line.truncate(start);
+            let bad = first + memchr::memchr_iter(b'\n', &self.line).count() as u64;
+            self.pending = Some(self.bad_utf8(bad));
+        }
+        let newlines = memchr::memchr_iter(b'\n', &self.line).count() as u64;
+        let unterminated = self.line.last().is_some_and(|&b| b != b'\n');
+        self.number += newlines + u64::from(unterminated);
+        self.keep_comments();
+        Ok(())
+    }
+
+    /// Keeps the text of each comment line of `line` (the lines whose first non-blank character
+    /// is `#`), without `#` and one following space.
+    fn keep_comments(&mut self) {
+        let Ok(text) = std::str::from_utf8(&self.line) else {
+            return;
+        };
+        let mut next = 0;
+        for hash in memchr::memchr_iter(b'#', text.as_bytes()) {
+            if hash < next {
+                continue;
+            }
+            let start = memchr::memrchr(b'\n', &text.as_bytes()[..hash]).map_or(0, |i| i + 1);
+            let end =
+                memchr::memchr(b'\n', &text.as_bytes()[hash..]).map_or(text.len(), |i| hash + i);
+            next = end;
+            if text[start..hash].trim_start().is_empty() {
+                // Passed on as it is: the CSV reader skips (and counts) a line starting with `#`.
+                let c = text[hash + 1..end].trim_end_matches('\r');
+                self.comments
+                    .push(c.strip_prefix(' ').unwrap_or(c).to_string());
+            }
+        }
     }
 
     /// Reads lines until the header row (the first neither blank nor a comment), which stays
@@ -683,7 +762,11 @@ impl<R: BufRead> Read for Lines<R> {
             return Err(std::io::Error::other("stopped at an earlier error"));
         }
         if self.at == self.line.len() {
-            if let Err(e) = self.next_line() {
+            let loaded = match self.pending.take() {
+                Some(e) => Err(e),
+                None => self.next_block(),
+            };
+            if let Err(e) = loaded {
                 self.error = Some(e);
                 return Err(std::io::Error::other("stopped at an error"));
             }

@@ -880,13 +880,9 @@ pub fn sweep(
         }
         _ => None,
     };
-    let mut out = Vec::with_capacity(max_n * max_m);
-    for n in 1..=max_n {
-        for m in 1..=max_m {
-            out.push(solve_entry(&mt, mh.as_ref(), n, m, centre));
-        }
-    }
-    Ok(out)
+    Ok(crate::par::par_map(max_n * max_m, |k| {
+        solve_entry(&mt, mh.as_ref(), 1 + k / max_m, 1 + k % max_m, centre)
+    }))
 }
 
 fn solve_entry(

@@ -262,19 +262,10 @@ impl BlockMoments {
 
     /// Every (n, m) up to (`max_n`, `max_m`), row-major in n (see [`cv_sweep`]).
     pub fn sweep(&self, max_n: usize, max_m: usize) -> Vec<Result<CvScore, PolyError>> {
-        let mut out = Vec::with_capacity(max_n * max_m);
-        for n in 1..=max_n {
-            for m in 1..=max_m {
-                out.push(score_shape(
-                    &self.per_block,
-                    &self.fold_fits,
-                    n,
-                    m,
-                    self.var_p,
-                ));
-            }
-        }
-        out
+        crate::par::par_map(max_n * max_m, |k| {
+            let (n, m) = (1 + k / max_m, 1 + k % max_m);
+            score_shape(&self.per_block, &self.fold_fits, n, m, self.var_p)
+        })
     }
 }
 
@@ -291,9 +282,10 @@ impl BlockMoments {
         reference: &CvScore,
     ) -> Result<Reduction, PolyError> {
         let nu = (n + 1) * (m + 1);
-        let folds: Vec<FoldMaps> = (0..self.fold_fits.len())
-            .map(|f| self.fold_maps(f, n, m))
-            .collect::<Result<_, _>>()?;
+        let folds: Vec<FoldMaps> =
+            crate::par::par_map(self.fold_fits.len(), |f| self.fold_maps(f, n, m))
+                .into_iter()
+                .collect::<Result<_, _>>()?;
         let block_n: Vec<usize> = self.per_block.iter().map(|b| b.n).collect();
         let score = |dropped: &[usize]| -> Option<CvScore> {
             let mut block_sse = vec![0.0; self.per_block.len()];
@@ -318,15 +310,17 @@ impl BlockMoments {
                 term: poly::term_name(n, m),
             },
         })?;
+        // Every step scored on its own (the order does not depend on the scores); the path ends
+        // before the first step whose constraints are degenerate.
+        let order = self.elimination_order(n, m)?;
+        let steps = crate::par::par_map(order.len(), |k| score(&order[..=k]));
         let mut path = vec![(None, full)];
-        let mut dropped: Vec<usize> = Vec::new();
-        for t in self.elimination_order(n, m)? {
-            dropped.push(t);
-            match score(&dropped) {
-                Some(s) => path.push((Some(t), s)),
-                None => break,
-            }
-        }
+        path.extend(
+            order
+                .iter()
+                .zip(steps)
+                .map_while(|(&t, s)| Some((Some(t), s?))),
+        );
         let mut lowest = reference;
         for (_, s) in &path {
             if s.admissible && s.mse < lowest.mse {

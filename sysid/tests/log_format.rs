@@ -358,3 +358,49 @@ fn the_two_thread_reader_matches_the_row_loop() {
     assert_eq!(good.1.as_ref().unwrap().len(), 8);
     assert!(cases[1..].iter().all(|c| read_two_threads(c).1.is_err()));
 }
+
+/// A file of many blocks (the reader checks UTF-8 and collects comments 64 KiB of whole lines at a
+/// time once past the header): every comment is collected in order, wherever it falls, and an
+/// error names its own line of the file, counted here line by line.
+#[test]
+fn a_long_file_keeps_its_comments_and_its_line_numbers() {
+    let mut text = String::from("# head\ntime_s,volume_mm3,pressure_kpa,note\n");
+    let mut comments = vec!["head".to_string()];
+    // Rows of differing widths, so that comments land at every offset of a block.
+    for i in 0..40_000 {
+        if i % 997 == 13 {
+            let c = format!("c{i}");
+            text += &format!("# {c}\r\n");
+            comments.push(c);
+        }
+        text += &format!(
+            "{},{},{},{}\n",
+            i,
+            i % 89,
+            (i % 7) as f64 * 0.5,
+            "x".repeat(i % 17)
+        );
+    }
+    let log = parse(&text).unwrap();
+    assert_eq!(log.samples.len(), 40_000);
+    assert_eq!(log.comments, comments);
+    let lines: Vec<&str> = text.split_inclusive('\n').collect();
+    assert!(text.len() > 10 * 64 * 1024, "{} bytes", text.len());
+    // An error on each of a few lines far into the file: the line number is the file's.
+    for target in [30_001usize, 33_333, lines.len()] {
+        let at: usize = lines[..target - 1].iter().map(|l| l.len()).sum();
+        if lines[target - 1].trim_start().starts_with('#') {
+            continue;
+        }
+        let mut bytes = text.clone().into_bytes();
+        bytes[at] = 0xff;
+        let e = parse_log(&bytes[..], "big.csv").unwrap_err();
+        assert_eq!(e.to_string(), format!("big.csv:{target}: invalid UTF-8"));
+        let mut bad = text.clone();
+        bad.replace_range(at..at + 1, "y");
+        match parse(&bad).unwrap_err() {
+            LogError::BadValue { line, .. } => assert_eq!(line, target as u64),
+            e => panic!("{e:?}"),
+        }
+    }
+}
