@@ -961,6 +961,107 @@ impl Adam {
         self.v.iter_mut().for_each(|x| *x = 0.0);
         self.t = 0;
     }
+
+    /// One Adam step on `theta` with the gradient `grad` scaled by `k` (the clip), the step size
+    /// `lr` ramped up linearly over the first `warmup` steps.
+    fn step(&mut self, theta: &mut [f64], grad: &[f64], k: f64, lr: f64, warmup: f64) {
+        let (b1, b2, eps) = (0.9_f64, 0.999_f64, 1e-8);
+        self.t += 1;
+        let t = self.t;
+        let step = lr * (t as f64 / warmup).min(1.0);
+        let (c1, c2) = (1.0 - b1.powi(t as i32), 1.0 - b2.powi(t as i32));
+        let moments = self.m.iter_mut().zip(self.v.iter_mut());
+        for ((th, gi), (m, v)) in theta.iter_mut().zip(grad).zip(moments) {
+            let g = gi * k;
+            *m = b1 * *m + (1.0 - b1) * g;
+            *v = b2 * *v + (1.0 - b2) * g * g;
+            *th -= step * (*m / c1) / ((*v / c2).sqrt() + eps);
+        }
+    }
+}
+
+/// The optimiser's state across the epochs of [`train`].
+struct Optimiser {
+    adam: Adam,
+    grad: Vec<f64>,
+    lr: f64,
+    warmup: f64,
+    batch: usize,
+    /// Running norm of the gradient, for the clip (0 before the first step).
+    norm_ema: f64,
+}
+
+impl Optimiser {
+    /// Back to a fresh start with half the step size (after a blow-up or a stall).
+    fn halve(&mut self) {
+        self.adam.reset();
+        self.lr *= 0.5;
+    }
+
+    /// One epoch: minibatches of `seq` in order. `false` when a loss or gradient was not finite
+    /// (the epoch stops there).
+    fn epoch(&mut self, net: &mut Net, data: &Data, seq: &[usize]) -> bool {
+        for chunk in seq.chunks(self.batch) {
+            self.grad.iter_mut().for_each(|g| *g = 0.0);
+            let loss = net.loss_grad(&data.x, &data.y, chunk, &mut self.grad);
+            let norm = self.grad.iter().map(|g| g * g).sum::<f64>().sqrt();
+            if !loss.is_finite() || !norm.is_finite() {
+                return false;
+            }
+            // Clip to 4× the running norm.
+            let bound = 4.0 * self.norm_ema;
+            let k = if self.norm_ema > 0.0 && norm > bound {
+                bound / norm
+            } else {
+                1.0
+            };
+            self.norm_ema = if self.norm_ema == 0.0 {
+                norm
+            } else {
+                0.98 * self.norm_ema + 0.02 * norm * k
+            };
+            self.adam
+                .step(&mut net.theta, &self.grad, k, self.lr, self.warmup);
+            // a₁ has no predecessor: keep it at 0 (its gradient is 0, but keep it exact).
+            net.theta[0] = 0.0;
+        }
+        true
+    }
+}
+
+/// Restarts the dead hidden units (`alive[l]` false): new weights, and a kink through a random
+/// row once the units below are in place; the function on the rows does not change.
+fn revive_dead_units(
+    net: &mut Net,
+    alive: &[bool],
+    adam: &mut Adam,
+    data: &Data,
+    rng: &mut StdRng,
+) {
+    let (d, n, st) = (net.depth, net.n_in, net.stride());
+    let mut revived = false;
+    for (l, _) in alive.iter().enumerate().filter(|(_, a)| !**a) {
+        let block = &mut net.theta[l * st..(l + 1) * st];
+        he_unit(block, n, &[], rng);
+        net.theta[(l + 1) * st] = 0.0;
+        revived = true;
+    }
+    if !revived {
+        return;
+    }
+    let rows = data.rows();
+    let (mut z, mut h) = (vec![0.0; d], vec![0.0; d]);
+    for l in 0..d - 1 {
+        if !alive[l] {
+            let r = rng.random_range(0..rows);
+            net.forward(&data.x[r * n..(r + 1) * n], &mut z, &mut h);
+            net.theta[l * st + st - 1] -= z[l];
+            for i in (l * st..(l + 1) * st).chain([(l + 1) * st]) {
+                adam.m[i] = 0.0;
+                adam.v[i] = 0.0;
+            }
+        }
+    }
 }
 
 /// Trains `start` (see the module docs for the schedule) and returns the parameters with the
@@ -971,7 +1072,7 @@ fn train(
     cfg: &SweepConfig,
     rng: &mut StdRng,
 ) -> Result<(Trained, f64), NnError> {
-    let (d, n, st) = (start.depth, start.n_in, start.stride());
+    let d = start.depth;
     let rows = data.rows();
     let mut net = start;
     let mut alive = vec![false; d - 1];
@@ -985,15 +1086,17 @@ fn train(
     let mut best = net.theta.clone();
     let mut order: Vec<usize> = (0..rows).collect();
     let batch = cfg.batch_size.clamp(1, rows.max(1));
-    let warmup = rows.div_ceil(batch).clamp(1, 100) as f64;
-    let (b1, b2, eps) = (0.9_f64, 0.999_f64, 1e-8);
     let np = net.theta.len();
-    let mut adam = Adam::new(np);
-    let mut grad = vec![0.0; np];
-    let mut lr = cfg.learning_rate;
+    let mut opt = Optimiser {
+        adam: Adam::new(np),
+        grad: vec![0.0; np],
+        lr: cfg.learning_rate,
+        warmup: rows.div_ceil(batch).clamp(1, 100) as f64,
+        batch,
+        norm_ema: 0.0,
+    };
     let (mut halvings, mut stall, mut reference) = (0, 0, best_mse);
     let (mut epochs, mut converged) = (0, false);
-    let mut norm_ema = 0.0_f64;
     let patience = cfg.patience.max(1);
     // An epoch is a pass over the rows, or MIN_EPOCH_STEPS steps over repeated passes if that
     // is more (short logs would otherwise judge progress on a handful of steps).
@@ -1001,83 +1104,25 @@ fn train(
     let mut seq = Vec::with_capacity(passes * rows);
     while epochs < cfg.epochs {
         epochs += 1;
-        let mut blew_up = false;
         seq.clear();
         for _ in 0..passes {
             order.shuffle(rng);
             seq.extend_from_slice(&order);
         }
-        for chunk in seq.chunks(batch) {
-            grad.iter_mut().for_each(|g| *g = 0.0);
-            let loss = net.loss_grad(&data.x, &data.y, chunk, &mut grad);
-            let norm = grad.iter().map(|g| g * g).sum::<f64>().sqrt();
-            if !loss.is_finite() || !norm.is_finite() {
-                blew_up = true;
-                break;
-            }
-            // Clip to 4× the running norm.
-            let bound = 4.0 * norm_ema;
-            let k = if norm_ema > 0.0 && norm > bound {
-                bound / norm
-            } else {
-                1.0
-            };
-            norm_ema = if norm_ema == 0.0 {
-                norm
-            } else {
-                0.98 * norm_ema + 0.02 * norm * k
-            };
-            adam.t += 1;
-            let t = adam.t;
-            let step = lr * (t as f64 / warmup).min(1.0);
-            let (c1, c2) = (1.0 - b1.powi(t as i32), 1.0 - b2.powi(t as i32));
-            let moments = adam.m.iter_mut().zip(adam.v.iter_mut());
-            for ((th, gi), (m, v)) in net.theta.iter_mut().zip(&grad).zip(moments) {
-                let g = gi * k;
-                *m = b1 * *m + (1.0 - b1) * g;
-                *v = b2 * *v + (1.0 - b2) * g * g;
-                *th -= step * (*m / c1) / ((*v / c2).sqrt() + eps);
-            }
-            // a₁ has no predecessor: keep it at 0 (its gradient is 0, but keep it exact).
-            net.theta[0] = 0.0;
-        }
-        let mse = if blew_up {
-            f64::NAN
-        } else {
+        let mse = if opt.epoch(&mut net, data, &seq) {
             net.evaluate(&data.x, &data.y, &mut alive)
+        } else {
+            f64::NAN
         };
         if !mse.is_finite() {
             // Back to the best parameters with half the step size.
             net.theta.clone_from(&best);
-            adam.reset();
-            norm_ema = 0.0;
-            lr *= 0.5;
+            opt.norm_ema = 0.0;
+            opt.halve();
             stall = 0;
             continue;
         }
-        // Restart dead hidden units (the function on the rows does not change).
-        let mut revived = false;
-        for (l, _) in alive.iter().enumerate().filter(|(_, a)| !**a) {
-            let block = &mut net.theta[l * st..(l + 1) * st];
-            he_unit(block, n, &[], rng);
-            net.theta[(l + 1) * st] = 0.0;
-            revived = true;
-        }
-        if revived {
-            // Kinks through random rows, now that the units below are in place.
-            let (mut z, mut h) = (vec![0.0; d], vec![0.0; d]);
-            for l in 0..d - 1 {
-                if !alive[l] {
-                    let r = rng.random_range(0..rows);
-                    net.forward(&data.x[r * n..(r + 1) * n], &mut z, &mut h);
-                    net.theta[l * st + st - 1] -= z[l];
-                    for i in (l * st..(l + 1) * st).chain([(l + 1) * st]) {
-                        adam.m[i] = 0.0;
-                        adam.v[i] = 0.0;
-                    }
-                }
-            }
-        }
+        revive_dead_units(&mut net, &alive, &mut opt.adam, data, rng);
         if mse < best_mse {
             best_mse = mse;
             best.clone_from(&net.theta);
@@ -1094,9 +1139,8 @@ fn train(
                 break;
             }
             halvings += 1;
-            lr *= 0.5;
+            opt.halve();
             net.theta.clone_from(&best);
-            adam.reset();
             stall = 0;
             reference = best_mse;
         }

@@ -333,31 +333,7 @@ impl BlockMoments {
             .filter(|(_, (_, s))| s.admissible && within_one_se(s, lowest))
             .min_by(|(_, a), (_, b)| a.1.nu.cmp(&b.1.nu).then(a.1.mse.total_cmp(&b.1.mse)))
             .map_or(0, |(k, _)| k);
-        let (mse_excess, mse_excess_paired_se) = paired_difference(&path[pick].1, lowest);
-        let gone: Vec<usize> = path[1..=pick].iter().filter_map(|(t, _)| *t).collect();
-        let name = |t: usize| poly::term_name(t / (m + 1), t % (m + 1));
-        Ok(Reduction {
-            n,
-            m,
-            nu: nu - gone.len(),
-            active: (0..nu).map(|t| !gone.contains(&t)).collect(),
-            kept: (0..nu).filter(|t| !gone.contains(t)).map(name).collect(),
-            dropped: gone.iter().map(|&t| name(t)).collect(),
-            cv_rmse: path[pick].1.rmse(),
-            cv_lowest_rmse: lowest.rmse(),
-            mse_excess,
-            mse_excess_paired_se,
-            rmse_heldout: None,
-            path: path
-                .iter()
-                .map(|(t, s)| TermStep {
-                    dropped: t.map(name),
-                    nu: s.nu,
-                    cv_rmse: s.rmse(),
-                    admissible: s.admissible,
-                })
-                .collect(),
-        })
+        Ok(Reduction::of_path(n, m, &path, pick, lowest))
     }
 
     /// RMSE on `held` of the reduction `red` fitted on all the training blocks (restricted least
@@ -548,6 +524,45 @@ pub struct Reduction {
     pub rmse_heldout: Option<f64>,
     /// Every step of the elimination, the full shape first.
     pub path: Vec<TermStep>,
+}
+
+impl Reduction {
+    /// The reduction that keeps the terms left at step `pick` of the elimination `path`, scored
+    /// against the lowest error seen, `lowest`.
+    fn of_path(
+        n: usize,
+        m: usize,
+        path: &[(Option<usize>, CvScore)],
+        pick: usize,
+        lowest: &CvScore,
+    ) -> Reduction {
+        let nu = (n + 1) * (m + 1);
+        let (mse_excess, mse_excess_paired_se) = paired_difference(&path[pick].1, lowest);
+        let gone: Vec<usize> = path[1..=pick].iter().filter_map(|(t, _)| *t).collect();
+        let name = |t: usize| poly::term_name(t / (m + 1), t % (m + 1));
+        Reduction {
+            n,
+            m,
+            nu: nu - gone.len(),
+            active: (0..nu).map(|t| !gone.contains(&t)).collect(),
+            kept: (0..nu).filter(|t| !gone.contains(t)).map(name).collect(),
+            dropped: gone.iter().map(|&t| name(t)).collect(),
+            cv_rmse: path[pick].1.rmse(),
+            cv_lowest_rmse: lowest.rmse(),
+            mse_excess,
+            mse_excess_paired_se,
+            rmse_heldout: None,
+            path: path
+                .iter()
+                .map(|(t, s)| TermStep {
+                    dropped: t.map(name),
+                    nu: s.nu,
+                    cv_rmse: s.rmse(),
+                    admissible: s.admissible,
+                })
+                .collect(),
+        }
+    }
 }
 
 /// Per-block moments, the blocks shared among the available cores for large data.

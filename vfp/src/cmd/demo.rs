@@ -1041,6 +1041,17 @@ fn force_panel<DB: DrawingBackend>(
 
 fn markdown(r: &DemoReport, figures: &[(String, String)]) -> String {
     let mut s = String::new();
+    md_header(&mut s, r);
+    md_identification(&mut s, r);
+    md_residual_loop(&mut s, r);
+    md_deployment(&mut s, r);
+    md_force(&mut s, r);
+    md_figures(&mut s, figures);
+    s
+}
+
+/// The title, the plan and the stages with their times.
+fn md_header(s: &mut String, r: &DemoReport) {
     let _ = writeln!(s, "# vfp demo report\n");
     let _ = writeln!(
         s,
@@ -1062,6 +1073,10 @@ fn markdown(r: &DemoReport, figures: &[(String, String)]) -> String {
             st.summary.replace('|', "/")
         );
     }
+}
+
+/// The best model of each family per chamber (training RMSE, held-out in brackets) and what was run.
+fn md_identification(s: &mut String, r: &DemoReport) {
     let _ = writeln!(
         s,
         "\n## Identification (training cycles; held-out in brackets)\n"
@@ -1107,6 +1122,10 @@ fn markdown(r: &DemoReport, figures: &[(String, String)]) -> String {
             "; neural networks not run in the short form".into()
         }
     );
+}
+
+/// The residual loop's baseline, the effects it kept and what was planted.
+fn md_residual_loop(s: &mut String, r: &DemoReport) {
     let _ = writeln!(s, "\n## Residual loop (chamber 0)\n");
     match (&r.diagnosis, &r.diagnosis_error) {
         (Some(d), _) => {
@@ -1142,6 +1161,10 @@ fn markdown(r: &DemoReport, figures: &[(String, String)]) -> String {
         }
         _ => {}
     }
+}
+
+/// Each chamber's deployment and how closely the board's p̂ follows sysid's.
+fn md_deployment(s: &mut String, r: &DemoReport) {
     let _ = writeln!(s, "\n## Deployment\n");
     for d in &r.deployed {
         let _ = writeln!(
@@ -1151,6 +1174,10 @@ fn markdown(r: &DemoReport, figures: &[(String, String)]) -> String {
             d.chamber, d.shape.0, d.shape.1, d.acked, d.max_p_hat_diff_kpa, d.max_p_hat_rel_diff, d.frames_compared
         );
     }
+}
+
+/// The force error of the bare and the augmented board during the pushes.
+fn md_force(s: &mut String, r: &DemoReport) {
     let _ = writeln!(s, "\n## Force estimate\n");
     match &r.force {
         Some(f) => {
@@ -1190,6 +1217,10 @@ fn markdown(r: &DemoReport, figures: &[(String, String)]) -> String {
             ))
         );
     }
+}
+
+/// The figures with their captions, and the files beside the report.
+fn md_figures(s: &mut String, figures: &[(String, String)]) {
     let _ = writeln!(s, "\n## Figures\n");
     for (f, cap) in figures {
         let _ = writeln!(s, "### {cap}\n\n![{cap}]({f})\n");
@@ -1199,5 +1230,4 @@ fn markdown(r: &DemoReport, figures: &[(String, String)]) -> String {
         "Files: `telemetry.txt` (capture as printed by probe-rs), `identification.csv` (the recorded log), \
          `report.json` (every number above)."
     );
-    s
 }

@@ -387,10 +387,18 @@ fn figure(
         )
         .map_err(|e| e.to_string())?;
     let panels = root.split_evenly((2, 3));
-    let blue = RGBColor(31, 119, 180);
-    let red = RGBColor(214, 39, 40);
-    let green = RGBColor(44, 160, 44);
-    let grey = RGBColor(90, 90, 90);
+    time_panels(&panels[..3], a)?;
+    shape_panels(&panels[3..], a)?;
+    root.present().map_err(|e| e.to_string())
+}
+
+const BLUE: RGBColor = RGBColor(31, 119, 180);
+const RED: RGBColor = RGBColor(214, 39, 40);
+const GREEN: RGBColor = RGBColor(44, 160, 44);
+const GREY: RGBColor = RGBColor(90, 90, 90);
+
+/// The residual over time, its autocorrelation and its cross-correlation with the inputs.
+fn time_panels(panels: &[Area<'_>], a: &ResidualAnalysis) -> Result<(), String> {
     // Subsample the scatter so figures stay small.
     let step = (a.points.len() / 4000).max(1);
     let pts: Vec<&[f64; 4]> = a.points.iter().step_by(step).collect();
@@ -402,7 +410,7 @@ fn figure(
         &[(
             "residual",
             pts.iter().map(|p| (p[0], p[3])).collect(),
-            grey,
+            GREY,
             true,
         )],
         &[0.0],
@@ -420,12 +428,12 @@ fn figure(
                 .enumerate()
                 .map(|(k, &r)| (k as f64 * w.lag_s, r))
                 .collect(),
-            blue,
+            BLUE,
             false,
         )],
         &[w.band, -w.band, 0.0],
     )?;
-    let colors = [blue, red, green, grey];
+    let colors = [BLUE, RED, GREEN, GREY];
     let cross: Vec<Curve<'_>> = a
         .cross
         .iter()
@@ -451,6 +459,11 @@ fn figure(
         &cross,
         &[w.band, -w.band],
     )?;
+    Ok(())
+}
+
+/// The residual against volume and speed by direction, and its spectrum.
+fn shape_panels(panels: &[Area<'_>], a: &ResidualAnalysis) -> Result<(), String> {
     let dir = &a.direction;
     let line = |b: &Binned| {
         b.centre
@@ -460,30 +473,30 @@ fn figure(
             .collect::<Vec<_>>()
     };
     panel(
-        &panels[3],
+        &panels[0],
         "residual vs volume by direction",
         "volume (mm³)",
         "mean residual (kPa)",
         &[
-            ("inflation", line(&dir.inflation_vs_v), red, false),
-            ("deflation", line(&dir.deflation_vs_v), blue, false),
+            ("inflation", line(&dir.inflation_vs_v), RED, false),
+            ("deflation", line(&dir.deflation_vs_v), BLUE, false),
         ],
         &[0.0],
     )?;
     panel(
-        &panels[4],
+        &panels[1],
         "residual vs |flow| by direction",
         "|flow| (mm³/s)",
         "mean residual (kPa)",
         &[
-            ("inflation", line(&dir.inflation_vs_speed), red, false),
-            ("deflation", line(&dir.deflation_vs_speed), blue, false),
+            ("inflation", line(&dir.inflation_vs_speed), RED, false),
+            ("deflation", line(&dir.deflation_vs_speed), BLUE, false),
         ],
         &[0.0],
     )?;
     let sp = &a.spectrum;
     panel(
-        &panels[5],
+        &panels[2],
         "Welch spectrum",
         "frequency (Hz)",
         "log10 PSD (kPa²/Hz)",
@@ -495,10 +508,10 @@ fn figure(
                 .skip(1)
                 .map(|(&f, &p)| (f, p.max(1e-30).log10()))
                 .collect(),
-            blue,
+            BLUE,
             false,
         )],
         &[],
     )?;
-    root.present().map_err(|e| e.to_string())
+    Ok(())
 }
