@@ -654,10 +654,10 @@ impl<R: BufRead> Lines<R> {
         if self.number == 1 && self.line.starts_with("\u{feff}".as_bytes()) {
             self.line.drain(..3);
         }
-        if std::str::from_utf8(&self.line).is_err() {
-            return Err(self.bad_utf8(self.number));
+        match std::str::from_utf8(&self.line) {
+            Ok(text) => keep_comments(text, &mut self.comments),
+            Err(_) => return Err(self.bad_utf8(self.number)),
         }
-        self.keep_comments();
         Ok(())
     }
 
@@ -689,41 +689,27 @@ impl<R: BufRead> Lines<R> {
                 .map_err(|e| self.io_error(e))?;
         }
         let first = self.number + 1;
-        if let Err(e) = std::str::from_utf8(&self.line) {
-            let start = memchr::memrchr(b'\n', &self.line[..e.valid_up_to()]).map_or(0, |i| i + 1);
+        let bad_at = match std::str::from_utf8(&self.line) {
+            Ok(text) => {
+                keep_comments(text, &mut self.comments);
+                None
+            }
+            Err(e) => Some(e.valid_up_to()),
+        };
+        if let Some(valid) = bad_at {
+            // The lines before the bad one are handed on first (rare: checked twice).
+            let start = memchr::memrchr(b'\n', &self.line[..valid]).map_or(0, |i| i + 1);
             self.line.truncate(start);
+            if let Ok(text) = std::str::from_utf8(&self.line) {
+                keep_comments(text, &mut self.comments);
+            }
             let bad = first + memchr::memchr_iter(b'\n', &self.line).count() as u64;
             self.pending = Some(self.bad_utf8(bad));
         }
         let newlines = memchr::memchr_iter(b'\n', &self.line).count() as u64;
         let unterminated = self.line.last().is_some_and(|&b| b != b'\n');
         self.number += newlines + u64::from(unterminated);
-        self.keep_comments();
         Ok(())
-    }
-
-    /// Keeps the text of each comment line of `line` (the lines whose first non-blank character
-    /// is `#`), without `#` and one following space.
-    fn keep_comments(&mut self) {
-        let Ok(text) = std::str::from_utf8(&self.line) else {
-            return;
-        };
-        let mut next = 0;
-        for hash in memchr::memchr_iter(b'#', text.as_bytes()) {
-            if hash < next {
-                continue;
-            }
-            let start = memchr::memrchr(b'\n', &text.as_bytes()[..hash]).map_or(0, |i| i + 1);
-            let end =
-                memchr::memchr(b'\n', &text.as_bytes()[hash..]).map_or(text.len(), |i| hash + i);
-            next = end;
-            if text[start..hash].trim_start().is_empty() {
-                // Passed on as it is: the CSV reader skips (and counts) a line starting with `#`.
-                let c = text[hash + 1..end].trim_end_matches('\r');
-                self.comments
-                    .push(c.strip_prefix(' ').unwrap_or(c).to_string());
-            }
-        }
     }
 
     /// Reads lines until the header row (the first neither blank nor a comment), which stays
@@ -775,6 +761,25 @@ impl<R: BufRead> Read for Lines<R> {
         buf[..n].copy_from_slice(&self.line[self.at..self.at + n]);
         self.at += n;
         Ok(n)
+    }
+}
+
+/// Keeps the text of each comment line of `text` (the lines whose first non-blank character is
+/// `#`) in `comments`, without `#` and one following space.
+fn keep_comments(text: &str, comments: &mut Vec<String>) {
+    let mut next = 0;
+    for hash in memchr::memchr_iter(b'#', text.as_bytes()) {
+        if hash < next {
+            continue;
+        }
+        let start = memchr::memrchr(b'\n', &text.as_bytes()[..hash]).map_or(0, |i| i + 1);
+        let end = memchr::memchr(b'\n', &text.as_bytes()[hash..]).map_or(text.len(), |i| hash + i);
+        next = end;
+        if text[start..hash].trim_start().is_empty() {
+            // Passed on as it is: the CSV reader skips (and counts) a line starting with `#`.
+            let c = text[hash + 1..end].trim_end_matches('\r');
+            comments.push(c.strip_prefix(' ').unwrap_or(c).to_string());
+        }
     }
 }
 
