@@ -17,7 +17,7 @@ pub(crate) fn par_map<T: Send>(count: usize, f: impl Fn(usize) -> T + Sync) -> V
             .collect();
         handles
             .into_iter()
-            .map(|h| h.join().expect("a selection thread panicked"))
+            .map(|h| h.join().expect("a par_map worker panicked"))
             .collect()
     });
     let mut parts: Vec<_> = parts.into_iter().map(Vec::into_iter).collect();

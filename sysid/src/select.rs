@@ -567,30 +567,11 @@ impl Reduction {
 
 /// Per-block moments, the blocks shared among the available cores for large data.
 fn gather_blocks(train: Xy, sc: &Scaling, centre: f64, blocks: &[Range<usize>]) -> Vec<Moments> {
-    let threads = if train.p.len() < 20_000 {
-        1
-    } else {
-        std::thread::available_parallelism()
-            .map_or(1, |t| t.get())
-            .min(8)
-    };
-    let chunk = blocks.len().div_ceil(threads).max(1);
-    std::thread::scope(|s| {
-        let handles: Vec<_> = blocks
-            .chunks(chunk)
-            .map(|part| {
-                s.spawn(move || {
-                    part.iter()
-                        .map(|r| Moments::gather_range(train, sc, centre, r.clone()))
-                        .collect::<Vec<_>>()
-                })
-            })
-            .collect();
-        handles
-            .into_iter()
-            .flat_map(|h| h.join().expect("moment thread panicked"))
-            .collect()
-    })
+    let one = |r: &Range<usize>| Moments::gather_range(train, sc, centre, r.clone());
+    if train.p.len() < 20_000 {
+        return blocks.iter().map(one).collect();
+    }
+    crate::par::par_map(blocks.len(), |b| one(&blocks[b]))
 }
 
 /// One shape's pooled cross-validated MSE and its standard error across blocks.
