@@ -122,6 +122,30 @@ proptest! {
         }
     }
 
+    /// A number cell is read as Rust's `str::parse::<f64>` reads it (the reader uses a faster
+    /// parser of the same syntax): the same value, or the same refusal.
+    #[test]
+    fn numbers_read_as_str_parse_reads_them(
+        cell in "[ ]?[-+]?[0-9]{0,4}[.]?[0-9]{0,4}([eE][-+]?[0-9]{0,4})?[ ]?|[-+]?(inf|Inf|INF|infinity|Infinity|nan|NaN|[0-9.eE+-]{1,8}|[a-f0-9x_]{1,6})"
+    ) {
+        let text = format!("time_s,volume_mm3,pressure_kpa\n0,1,{cell}\n");
+        let expect = cell.trim().parse::<f64>();
+        match (parse(&text), expect) {
+            (Ok(log), Ok(x)) => prop_assert_eq!(log.samples[0].pressure_kpa.to_bits(), x.to_bits()),
+            (Err(LogError::BadValue { problem, .. }), Ok(x)) => {
+                prop_assert!(!x.is_finite(), "{:?} refused ({}) but std reads {}", cell, problem, x);
+                prop_assert_eq!(problem, "not a finite number:");
+            }
+            (Err(LogError::BadValue { problem, .. }), Err(_)) if !cell.trim().is_empty() => {
+                prop_assert_eq!(problem, "cannot parse as a number:", "{:?}", cell);
+            }
+            (Err(LogError::BadValue { problem, .. }), Err(_)) => {
+                prop_assert_eq!(problem, "required value is empty:");
+            }
+            (got, want) => prop_assert!(false, "{:?}: read {:?}, std {:?}", cell, got, want),
+        }
+    }
+
     #[test]
     fn random_flags_cells_never_panic(cells in proptest::collection::vec("[-0-9a-z +.]{0,12}", 3..40)) {
         // Whatever the flags column holds, the dataset is built or refused with an error naming
