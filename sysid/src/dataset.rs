@@ -290,7 +290,15 @@ impl Dataset {
 
     /// Rows selected by `keep(i)`.
     pub fn select(&self, keep: impl Fn(usize) -> bool) -> Columns {
-        let mut c = Columns::default();
+        let rows = (0..self.len()).filter(|&i| keep(i)).count();
+        let mut c = Columns {
+            t: Vec::with_capacity(rows),
+            v: Vec::with_capacity(rows),
+            vdot: Vec::with_capacity(rows),
+            vddot: Vec::with_capacity(rows),
+            p: Vec::with_capacity(rows),
+            index: Vec::with_capacity(rows),
+        };
         for i in (0..self.len()).filter(|&i| keep(i)) {
             c.t.push(self.t[i]);
             c.v.push(self.v[i]);

@@ -423,7 +423,25 @@ pub fn fit(data: Xy, n: usize, m: usize, scaling: Option<Scaling>) -> Result<Pol
     };
     let centre = data.p.iter().sum::<f64>() / data.p.len() as f64;
     let mt = Moments::gather(data, &scaling, centre);
-    let (c, xtx_inv, sse) = match Restricted::new(&mt, n, m, &scaling, centre)
+    fit_from(data, n, m, scaling, &mt)
+}
+
+/// [`fit`] with `data`'s moments already gathered under `scaling`, its pressure centred at its
+/// mean (as [`Moments::gather`] by [`fit`], or the training moments of a [`SweepMoments`]): the
+/// same result without a second pass for them.
+pub fn fit_from(
+    data: Xy,
+    n: usize,
+    m: usize,
+    scaling: Scaling,
+    mt: &Moments,
+) -> Result<PolyFit, PolyError> {
+    data.check()?;
+    if n > MAX_DEGREE || m > MAX_DEGREE {
+        return Err(PolyError::Degree { n, m });
+    }
+    let centre = data.p.iter().sum::<f64>() / data.p.len() as f64;
+    let (c, xtx_inv, sse) = match Restricted::new(mt, n, m, &scaling, centre)
         .ok()
         .and_then(|g| g.inverse_if_conditioned())
     {
@@ -867,22 +885,64 @@ pub fn sweep(
     max_n: usize,
     max_m: usize,
 ) -> Result<Vec<Result<SweepEntry, PolyError>>, PolyError> {
-    train.check()?;
     if max_n > MAX_DEGREE || max_m > MAX_DEGREE {
         return Err(PolyError::Degree { n: max_n, m: max_m });
     }
-    let centre = train.p.iter().sum::<f64>() / train.p.len() as f64;
-    let mt = Moments::gather(train, scaling, centre);
-    let mh = match heldout {
-        Some(h) if !h.p.is_empty() => {
-            h.check()?;
-            Some(Moments::gather(h, scaling, centre))
+    SweepMoments::gather(train, heldout, scaling)?.sweep(max_n, max_m)
+}
+
+/// What [`sweep`] solves every shape from: the training set's moments and the held-out set's, in
+/// one scaling, the pressure centred at the training mean. Kept, they also give the selected
+/// shape's fit on the training set ([`fit_from`]) without another pass.
+#[derive(Debug, Clone)]
+pub struct SweepMoments {
+    /// The training set's moments.
+    pub train: Moments,
+    /// The held-out set's, when it has samples.
+    pub heldout: Option<Moments>,
+    /// The training pressure's mean, where both are centred.
+    pub centre: f64,
+}
+
+impl SweepMoments {
+    /// One pass over each set. Errors as [`sweep`]'s: no training samples, a non-finite value.
+    pub fn gather(
+        train: Xy,
+        heldout: Option<Xy>,
+        scaling: &Scaling,
+    ) -> Result<SweepMoments, PolyError> {
+        train.check()?;
+        let centre = train.p.iter().sum::<f64>() / train.p.len() as f64;
+        let mt = Moments::gather(train, scaling, centre);
+        let mh = match heldout {
+            Some(h) if !h.p.is_empty() => {
+                h.check()?;
+                Some(Moments::gather(h, scaling, centre))
+            }
+            _ => None,
+        };
+        Ok(SweepMoments {
+            train: mt,
+            heldout: mh,
+            centre,
+        })
+    }
+
+    /// [`sweep`]'s entries, from these moments.
+    #[allow(clippy::type_complexity)]
+    pub fn sweep(
+        &self,
+        max_n: usize,
+        max_m: usize,
+    ) -> Result<Vec<Result<SweepEntry, PolyError>>, PolyError> {
+        if max_n > MAX_DEGREE || max_m > MAX_DEGREE {
+            return Err(PolyError::Degree { n: max_n, m: max_m });
         }
-        _ => None,
-    };
-    Ok(crate::par::par_map(max_n * max_m, |k| {
-        solve_entry(&mt, mh.as_ref(), 1 + k / max_m, 1 + k % max_m, centre)
-    }))
+        Ok(crate::par::par_map(max_n * max_m, |k| {
+            let (n, m) = (1 + k / max_m, 1 + k % max_m);
+            solve_entry(&self.train, self.heldout.as_ref(), n, m, self.centre)
+        }))
+    }
 }
 
 fn solve_entry(

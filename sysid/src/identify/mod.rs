@@ -212,11 +212,12 @@ pub struct Table1 {
     pub lambda_norm: Option<[f64; 4]>,
 }
 
-/// Table I for these columns (see [`Table1`]). PCA of X' = (X − μ)/σ: eigen-decomposition of
-/// (1/(N−1)) X'ᵀX', the correlation matrix; λ_norm = λ / tr Λ.
-pub fn table1(c: &Columns) -> Table1 {
-    let cols = [&c.v, &c.vdot, &c.vddot, &c.p];
-    let n = c.len() as f64;
+/// Table I for the columns v, v̇, v̈ and P, of one length (see [`Table1`]). PCA of
+/// X' = (X − μ)/σ: eigen-decomposition of (1/(N−1)) X'ᵀX', the correlation matrix;
+/// λ_norm = λ / tr Λ.
+pub fn table1(cols: [&[f64]; 4]) -> Table1 {
+    let len = cols[3].len();
+    let n = len as f64;
     let mean: Vec<f64> = cols.iter().map(|x| x.iter().sum::<f64>() / n).collect();
     let sd: Vec<f64> = cols
         .iter()
@@ -224,7 +225,7 @@ pub fn table1(c: &Columns) -> Table1 {
         .map(|(x, m)| (x.iter().map(|a| (a - m).powi(2)).sum::<f64>() / (n - 1.0)).sqrt())
         .collect();
     let corr = |a: usize, b: usize| -> Option<f64> {
-        if !(sd[a] > 0.0 && sd[b] > 0.0) || c.len() < 3 {
+        if !(sd[a] > 0.0 && sd[b] > 0.0) || len < 3 {
             return None;
         }
         let s: f64 = cols[a]
@@ -236,13 +237,12 @@ pub fn table1(c: &Columns) -> Table1 {
     };
     let mut r = nalgebra::Matrix4::<f64>::identity();
     let mut ok = true;
+    // Symmetric, and each product (x − μ_a)(y − μ_b) the same either way: six pairs.
     for a in 0..4 {
-        for b in 0..4 {
-            if a != b {
-                match corr(a, b) {
-                    Some(x) => r[(a, b)] = x,
-                    None => ok = false,
-                }
+        for b in a + 1..4 {
+            match corr(a, b) {
+                Some(x) => (r[(a, b)], r[(b, a)]) = (x, x),
+                None => ok = false,
             }
         }
     }
@@ -510,6 +510,8 @@ pub struct Sweep<'a> {
     pub rep: ChamberReport,
     /// The polynomial shape the poly family selected, once it has run.
     pub poly_choice: Option<(usize, usize)>,
+    /// The moments the poly family's sweep was solved from, once it has run.
+    pub poly_moments: Option<poly::SweepMoments>,
 }
 
 impl Sweep<'_> {
@@ -553,7 +555,6 @@ impl Sweep<'_> {
 /// Runs the selected families on one chamber's dataset.
 pub fn identify(ds: &Dataset, opt: &Options) -> ChamberReport {
     let (train, held) = (ds.train(), ds.heldout());
-    let all = ds.all();
     let rep = ChamberReport {
         chamber: ds.chamber,
         samples: ds.len(),
@@ -568,7 +569,7 @@ pub fn identify(ds: &Dataset, opt: &Options) -> ChamberReport {
                 2 * half_width + 1
             ),
         },
-        table1: table1(&all),
+        table1: table1([&ds.v, &ds.vdot, &ds.vddot, &ds.p]),
         models: Vec::new(),
         failed: Vec::new(),
         best: Vec::new(),
@@ -584,11 +585,12 @@ pub fn identify(ds: &Dataset, opt: &Options) -> ChamberReport {
     let mut cx = Sweep {
         ds,
         opt,
-        scaling: Scaling::from_data(&all.v, &all.vdot),
+        scaling: Scaling::from_data(&ds.v, &ds.vdot),
         train,
         held,
         rep,
         poly_choice: None,
+        poly_moments: None,
     };
     for fam in FAMILIES
         .iter()

@@ -21,10 +21,15 @@ impl ModelFamily for PolyFamily {
             Ok(sc) => sc,
             Err(e) => return cx.fail(family, "all".into(), &e),
         };
-        let entries = match poly::sweep(Xy::from(&cx.train), cx.held_xy(), &sc, max_n, max_m) {
+        let moments = match poly::SweepMoments::gather(Xy::from(&cx.train), cx.held_xy(), &sc) {
+            Ok(moments) => moments,
+            Err(e) => return cx.fail(family, "all".into(), &e),
+        };
+        let entries = match moments.sweep(max_n, max_m) {
             Ok(entries) => entries,
             Err(e) => return cx.fail(family, "all".into(), &e),
         };
+        cx.poly_moments = Some(moments);
         let shapes = (1..=max_n).flat_map(|n| (1..=max_m).map(move |m| (n, m)));
         for ((n, m), entry) in shapes.zip(&entries) {
             match entry {
@@ -107,7 +112,12 @@ pub(super) fn statistics(cx: &mut Sweep<'_>) {
         return;
     };
     let scaling = cx.scaling.as_ref().ok().copied();
-    match poly::fit(Xy::from(&cx.train), n, m, scaling) {
+    // The sweep's training moments are this fit's (same rows, scaling and centre).
+    let fitted = match (scaling, &cx.poly_moments) {
+        (Some(sc), Some(sm)) => poly::fit_from(Xy::from(&cx.train), n, m, sc, &sm.train),
+        _ => poly::fit(Xy::from(&cx.train), n, m, scaling),
+    };
+    match fitted {
         Ok(f) => {
             cx.rep.poly_coefficients = f
                 .term_names()
