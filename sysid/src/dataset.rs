@@ -706,53 +706,57 @@ pub(crate) fn order_statistic(x: &mut [f64], k: usize) -> Option<f64> {
 
 /// First and second derivatives of `y(t)` by a local quadratic least-squares fit over
 /// `i−h ..= i+h` (clipped at the ends). See the module docs.
+/// Each sample's pair is its own (computed on the available cores).
 pub fn local_quadratic_derivatives(t: &[f64], y: &[f64], h: usize) -> (Vec<f64>, Vec<f64>) {
     let n = t.len();
-    let mut d1 = vec![0.0; n];
-    let mut d2 = vec![0.0; n];
     if n < 2 {
-        return (d1, d2);
+        return (vec![0.0; n], vec![0.0; n]);
     }
-    for i in 0..n {
-        let lo = i.saturating_sub(h);
-        let hi = (i + h).min(n - 1);
-        // Need three points for a quadratic; widen on the short side at the ends.
-        let (lo, hi) = if hi - lo < 2 && n >= 3 {
-            if lo == 0 {
-                (0, 2.min(n - 1))
-            } else {
-                (n - 3, n - 1)
-            }
+    crate::par::par_map_items(n, |i| local_quadratic_at(t, y, h, i))
+        .into_iter()
+        .unzip()
+}
+
+/// (dy/dt, d²y/dt²) at sample `i` of [`local_quadratic_derivatives`] (`t` has two samples or
+/// more).
+fn local_quadratic_at(t: &[f64], y: &[f64], h: usize, i: usize) -> (f64, f64) {
+    let n = t.len();
+    let lo = i.saturating_sub(h);
+    let hi = (i + h).min(n - 1);
+    // Need three points for a quadratic; widen on the short side at the ends.
+    let (lo, hi) = if hi - lo < 2 && n >= 3 {
+        if lo == 0 {
+            (0, 2.min(n - 1))
         } else {
-            (lo, hi)
-        };
-        // Normal equations in τ = (t − tᵢ)/s are 3×3 and well conditioned after scaling by s.
-        let s = (t[hi] - t[lo]).max(f64::MIN_POSITIVE);
-        let mut m = [[0.0f64; 3]; 3];
-        let mut r = [0.0f64; 3];
-        for j in lo..=hi {
-            let tau = (t[j] - t[i]) / s;
-            let b = [1.0, tau, tau * tau];
-            for a in 0..3 {
-                r[a] += b[a] * y[j];
-                for c in 0..3 {
-                    m[a][c] += b[a] * b[c];
-                }
+            (n - 3, n - 1)
+        }
+    } else {
+        (lo, hi)
+    };
+    // Normal equations in τ = (t − tᵢ)/s are 3×3 and well conditioned after scaling by s.
+    let s = (t[hi] - t[lo]).max(f64::MIN_POSITIVE);
+    let mut m = [[0.0f64; 3]; 3];
+    let mut r = [0.0f64; 3];
+    for j in lo..=hi {
+        let tau = (t[j] - t[i]) / s;
+        let b = [1.0, tau, tau * tau];
+        for a in 0..3 {
+            r[a] += b[a] * y[j];
+            for c in 0..3 {
+                m[a][c] += b[a] * b[c];
             }
         }
-        let (c1, c2) = if hi - lo >= 2 {
-            match solve3(m, r) {
-                Some(x) => (x[1], x[2]),
-                None => (0.0, 0.0),
-            }
-        } else {
-            // Two points: a straight line.
-            ((y[hi] - y[lo]) / (t[hi] - t[lo]) * s, 0.0)
-        };
-        d1[i] = c1 / s;
-        d2[i] = 2.0 * c2 / (s * s);
     }
-    (d1, d2)
+    let (c1, c2) = if hi - lo >= 2 {
+        match solve3(m, r) {
+            Some(x) => (x[1], x[2]),
+            None => (0.0, 0.0),
+        }
+    } else {
+        // Two points: a straight line.
+        ((y[hi] - y[lo]) / (t[hi] - t[lo]) * s, 0.0)
+    };
+    (c1 / s, 2.0 * c2 / (s * s))
 }
 
 /// Solves a 3×3 system by Cramer's rule (the systems are tiny and well scaled).

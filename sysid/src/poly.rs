@@ -303,12 +303,9 @@ impl PolyFit {
         acc
     }
 
-    /// Predictions for many samples.
+    /// Predictions for many samples (on the available cores; each is [`PolyFit::predict`]'s).
     pub fn predict_all(&self, v: &[f64], vdot: &[f64]) -> Vec<f64> {
-        v.iter()
-            .zip(vdot)
-            .map(|(&a, &b)| self.predict(a, b))
-            .collect()
+        crate::par::par_map_items(v.len().min(vdot.len()), |k| self.predict(v[k], vdot[k]))
     }
 
     /// (∂P/∂v, ∂P/∂v̇): instantaneous stiffness k (kPa/mm³) and damping c (kPa·s/mm³), Sec. IV-A.
@@ -477,12 +474,12 @@ pub fn fit_from(
 pub const MAX_GRAM_CONDITION: f64 = 1e6;
 
 /// SSE of the centred Chebyshev coefficients `c` on `data`, from the residuals themselves.
+/// The residuals come from the available cores; their squares are summed in order.
 fn sse_direct(data: Xy, sc: &Scaling, n: usize, m: usize, c: &DVector<f64>, centre: f64) -> f64 {
-    let mut tx = [0.0; MAX_DEGREE + 1];
-    let mut ty = [0.0; MAX_DEGREE + 1];
-    let mut sse = 0.0;
-    for ((&v, &q), &p) in data.v.iter().zip(data.vdot).zip(data.p) {
-        let (a, b) = sc.apply(v, q);
+    let residual = |k: usize| {
+        let mut tx = [0.0; MAX_DEGREE + 1];
+        let mut ty = [0.0; MAX_DEGREE + 1];
+        let (a, b) = sc.apply(data.v[k], data.vdot[k]);
         chebyshev(a, &mut tx[..=n]);
         chebyshev(b, &mut ty[..=m]);
         let mut pred = 0.0;
@@ -491,7 +488,11 @@ fn sse_direct(data: Xy, sc: &Scaling, n: usize, m: usize, c: &DVector<f64>, cent
                 pred += c[i * (m + 1) + j] * tx[i] * ty[j];
             }
         }
-        sse += (p - centre - pred).powi(2);
+        data.p[k] - centre - pred
+    };
+    let mut sse = 0.0;
+    for r in crate::par::par_map_items(data.p.len(), residual) {
+        sse += r.powi(2);
     }
     sse
 }

@@ -112,11 +112,18 @@ pub(super) fn statistics(cx: &mut Sweep<'_>) {
         return;
     };
     let scaling = cx.scaling.as_ref().ok().copied();
-    // The sweep's training moments are this fit's (same rows, scaling and centre).
-    let fitted = match (scaling, &cx.poly_moments) {
-        (Some(sc), Some(sm)) => poly::fit_from(Xy::from(&cx.train), n, m, sc, &sm.train),
-        _ => poly::fit(Xy::from(&cx.train), n, m, scaling),
-    };
+    let (train, held, k) = (Xy::from(&cx.train), cx.held_xy(), cx.opt.prune_k);
+    // The fit and the pruning table side by side (each also splits its passes over the cores).
+    let (fitted, pruned) = std::thread::scope(|s| {
+        let pruning = (k > 0).then(|| s.spawn(move || poly::prune(train, held, n, m, k)));
+        // The sweep's training moments are this fit's (same rows, scaling and centre).
+        let fitted = match (scaling, &cx.poly_moments) {
+            (Some(sc), Some(sm)) => poly::fit_from(train, n, m, sc, &sm.train),
+            _ => poly::fit(train, n, m, scaling),
+        };
+        let pruned = pruning.map(|h| h.join().expect("the pruning thread panicked"));
+        (fitted, pruned)
+    });
     match fitted {
         Ok(f) => {
             cx.rep.poly_coefficients = f
@@ -129,10 +136,9 @@ pub(super) fn statistics(cx: &mut Sweep<'_>) {
         }
         Err(e) => cx.fail(Family::Poly, format!("({n}, {m}) refit"), &e),
     }
-    if cx.opt.prune_k > 0 {
-        match poly::prune(Xy::from(&cx.train), cx.held_xy(), n, m, cx.opt.prune_k) {
-            Ok(rows) => cx.rep.pruning = rows,
-            Err(e) => cx.fail(Family::Poly, format!("({n}, {m}) pruning"), &e),
-        }
+    match pruned {
+        Some(Ok(rows)) => cx.rep.pruning = rows,
+        Some(Err(e)) => cx.fail(Family::Poly, format!("({n}, {m}) pruning"), &e),
+        None => {}
     }
 }
