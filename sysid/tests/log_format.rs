@@ -98,6 +98,17 @@ fn errors_name_file_line_and_column() {
     assert!(e.to_string().starts_with("/nonexistent/dir/log.csv: "));
 }
 
+/// Windows line ends and a last comment without a line end: errors still name the row's own
+/// line, and the comment is no row.
+#[test]
+fn crlf_lines_and_a_last_comment_read_like_the_rest() {
+    let e = parse("# c\r\ntime_s,volume_mm3,pressure_kpa\r\n0,1,2\r\n0.1,x,3\r\n").unwrap_err();
+    assert!(matches!(e, LogError::BadValue { line: 4, .. }), "{e:?}");
+    let log = parse("time_s,volume_mm3,pressure_kpa\r\n0,1,2\r\n# end").unwrap();
+    assert_eq!(log.samples.len(), 1);
+    assert_eq!(log.comments, ["end"]);
+}
+
 #[test]
 fn time_may_interleave_across_chambers() {
     let log =

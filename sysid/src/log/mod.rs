@@ -22,6 +22,9 @@
 
 use std::fmt;
 use std::io::{BufRead, Read, Write};
+
+mod rows;
+use rows::{Fields, Rows};
 use std::path::{Path, PathBuf};
 
 pub use crate::columns::ReadOptions;
@@ -355,8 +358,8 @@ pub fn log_from_table(
     parse_log_with(&text[..], name, opts)
 }
 
-/// A log read one row at a time: the file is never held whole, only the row being parsed (a
-/// 190 MB log is read in the memory of one line). The rules and errors are those of
+/// A log read a block of lines at a time: the file is never held whole, only a few blocks of
+/// [`BLOCK_BYTES`] (a 190 MB log is read in a few megabytes). The rules and errors are those of
 /// [`parse_log`], which is this reader collecting every row; `# comment` lines anywhere in the
 /// file are collected as they pass ([`LogReader::into_comments`]).
 ///
@@ -374,12 +377,73 @@ pub fn log_from_table(
 /// assert_eq!(rows.into_comments(), ["rig=A"]);
 /// ```
 pub struct LogReader<R: BufRead> {
-    csv: csv::Reader<Lines<R>>,
-    cols: Columns,
+    lines: Lines<R>,
+    shape: Shape,
     extra_columns: Vec<String>,
-    rec: csv::ByteRecord,
     checks: RowChecks,
+    /// The block [`LogReader::next_sample`] is handing out, and the index of its next row.
+    current: Option<Parsed>,
+    next_row: usize,
+    /// An error has been returned: no more rows.
+    stopped: bool,
+}
+
+/// What turns a block's lines into samples: the columns found in the header, the number of
+/// fields a row has, the delimiter and the file's name for errors.
+struct Shape {
+    cols: Columns,
+    width: usize,
+    delimiter: u8,
     file: String,
+}
+
+/// A block of lines with its rows cut and read into samples, up to the first error.
+struct Parsed {
+    buf: Buffers,
+    /// The block's first error, after its samples: a bad row, or a line not UTF-8 after it.
+    error: Option<LogError>,
+}
+
+/// The buffers a block's text, rows and samples live in. [`LogReader::for_each`] hands them
+/// round (reading, parsing, handing on, reading again), so a long file is read in a few.
+#[derive(Default)]
+struct Buffers {
+    text: Vec<u8>,
+    rows: Rows,
+    samples: Vec<Sample>,
+}
+
+impl Shape {
+    /// The block's rows, cut here unless the reading side cut them, and their samples.
+    fn parse(&self, block: Block) -> Parsed {
+        let Block {
+            mut buf,
+            first_line,
+            cut,
+            pending,
+        } = block;
+        if !cut {
+            buf.rows = rows::cut(&buf.text, first_line, self.delimiter, buf.rows);
+        }
+        buf.samples.clear();
+        let mut error = None;
+        for k in 0..buf.rows.len() {
+            match self
+                .cols
+                .sample(buf.rows.row(&buf.text, k), self.width, &self.file)
+            {
+                Ok(s) => buf.samples.push(s),
+                Err(e) => {
+                    error = Some(e);
+                    break;
+                }
+            }
+        }
+        Parsed {
+            buf,
+            error: error.or(pending),
+        }
+    }
 }
 
 /// The checks across rows: time increasing within each chamber, and at least one data row.
@@ -396,20 +460,13 @@ impl RowChecks {
         }
     }
 
-    /// The sample of `rec`, its numbers and chamber checked by `cols` and its time against the
-    /// chamber's previous row.
-    fn row(
-        &mut self,
-        cols: &Columns,
-        rec: &csv::ByteRecord,
-        file: &str,
-    ) -> Result<Sample, LogError> {
-        let sample = cols.sample(rec, file)?;
+    /// Checks `sample`'s time (of the row at `line`) against its chamber's previous row.
+    fn row(&mut self, sample: &Sample, line: u64, file: &str) -> Result<(), LogError> {
         let c = sample.chamber as usize;
         if sample.time_s <= self.last_time[c] {
             return Err(LogError::TimeNotIncreasing {
                 file: file.into(),
-                line: line_of(rec),
+                line,
                 chamber: sample.chamber,
                 time: sample.time_s,
                 previous: self.last_time[c],
@@ -417,7 +474,7 @@ impl RowChecks {
         }
         self.last_time[c] = sample.time_s;
         self.rows += 1;
-        Ok(sample)
+        Ok(())
     }
 
     /// At the end of the rows: an [`LogError::Empty`] when there was none.
@@ -437,24 +494,21 @@ impl<R: BufRead> LogReader<R> {
     /// detected from it, columns found by name). Errors: no header, a missing or repeated column.
     pub fn new(reader: R, file: &str, opts: &ReadOptions) -> Result<Self, LogError> {
         let mut lines = Lines::new(reader, file);
-        let delimiter = lines.find_header()?;
-        let mut csv = csv::ReaderBuilder::new()
-            .has_headers(false)
-            .delimiter(delimiter)
-            .comment(Some(b'#'))
-            // Fields are trimmed where they are read (`cell`): the reader's own trim rebuilds
-            // every record, a quarter of the time of reading a log.
-            .flexible(false)
-            .from_reader(lines);
-        let (names, header_line) = header(&mut csv, file)?;
+        let (names, header_line, delimiter) = header(&mut lines, file)?;
         let cols = Columns::find(&names, header_line, file, opts)?;
         Ok(Self {
             extra_columns: cols.extra.iter().map(|&i| names[i].clone()).collect(),
-            csv,
-            cols,
-            rec: csv::ByteRecord::new(),
+            shape: Shape {
+                cols,
+                width: names.len(),
+                delimiter,
+                file: file.into(),
+            },
+            lines,
             checks: RowChecks::new(),
-            file: file.into(),
+            current: None,
+            next_row: 0,
+            stopped: false,
         })
     }
 
@@ -466,149 +520,220 @@ impl<R: BufRead> LogReader<R> {
     /// The next row, checked (numbers, chamber, time increasing within its chamber); `None` at
     /// the end of the file, an [`LogError::Empty`] there when the file had no data row.
     pub fn next_sample(&mut self) -> Result<Option<Sample>, LogError> {
-        let more = match self.csv.read_byte_record(&mut self.rec) {
-            Ok(more) => more,
-            Err(e) => return Err(self.csv.get_mut().take_error(e)),
-        };
-        if !more {
-            if let Some(e) = self.csv.get_mut().error.take() {
-                return Err(e);
-            }
-            self.checks.end(&self.file)?;
+        let out = self.next_checked();
+        self.stopped |= !matches!(out, Ok(Some(_)));
+        out
+    }
+
+    fn next_checked(&mut self) -> Result<Option<Sample>, LogError> {
+        if self.stopped {
             return Ok(None);
         }
-        self.checks.row(&self.cols, &self.rec, &self.file).map(Some)
+        loop {
+            if let Some(p) = &mut self.current {
+                if let Some(s) = p.buf.samples.get(self.next_row) {
+                    let line = p.buf.rows.row(&p.buf.text, self.next_row).line;
+                    self.checks.row(s, line, &self.shape.file)?;
+                    self.next_row += 1;
+                    return Ok(Some(s.clone()));
+                }
+                if let Some(e) = p.error.take() {
+                    return Err(e);
+                }
+            }
+            let spare = self.current.take().map(|p| p.buf).unwrap_or_default();
+            match self.lines.next_block(self.shape.delimiter, spare)? {
+                Some(block) => {
+                    self.current = Some(self.shape.parse(block));
+                    self.next_row = 0;
+                }
+                None => {
+                    self.current = None;
+                    self.checks.end(&self.shape.file)?;
+                    return Ok(None);
+                }
+            }
+        }
     }
 
     /// The current row's cell of extra column `k` (`""` before the first row and once the rows
     /// are exhausted).
     pub fn extra_cell(&self, k: usize) -> &str {
-        Row {
-            rec: &self.rec,
-            extra: &self.cols.extra,
+        match &self.current {
+            Some(p) if self.next_row > 0 && self.next_row <= p.buf.samples.len() => Row {
+                fields: p.buf.rows.row(&p.buf.text, self.next_row - 1),
+                extra: &self.shape.cols.extra,
+            }
+            .extra_cell(k),
+            _ => "",
         }
-        .extra_cell(k)
     }
 
     /// The comment lines read so far (every one once the rows are exhausted), without `#` and one
     /// following space, in file order.
     pub fn into_comments(self) -> Vec<String> {
-        self.csv.into_inner().comments
+        self.lines.comments
     }
 }
 
 /// A row as [`LogReader::for_each`] hands it on, for its extra cells.
 pub struct Row<'a> {
-    rec: &'a csv::ByteRecord,
+    fields: Fields<'a>,
     extra: &'a [usize],
 }
 
 impl<'a> Row<'a> {
     /// The row's cell of extra column `k` (as [`LogReader::extra_cell`]).
     pub fn extra_cell(&self, k: usize) -> &'a str {
-        self.extra.get(k).map_or("", |&i| text(cell(self.rec, i)))
+        self.extra
+            .get(k)
+            .map_or("", |&i| text(cell(self.fields, i)))
     }
 }
 
-/// Records per batch of [`LogReader::for_each`]'s reading thread.
-const BATCH_ROWS: usize = 512;
-
-/// Batches in flight between [`LogReader::for_each`]'s two threads (memory stays a few batches of
-/// rows, whatever the file's length).
-const BATCHES_IN_FLIGHT: usize = 4;
-
 impl<R: BufRead + Send> LogReader<R> {
     /// Every remaining row, checked as [`LogReader::next_sample`] checks it, handed in file order
-    /// to `f` with the row (for its extra cells, [`Row::extra_cell`]); then returns the
-    /// comment lines (as [`LogReader::into_comments`]). Two threads: one reads the lines and cuts
-    /// them into fields, a few batches of [`BATCH_ROWS`] ahead, while this one parses and checks
-    /// the numbers and calls `f`, so a long file is read in about the time of the slower half.
+    /// to `f` with the row (for its extra cells, [`Row::extra_cell`]); then returns the comment
+    /// lines (as [`LogReader::into_comments`]). One thread reads the blocks, one per core cuts
+    /// and parses them, and this one checks the rows across blocks and calls `f`, in file order;
+    /// a few blocks' buffers go round, so memory stays a few blocks whatever the file's length.
     /// The first error in file order is returned, with the same message as `next_sample`'s.
     pub fn for_each(self, mut f: impl FnMut(&Sample, Row<'_>)) -> Result<Vec<String>, LogError> {
         let LogReader {
-            mut csv,
-            cols,
+            mut lines,
+            shape,
             mut checks,
-            file,
+            current,
+            next_row,
+            stopped,
             ..
         } = self;
-        type Batch = Vec<csv::ByteRecord>;
-        let (full_tx, full_rx) =
-            std::sync::mpsc::sync_channel::<Result<Batch, LogError>>(BATCHES_IN_FLIGHT);
-        let (empty_tx, empty_rx) = std::sync::mpsc::channel::<Batch>();
-        std::thread::scope(|scope| {
-            let reading = scope.spawn(move || loop {
-                let mut batch = empty_rx.try_recv().unwrap_or_default();
-                batch.resize_with(BATCH_ROWS, csv::ByteRecord::new);
-                let mut filled = 0;
-                let mut failed = None;
-                while filled < BATCH_ROWS {
-                    match csv.read_byte_record(&mut batch[filled]) {
-                        Ok(true) => filled += 1,
-                        Ok(false) => break,
-                        Err(e) => {
-                            failed = Some(csv.get_mut().take_error(e));
-                            break;
-                        }
-                    }
-                }
-                let end = filled < BATCH_ROWS;
-                batch.truncate(filled);
-                if !batch.is_empty() && full_tx.send(Ok(batch)).is_err() {
-                    return csv;
-                }
-                if let Some(e) =
-                    failed.or_else(|| end.then(|| csv.get_mut().error.take()).flatten())
-                {
-                    let _ = full_tx.send(Err(e));
-                    return csv;
-                }
-                if end {
-                    return csv;
-                }
+        if stopped {
+            return Err(LogError::Malformed {
+                file: shape.file.clone(),
+                line: 0,
+                message: "the reader stopped at an earlier error".into(),
             });
-            // The receiver is dropped when this returns, which stops the reading thread at its
-            // next batch.
-            let outcome = (move || -> Result<(), LogError> {
-                for batch in full_rx {
-                    let batch = batch?;
-                    for rec in &batch {
-                        let sample = checks.row(&cols, rec, &file)?;
-                        let extra = &cols.extra;
-                        f(&sample, Row { rec, extra });
+        }
+        if let Some(p) = current {
+            hand_on(&shape, &mut checks, p, next_row, &mut f)?;
+        }
+        let workers = std::thread::available_parallelism().map_or(1, |n| n.get().min(8));
+        // Blocks in flight: one being read, one waiting per worker, one being parsed per worker,
+        // one parsed per worker waiting to be handed on (a few hundred kilobytes each).
+        let (work_tx, work_rx) = std::sync::mpsc::sync_channel::<Loaded>(workers);
+        let work_rx = std::sync::Arc::new(std::sync::Mutex::new(work_rx));
+        let (done_tx, done_rx) = std::sync::mpsc::sync_channel::<Handed>(workers);
+        let (spare_tx, spare_rx) = std::sync::mpsc::channel::<Buffers>();
+        let shape = &shape;
+        std::thread::scope(|s| {
+            let reading = s.spawn(move || {
+                for k in 0.. {
+                    let spare = spare_rx.try_recv().unwrap_or_default();
+                    let item = match lines.next_block(shape.delimiter, spare) {
+                        Ok(Some(b)) => Ok(b),
+                        Ok(None) => break,
+                        Err(e) => Err(e),
+                    };
+                    let failed = item.is_err();
+                    if work_tx.send((k, item)).is_err() || failed {
+                        break;
                     }
-                    let _ = empty_tx.send(batch);
                 }
-                checks.end(&file)
+                lines.comments
+            });
+            for _ in 0..workers {
+                let (work_rx, done_tx) = (work_rx.clone(), done_tx.clone());
+                s.spawn(move || loop {
+                    let next = work_rx
+                        .lock()
+                        .unwrap_or_else(std::sync::PoisonError::into_inner)
+                        .recv();
+                    let Ok((k, item)) = next else { break };
+                    if done_tx.send((k, item.map(|b| shape.parse(b)))).is_err() {
+                        break;
+                    }
+                });
+            }
+            drop((done_tx, work_rx));
+            // Returning drops the receiver: the workers stop at their next block, then the reader.
+            let outcome = (|| {
+                let mut waiting = std::collections::BTreeMap::new();
+                let mut next = 0;
+                for (k, item) in done_rx {
+                    waiting.insert(k, item);
+                    while let Some(item) = waiting.remove(&next) {
+                        let buf = hand_on(shape, &mut checks, item?, 0, &mut f)?;
+                        let _ = spare_tx.send(buf);
+                        next += 1;
+                    }
+                }
+                checks.end(&shape.file)
             })();
-            let csv = reading.join().expect("the reading thread panicked");
-            outcome?;
-            Ok(csv.into_inner().comments)
+            let comments = reading.join().expect("the reading thread panicked");
+            outcome.map(|()| comments)
         })
+    }
+}
+
+/// A block as the reading thread sends it to the workers: its place in the file, and the block
+/// or the error that ended the reading.
+type Loaded = (usize, Result<Block, LogError>);
+
+/// A block as a worker sends it on: its place, and its rows parsed (or the reading's error).
+type Handed = (usize, Result<Parsed, LogError>);
+
+/// `p`'s samples from row `from` checked and handed to `f`, then its error if any; else its
+/// buffers, for another block.
+fn hand_on(
+    shape: &Shape,
+    checks: &mut RowChecks,
+    p: Parsed,
+    from: usize,
+    f: &mut impl FnMut(&Sample, Row<'_>),
+) -> Result<Buffers, LogError> {
+    let Parsed { buf, error } = p;
+    for (k, s) in buf.samples.iter().enumerate().skip(from) {
+        let fields = buf.rows.row(&buf.text, k);
+        checks.row(s, fields.line, &shape.file)?;
+        let extra = &shape.cols.extra;
+        f(s, Row { fields, extra });
+    }
+    match error {
+        Some(e) => Err(e),
+        None => Ok(buf),
     }
 }
 
 /// Bytes of whole lines [`Lines`] loads at a time once the header is found.
 const BLOCK_BYTES: usize = 64 * 1024;
 
-/// The file's lines on their way to the CSV reader: checked for UTF-8 (an error names the line),
-/// a leading byte-order mark dropped, and each `#` comment line's text kept as it passes. Up to
-/// the header a line at a time; after it, blocks of whole lines of about [`BLOCK_BYTES`], each
-/// checked at once, so that a long file costs a few passes over its bytes rather than a few
-/// calls per line.
+/// A block of whole lines as [`Lines`] loads it.
+struct Block {
+    /// Its text; its rows when `cut`; buffers for its samples.
+    buf: Buffers,
+    first_line: u64,
+    /// Whether the reading side cut its rows already (to find the block's end: a quote in it).
+    cut: bool,
+    /// An error met right after the block (its lines come first).
+    pending: Option<LogError>,
+}
+
+/// The file's lines: checked for UTF-8 (an error names the line), a leading byte-order mark
+/// dropped, and each `#` comment line's text kept as it passes. Up to the header a line at a
+/// time; after it, blocks of whole lines of about [`BLOCK_BYTES`], each checked at once, so that
+/// a long file costs a few passes over its bytes rather than a few calls per line. A block ends
+/// between rows: one with a quote in it is cut into rows as it is loaded, taking the lines a
+/// quoted field carries on into; any other ends at a line's end ([`rows`]).
 struct Lines<R> {
     inner: R,
     file: String,
-    /// Bytes of the current line or block not yet handed on.
-    line: Vec<u8>,
-    at: usize,
     /// Lines loaded so far.
     number: u64,
     comments: Vec<String>,
-    /// An error found in the current block, after the lines before it (handed on first).
+    /// An error met after the lines loaded (handed on after them), and whether it was.
     pending: Option<LogError>,
-    /// The first error met (the CSV reader sees an I/O error; [`LogReader`] reports this).
-    error: Option<LogError>,
+    stopped: bool,
 }
 
 impl<R: BufRead> Lines<R> {
@@ -616,12 +741,10 @@ impl<R: BufRead> Lines<R> {
         Self {
             inner,
             file: file.into(),
-            line: Vec::new(),
-            at: 0,
             number: 0,
             comments: Vec::new(),
             pending: None,
-            error: None,
+            stopped: false,
         }
     }
 
@@ -640,128 +763,131 @@ impl<R: BufRead> Lines<R> {
         }
     }
 
-    /// Loads the next line into `line` (empty at the end of the input).
-    fn next_line(&mut self) -> Result<(), LogError> {
-        self.line.clear();
-        self.at = 0;
-        self.inner
-            .read_until(b'\n', &mut self.line)
-            .map_err(|e| self.io_error(e))?;
-        if self.line.is_empty() {
-            return Ok(());
+    /// Appends the next line to `text` (checked, its comment kept); `false` at the end of the
+    /// input, or at an error, which is then `pending`.
+    fn append_line(&mut self, text: &mut Vec<u8>) -> bool {
+        let start = text.len();
+        match self.inner.read_until(b'\n', text) {
+            Ok(0) => return false,
+            Ok(_) => {}
+            Err(e) => {
+                self.pending = Some(self.io_error(e));
+                return false;
+            }
         }
         self.number += 1;
-        if self.number == 1 && self.line.starts_with("\u{feff}".as_bytes()) {
-            self.line.drain(..3);
+        if self.number == 1 && text[start..].starts_with("\u{feff}".as_bytes()) {
+            text.drain(start..start + 3);
         }
-        match std::str::from_utf8(&self.line) {
-            Ok(text) => keep_comments(text, &mut self.comments),
-            Err(_) => return Err(self.bad_utf8(self.number)),
+        match std::str::from_utf8(&text[start..]) {
+            Ok(line) => keep_comments(line, &mut self.comments),
+            Err(_) => {
+                text.truncate(start);
+                self.pending = Some(self.bad_utf8(self.number));
+                return false;
+            }
         }
-        Ok(())
+        true
     }
 
-    /// Loads the next block of whole lines into `line` (empty at the end of the input). A line
-    /// that is not UTF-8 ends the block before it, and its error is `pending`.
-    fn next_block(&mut self) -> Result<(), LogError> {
-        self.line.clear();
-        self.at = 0;
-        while self.line.len() < BLOCK_BYTES {
-            let got = match self.inner.fill_buf() {
-                Ok(got) => got,
-                Err(source) => {
-                    return Err(LogError::Io {
-                        file: self.file.clone(),
-                        source,
-                    })
+    /// The next block of whole lines (`None` at the end of the input, or after an error). A line
+    /// that is not UTF-8 ends the block before it, and its error is the block's `pending`.
+    fn next_block(&mut self, delimiter: u8, spare: Buffers) -> Result<Option<Block>, LogError> {
+        if self.stopped {
+            return Ok(None);
+        }
+        let first_line = self.number + 1;
+        let Buffers {
+            mut text,
+            rows,
+            samples,
+        } = spare;
+        // Read straight into the block (a buffered reader passes a read this large through).
+        text.clear();
+        text.resize(BLOCK_BYTES, 0);
+        let mut filled = 0;
+        while filled < BLOCK_BYTES {
+            match self.inner.read(&mut text[filled..]) {
+                Ok(0) => break,
+                Ok(n) => filled += n,
+                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+                Err(e) => {
+                    self.stopped = true;
+                    return Err(self.io_error(e));
                 }
-            };
-            if got.is_empty() {
-                break;
             }
-            let take = got.len().min(BLOCK_BYTES - self.line.len());
-            self.line.extend_from_slice(&got[..take]);
-            self.inner.consume(take);
         }
-        if self.line.last().is_some_and(|&b| b != b'\n') {
-            self.inner
-                .read_until(b'\n', &mut self.line)
-                .map_err(|e| self.io_error(e))?;
-        }
-        let first = self.number + 1;
-        let bad_at = match std::str::from_utf8(&self.line) {
-            Ok(text) => {
-                keep_comments(text, &mut self.comments);
-                None
+        text.truncate(filled);
+        if text.last().is_some_and(|&b| b != b'\n') {
+            if let Err(e) = self.inner.read_until(b'\n', &mut text) {
+                self.stopped = true;
+                return Err(self.io_error(e));
             }
-            Err(e) => Some(e.valid_up_to()),
+        }
+        if text.is_empty() {
+            self.stopped = true;
+            return Ok(None);
+        }
+        if let Err(e) = std::str::from_utf8(&text) {
+            // The lines before the bad one come first (rare: checked twice).
+            let start = memchr::memrchr(b'\n', &text[..e.valid_up_to()]).map_or(0, |i| i + 1);
+            text.truncate(start);
+            self.pending = Some(self.bad_utf8(first_line + newlines(&text)));
+        }
+        if let Ok(t) = std::str::from_utf8(&text) {
+            keep_comments(t, &mut self.comments);
+        }
+        let unterminated = text.last().is_some_and(|&b| b != b'\n');
+        self.number += newlines(&text) + u64::from(unterminated);
+        let cut = self.pending.is_none() && memchr::memchr(b'"', &text).is_some();
+        let rows = if cut {
+            rows::cut_growing(&mut text, first_line, delimiter, rows, |t| {
+                self.append_line(t)
+            })
+        } else {
+            rows
         };
-        if let Some(valid) = bad_at {
-            // The lines before the bad one are handed on first (rare: checked twice).
-            let start = memchr::memrchr(b'\n', &self.line[..valid]).map_or(0, |i| i + 1);
-            self.line.truncate(start);
-            if let Ok(text) = std::str::from_utf8(&self.line) {
-                keep_comments(text, &mut self.comments);
-            }
-            let bad = first + memchr::memchr_iter(b'\n', &self.line).count() as u64;
-            self.pending = Some(self.bad_utf8(bad));
+        let pending = self.pending.take();
+        self.stopped = pending.is_some();
+        if text.is_empty() && pending.is_none() {
+            return Ok(None);
         }
-        let newlines = memchr::memchr_iter(b'\n', &self.line).count() as u64;
-        let unterminated = self.line.last().is_some_and(|&b| b != b'\n');
-        self.number += newlines + u64::from(unterminated);
-        Ok(())
+        Ok(Some(Block {
+            buf: Buffers {
+                text,
+                rows,
+                samples,
+            },
+            first_line,
+            cut,
+            pending,
+        }))
     }
 
-    /// Reads lines until the header row (the first neither blank nor a comment), which stays
-    /// loaded for the CSV reader, and returns the delimiter detected from it.
-    /// The lines before it stay loaded too, so the CSV reader counts them.
-    fn find_header(&mut self) -> Result<u8, LogError> {
-        let mut before = Vec::new();
-        let delimiter = loop {
-            self.next_line()?;
-            if self.line.is_empty() {
-                break b',';
+    /// Reads lines until the header row (the first neither blank nor a comment) and returns it,
+    /// with its line number and the delimiter detected from it. `None` at the end of the input.
+    fn header_line(&mut self) -> Result<Option<(Vec<u8>, u64, u8)>, LogError> {
+        loop {
+            let mut line = Vec::new();
+            if !self.append_line(&mut line) {
+                return match self.pending.take() {
+                    Some(e) => Err(e),
+                    None => Ok(None),
+                };
             }
-            let text = String::from_utf8_lossy(&self.line);
+            let text = String::from_utf8_lossy(&line);
             let t = text.trim();
             if !t.is_empty() && !t.starts_with('#') {
-                break detect_delimiter(&text);
+                let delimiter = detect_delimiter(&text);
+                return Ok(Some((line, self.number, delimiter)));
             }
-            before.extend_from_slice(&self.line);
-        };
-        before.extend_from_slice(&self.line);
-        self.line = before;
-        Ok(delimiter)
-    }
-
-    /// The error behind a CSV reader's failure: ours when we stopped it, else the CSV reader's.
-    fn take_error(&mut self, e: csv::Error) -> LogError {
-        self.error
-            .take()
-            .unwrap_or_else(|| malformed(e, &self.file))
+        }
     }
 }
 
-impl<R: BufRead> Read for Lines<R> {
-    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
-        if self.error.is_some() {
-            return Err(std::io::Error::other("stopped at an earlier error"));
-        }
-        if self.at == self.line.len() {
-            let loaded = match self.pending.take() {
-                Some(e) => Err(e),
-                None => self.next_block(),
-            };
-            if let Err(e) = loaded {
-                self.error = Some(e);
-                return Err(std::io::Error::other("stopped at an error"));
-            }
-        }
-        let n = buf.len().min(self.line.len() - self.at);
-        buf[..n].copy_from_slice(&self.line[self.at..self.at + n]);
-        self.at += n;
-        Ok(n)
-    }
+/// Number of `\n` in `text`.
+fn newlines(text: &[u8]) -> u64 {
+    memchr::memchr_iter(b'\n', text).count() as u64
 }
 
 /// Keeps the text of each comment line of `text` (the lines whose first non-blank character is
@@ -812,10 +938,9 @@ pub fn detect_delimiter(text: &str) -> u8 {
 }
 
 /// Field `i` of a row without its surrounding whitespace (empty when the row has no such field).
-/// The bytes are UTF-8: [`Lines`] checked every line before the CSV reader saw it (so the reader
-/// takes byte records and does not check them again).
-fn cell(rec: &csv::ByteRecord, i: usize) -> &[u8] {
-    let b = rec.get(i).unwrap_or_default().trim_ascii();
+/// The bytes are UTF-8: [`Lines`] checked every line before it was cut.
+fn cell(row: Fields<'_>, i: usize) -> &[u8] {
+    let b = row.get(i).unwrap_or_default().trim_ascii();
     // Whitespace beyond ASCII (a no-break space, say) is rare: trimmed as text.
     if b.first().is_some_and(|c| !c.is_ascii()) || b.last().is_some_and(|c| !c.is_ascii()) {
         return std::str::from_utf8(b).map_or(b, |s| s.trim().as_bytes());
@@ -828,54 +953,36 @@ fn text(b: &[u8]) -> &str {
     std::str::from_utf8(b).unwrap_or_default()
 }
 
-fn line_of(rec: &csv::ByteRecord) -> u64 {
-    rec.position().map_or(0, |p| p.line())
-}
-
-fn malformed(e: csv::Error, file: &str) -> LogError {
-    let line = e.position().map_or(0, |p| p.line());
-    let message = match e.kind() {
-        csv::ErrorKind::UnequalLengths {
-            expected_len, len, ..
-        } => {
-            format!("row has {len} fields but the header has {expected_len}")
-        }
-        _ => e.to_string(),
-    };
-    LogError::Malformed {
-        file: file.into(),
-        line,
-        message,
-    }
-}
-
-/// The header row's names and line; an error when there is none or a name repeats.
+/// The header row's names, line and delimiter; an error when there is none or a name repeats.
+/// A row whose fields are all blank is not a header.
 fn header<R: BufRead>(
-    csv: &mut csv::Reader<Lines<R>>,
+    lines: &mut Lines<R>,
     file: &str,
-) -> Result<(Vec<String>, u64), LogError> {
-    let mut header = csv::StringRecord::new();
-    loop {
-        match csv.read_record(&mut header) {
-            Ok(true) => {}
-            Ok(false) => {
-                if let Some(e) = csv.get_mut().error.take() {
-                    return Err(e);
-                }
-                return Err(LogError::Empty {
-                    file: file.into(),
-                    what: "no header row",
-                });
-            }
-            Err(e) => return Err(csv.get_mut().take_error(e)),
+) -> Result<(Vec<String>, u64, u8), LogError> {
+    let (names, line, delimiter) = loop {
+        let Some((mut text, line, delimiter)) = lines.header_line()? else {
+            return Err(LogError::Empty {
+                file: file.into(),
+                what: "no header row",
+            });
+        };
+        let rows = rows::cut_growing(&mut text, line, delimiter, Rows::default(), |t| {
+            lines.append_line(t)
+        });
+        if let Some(e) = lines.pending.take() {
+            return Err(e);
         }
-        // Blank lines are skipped by the reader; a header of one empty field is not a header.
-        if header.iter().any(|f| !f.trim().is_empty()) {
-            break;
+        if rows.len() == 0 {
+            continue;
         }
-    }
-    let line = header.position().map_or(1, |p| p.line());
-    let names: Vec<String> = header.iter().map(|f| f.trim().to_string()).collect();
+        let fields = rows.row(&text, 0);
+        let names: Vec<String> = (0..fields.len())
+            .map(|i| text_of(fields.get(i)).trim().to_string())
+            .collect();
+        if names.iter().any(|n| !n.is_empty()) {
+            break (names, line, delimiter);
+        }
+    };
     for (i, n) in names.iter().enumerate() {
         if names[..i].contains(n) {
             return Err(LogError::DuplicateColumn {
@@ -885,7 +992,12 @@ fn header<R: BufRead>(
             });
         }
     }
-    Ok((names, line))
+    Ok((names, line, delimiter))
+}
+
+/// A header field's text (`""` for none).
+fn text_of(b: Option<&[u8]>) -> &str {
+    text(b.unwrap_or_default())
 }
 
 impl Columns {
@@ -938,8 +1050,17 @@ impl Columns {
     }
 
     /// One row as a sample (units converted, chamber renumbered), time order not yet checked.
-    fn sample(&self, rec: &csv::ByteRecord, file: &str) -> Result<Sample, LogError> {
-        let line = line_of(rec);
+    /// `rec` as a sample (units converted, chamber renumbered) when it has the header's `width`
+    /// fields, time order not yet checked.
+    fn sample(&self, rec: Fields<'_>, width: usize, file: &str) -> Result<Sample, LogError> {
+        let line = rec.line;
+        if rec.len() != width {
+            return Err(LogError::Malformed {
+                file: file.into(),
+                line,
+                message: format!("row has {} fields but the header has {width}", rec.len()),
+            });
+        }
         let number = |c: &Col| -> Result<Option<f64>, LogError> {
             let s = cell(rec, c.index);
             if s.is_empty() {
@@ -981,7 +1102,7 @@ impl Columns {
         })
     }
 
-    fn chamber(&self, rec: &csv::ByteRecord, file: &str) -> Result<u8, LogError> {
+    fn chamber(&self, rec: Fields<'_>, file: &str) -> Result<u8, LogError> {
         let Some(c) = &self.chamber else {
             return Ok(0);
         };
@@ -991,7 +1112,7 @@ impl Columns {
             Ok(n) if n >= base && n - base < MAX_CHAMBERS => Ok(n - base),
             _ => Err(LogError::BadChamber {
                 file: file.into(),
-                line: line_of(rec),
+                line: rec.line,
                 column: c.name.clone(),
                 value: s.into(),
                 first: base,
