@@ -1064,6 +1064,59 @@ fn revive_dead_units(
     }
 }
 
+/// The training schedule across epochs (module docs): the best parameters and their MSE, the
+/// MSE the next progress is measured from, the epochs since, and the step size's halvings.
+struct Schedule {
+    best: Vec<f64>,
+    best_mse: f64,
+    reference: f64,
+    stall: usize,
+    halvings: usize,
+}
+
+impl Schedule {
+    /// After an epoch whose training MSE is `mse` (finite): keeps the best parameters; after
+    /// `patience` epochs without progress by the tolerance, halves the step size and goes back to
+    /// the best, or, once halved `lr_halvings` times, returns `true` (converged).
+    fn after_epoch(
+        &mut self,
+        mse: f64,
+        net: &mut Net,
+        opt: &mut Optimiser,
+        cfg: &SweepConfig,
+    ) -> bool {
+        if mse < self.best_mse {
+            self.best_mse = mse;
+            self.best.clone_from(&net.theta);
+        }
+        if self.best_mse < self.reference * (1.0 - cfg.tolerance) {
+            self.reference = self.best_mse;
+            self.stall = 0;
+        } else {
+            self.stall += 1;
+        }
+        if self.stall >= cfg.patience.max(1) {
+            if self.halvings >= cfg.lr_halvings {
+                return true;
+            }
+            self.halvings += 1;
+            opt.halve();
+            net.theta.clone_from(&self.best);
+            self.stall = 0;
+            self.reference = self.best_mse;
+        }
+        false
+    }
+
+    /// After an epoch that diverged: back to the best parameters with half the step size.
+    fn diverged(&mut self, net: &mut Net, opt: &mut Optimiser) {
+        net.theta.clone_from(&self.best);
+        opt.norm_ema = 0.0;
+        opt.halve();
+        self.stall = 0;
+    }
+}
+
 /// Trains `start` (see the module docs for the schedule) and returns the parameters with the
 /// lowest training MSE seen, the start included, with that MSE.
 fn train(
@@ -1076,14 +1129,13 @@ fn train(
     let rows = data.rows();
     let mut net = start;
     let mut alive = vec![false; d - 1];
-    let mut best_mse = net.evaluate(&data.x, &data.y, &mut alive);
+    let best_mse = net.evaluate(&data.x, &data.y, &mut alive);
     if !best_mse.is_finite() {
         return Err(NnError::Diverged {
             depth: d,
             ar_order: data.ar_order,
         });
     }
-    let mut best = net.theta.clone();
     let mut order: Vec<usize> = (0..rows).collect();
     let batch = cfg.batch_size.clamp(1, rows.max(1));
     let np = net.theta.len();
@@ -1095,9 +1147,14 @@ fn train(
         batch,
         norm_ema: 0.0,
     };
-    let (mut halvings, mut stall, mut reference) = (0, 0, best_mse);
+    let mut sched = Schedule {
+        best: net.theta.clone(),
+        best_mse,
+        reference: best_mse,
+        stall: 0,
+        halvings: 0,
+    };
     let (mut epochs, mut converged) = (0, false);
-    let patience = cfg.patience.max(1);
     // An epoch is a pass over the rows, or MIN_EPOCH_STEPS steps over repeated passes if that
     // is more (short logs would otherwise judge progress on a handful of steps).
     let passes = MIN_EPOCH_STEPS.div_ceil(rows.div_ceil(batch)).max(1);
@@ -1115,36 +1172,16 @@ fn train(
             f64::NAN
         };
         if !mse.is_finite() {
-            // Back to the best parameters with half the step size.
-            net.theta.clone_from(&best);
-            opt.norm_ema = 0.0;
-            opt.halve();
-            stall = 0;
+            sched.diverged(&mut net, &mut opt);
             continue;
         }
         revive_dead_units(&mut net, &alive, &mut opt.adam, data, rng);
-        if mse < best_mse {
-            best_mse = mse;
-            best.clone_from(&net.theta);
-        }
-        if best_mse < reference * (1.0 - cfg.tolerance) {
-            reference = best_mse;
-            stall = 0;
-        } else {
-            stall += 1;
-        }
-        if stall >= patience {
-            if halvings >= cfg.lr_halvings {
-                converged = true;
-                break;
-            }
-            halvings += 1;
-            opt.halve();
-            net.theta.clone_from(&best);
-            stall = 0;
-            reference = best_mse;
+        if sched.after_epoch(mse, &mut net, &mut opt, cfg) {
+            converged = true;
+            break;
         }
     }
+    let (best, best_mse) = (sched.best, sched.best_mse);
     net.theta = best;
     Ok((
         Trained {

@@ -110,30 +110,25 @@ fn plot_scan(
     let (top, bottom) = root.split_vertically(420);
     let (tl, tr) = top.split_horizontally(550);
     let (bl, br) = bottom.split_horizontally(550);
-    let series = |f: &dyn Fn(&Summary) -> Option<f64>| -> Vec<(f64, f64)> {
-        r.logs
-            .iter()
-            .filter_map(|e| f(&e.summary).map(|y| (e.x, y)))
-            .collect()
-    };
-    let means = |all: Vec<(f64, f64)>, inf: Vec<(f64, f64)>, def: Vec<(f64, f64)>| {
-        vec![
-            Curve::new("all samples", all, plot::color(0), Mark::LineDots),
-            Curve::new("inflation", inf, plot::color(3), Mark::Triangles),
-            Curve::new("deflation", def, RGB_BLUE, Mark::Triangles),
-        ]
-    };
+    let k_means = mean_curves(
+        r,
+        |m| Some(m.k_mean),
+        |m| m.inflation.k_mean,
+        |m| m.deflation.k_mean,
+    );
+    let c_means = mean_curves(
+        r,
+        |m| Some(m.c_mean),
+        |m| m.inflation.c_mean,
+        |m| m.deflation.c_mean,
+    );
     plot::panel(
         &tl,
         &path,
         "mean stiffness",
         &r.x_key,
         "k (kPa/mm3)",
-        &means(
-            series(&|m| Some(m.k_mean)),
-            series(&|m| m.inflation.k_mean),
-            series(&|m| m.deflation.k_mean),
-        ),
+        &k_means,
     )?;
     plot::panel(
         &tr,
@@ -141,36 +136,17 @@ fn plot_scan(
         "mean damping",
         &r.x_key,
         "c (kPa s/mm3)",
-        &means(
-            series(&|m| Some(m.c_mean)),
-            series(&|m| m.inflation.c_mean),
-            series(&|m| m.deflation.c_mean),
-        ),
+        &c_means,
     )?;
     let ks: Vec<&[f64]> = points.iter().map(|p| p.pointwise.k.as_slice()).collect();
     let cs: Vec<&[f64]> = points.iter().map(|p| p.pointwise.c.as_slice()).collect();
-    let dist = |sets: &[&[f64]]| -> Vec<Curve> {
-        let (lo, hi) = plot::quantile_range(sets, 0.005, 0.995);
-        sets.iter()
-            .zip(points)
-            .enumerate()
-            .map(|(i, (s, p))| {
-                Curve::new(
-                    format!("{} = {}", r.x_key, p.x),
-                    plot::density_outline(s, lo, hi, 50),
-                    plot::color(i),
-                    Mark::Line,
-                )
-            })
-            .collect()
-    };
     plot::panel(
         &bl,
         &path,
         "distribution of pointwise k",
         "k (kPa/mm3)",
         "density",
-        &dist(&ks),
+        &density_curves(r, points, &ks),
     )?;
     plot::panel(
         &br,
@@ -178,10 +154,54 @@ fn plot_scan(
         "distribution of pointwise c",
         "c (kPa s/mm3)",
         "density",
-        &dist(&cs),
+        &density_curves(r, points, &cs),
     )?;
     plot::finish(root, &path)?;
     Ok(path.clone())
+}
+
+/// Fig. 7c's curves of one quantity against x: its mean over all samples, over inflation and over
+/// deflation, one point per log.
+fn mean_curves(
+    r: &AirScanReport,
+    all: impl Fn(&Summary) -> Option<f64>,
+    inflation: impl Fn(&Summary) -> Option<f64>,
+    deflation: impl Fn(&Summary) -> Option<f64>,
+) -> Vec<Curve> {
+    let series = |f: &dyn Fn(&Summary) -> Option<f64>| -> Vec<(f64, f64)> {
+        r.logs
+            .iter()
+            .filter_map(|e| f(&e.summary).map(|y| (e.x, y)))
+            .collect()
+    };
+    vec![
+        Curve::new("all samples", series(&all), plot::color(0), Mark::LineDots),
+        Curve::new(
+            "inflation",
+            series(&inflation),
+            plot::color(3),
+            Mark::Triangles,
+        ),
+        Curve::new("deflation", series(&deflation), RGB_BLUE, Mark::Triangles),
+    ]
+}
+
+/// Fig. 7d's curves: the distribution of one pointwise quantity (`sets`, one per log of
+/// `points`) over their common 0.5–99.5 % range.
+fn density_curves(r: &AirScanReport, points: &[ScanPoints], sets: &[&[f64]]) -> Vec<Curve> {
+    let (lo, hi) = plot::quantile_range(sets, 0.005, 0.995);
+    sets.iter()
+        .zip(points)
+        .enumerate()
+        .map(|(i, (s, p))| {
+            Curve::new(
+                format!("{} = {}", r.x_key, p.x),
+                plot::density_outline(s, lo, hi, 50),
+                plot::color(i),
+                Mark::Line,
+            )
+        })
+        .collect()
 }
 
 const RGB_BLUE: plotters::style::RGBColor = plotters::style::RGBColor(31, 60, 200);

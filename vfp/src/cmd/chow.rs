@@ -142,18 +142,9 @@ pub fn human(r: &ChowReport) -> String {
     s
 }
 
-/// V–P data of every log and the deciding F of every pair against the critical value.
-fn plot_chow(
-    dir: &std::path::Path,
-    format: crate::figure::PlotFormat,
-    logs: &[LogData],
-    r: &ChowReport,
-) -> Result<PathBuf, Error> {
-    let path = plot::target(dir, &format.file("diag-chow"))?;
-    let root = plot::canvas(&path, (1100, 440), format);
-    let (left, right) = root.split_horizontally(550);
-    let vp: Vec<Curve> = logs
-        .iter()
+/// Each log's V–P points (about 800 of each), coloured by its index.
+fn vp_curves(logs: &[LogData]) -> Vec<Curve> {
+    logs.iter()
         .enumerate()
         .map(|(i, l)| {
             let s = l.first();
@@ -171,15 +162,11 @@ fn plot_chow(
                 Mark::Dots,
             )
         })
-        .collect();
-    plot::panel(
-        &left,
-        &path,
-        "V-P of the compared logs",
-        "volume (mm3)",
-        "pressure (kPa)",
-        &vp,
-    )?;
+        .collect()
+}
+
+/// log₁₀ F of each pair and the critical value's line across them.
+fn f_curves(r: &ChowReport) -> Vec<Curve> {
     let fs: Vec<(f64, f64)> = r
         .pairs
         .iter()
@@ -192,7 +179,7 @@ fn plot_chow(
         .map(|p| p.test.critical.log10())
         .unwrap_or(0.0);
     let n = r.pairs.len().max(1) as f64;
-    let curves = vec![
+    vec![
         Curve::new("log10 F per pair", fs, plot::color(0), Mark::Points),
         Curve::new(
             format!("log10 critical value (alpha = {})", r.alpha),
@@ -200,7 +187,29 @@ fn plot_chow(
             plot::color(3),
             Mark::Line,
         ),
-    ];
+    ]
+}
+
+/// V–P data of every log and the deciding F of every pair against the critical value.
+fn plot_chow(
+    dir: &std::path::Path,
+    format: crate::figure::PlotFormat,
+    logs: &[LogData],
+    r: &ChowReport,
+) -> Result<PathBuf, Error> {
+    let path = plot::target(dir, &format.file("diag-chow"))?;
+    let root = plot::canvas(&path, (1100, 440), format);
+    let (left, right) = root.split_horizontally(550);
+    let vp = vp_curves(logs);
+    plot::panel(
+        &left,
+        &path,
+        "V-P of the compared logs",
+        "volume (mm3)",
+        "pressure (kPa)",
+        &vp,
+    )?;
+    let curves = f_curves(r);
     // The pair's logs by their index in the V-P panel's legend.
     let idx = |name: &str| {
         logs.iter()

@@ -10,7 +10,7 @@ use crate::Error;
 use sysid::residual::analysis::Binned;
 use sysid::residual::validate::{validate_log, Validation};
 use sysid::residual::{
-    diagnose_log, document, Config, Diagnosis, EffectKind, Param, ResidualAnalysis,
+    diagnose_log, document, Config, Diagnosis, EffectKind, EffectReport, Param, ResidualAnalysis,
 };
 
 /// `vfp diagnose`: trace the residual of a fitted model to physical effects it lacks.
@@ -200,42 +200,7 @@ pub fn report(path: &Path, chamber: u8, split: &str, d: &Diagnosis) -> String {
         let _ = writeln!(s, "\nno effect passed the test");
     }
     for (i, e) in d.effects.iter().enumerate() {
-        let _ = writeln!(
-            s,
-            "\n{}. {} — held-out RMSE {:.4} → {:.4} kPa ({:+.1} %), F = {:.1} on ({:.0}, {:.0}) df, N_eff = {:.0}, p = {:.2e}",
-            i + 1,
-            e.name,
-            e.rmse_heldout_before,
-            e.rmse_heldout_after,
-            100.0 * (e.rmse_heldout_after / e.rmse_heldout_before - 1.0),
-            e.test.f_statistic,
-            e.test.df1,
-            e.test.df2,
-            e.test.n_eff,
-            e.p_value
-        );
-        let _ = writeln!(s, "   {}", e.story);
-        for p in &e.params {
-            let _ = writeln!(s, "   {}", fmt_param(p));
-        }
-        let _ = writeln!(
-            s,
-            "   on the device: {} ({})",
-            if e.device.runs_on_device { "yes" } else { "no" },
-            e.device.reason
-        );
-        if let Some(r) = &e.runner_up {
-            let _ = writeln!(
-                s,
-                "   runner-up: {}, held-out {:.4} kPa ({:+.1} % against {:.4} kPa with this one), p = {:.2e}, {}",
-                r.name,
-                r.rmse_heldout,
-                100.0 * (r.rmse_heldout / e.rmse_heldout_after - 1.0),
-                e.rmse_heldout_after,
-                r.p_value,
-                r.reason
-            );
-        }
+        report_effect(&mut s, i + 1, e);
     }
     let _ = writeln!(
         s,
@@ -262,6 +227,46 @@ pub fn report(path: &Path, chamber: u8, split: &str, d: &Diagnosis) -> String {
         }
     }
     s
+}
+
+/// The report's paragraph on the `k`-th effect kept.
+fn report_effect(s: &mut String, k: usize, e: &EffectReport) {
+    let _ = writeln!(
+        s,
+        "\n{}. {} — held-out RMSE {:.4} → {:.4} kPa ({:+.1} %), F = {:.1} on ({:.0}, {:.0}) df, N_eff = {:.0}, p = {:.2e}",
+        k,
+        e.name,
+        e.rmse_heldout_before,
+        e.rmse_heldout_after,
+        100.0 * (e.rmse_heldout_after / e.rmse_heldout_before - 1.0),
+        e.test.f_statistic,
+        e.test.df1,
+        e.test.df2,
+        e.test.n_eff,
+        e.p_value
+    );
+    let _ = writeln!(s, "   {}", e.story);
+    for p in &e.params {
+        let _ = writeln!(s, "   {}", fmt_param(p));
+    }
+    let _ = writeln!(
+        s,
+        "   on the device: {} ({})",
+        if e.device.runs_on_device { "yes" } else { "no" },
+        e.device.reason
+    );
+    if let Some(r) = &e.runner_up {
+        let _ = writeln!(
+            s,
+            "   runner-up: {}, held-out {:.4} kPa ({:+.1} % against {:.4} kPa with this one), p = {:.2e}, {}",
+            r.name,
+            r.rmse_heldout,
+            100.0 * (r.rmse_heldout / e.rmse_heldout_after - 1.0),
+            e.rmse_heldout_after,
+            r.p_value,
+            r.reason
+        );
+    }
 }
 
 /// Writes `resid-before.<ext>` and `resid-after.<ext>` into `dir`.

@@ -14,6 +14,7 @@ use plotters::prelude::*;
 use std::path::{Path, PathBuf};
 use sysid::dataset::Dataset;
 use sysid::identify::{ChamberReport, Family};
+use sysid::poly::PolyFit;
 
 fn err(path: &Path, e: impl std::fmt::Display) -> Error {
     Error::Msg(format!("{}: cannot write figure: {e}", path.display()))
@@ -35,8 +36,30 @@ pub fn write_all(
     rep: &ChamberReport,
 ) -> Result<Vec<PathBuf>, Error> {
     std::fs::create_dir_all(dir).map_err(|e| err(dir, e))?;
-    let mut written = Vec::new();
     let file = |stem: String| dir.join(format.file(&stem));
+    let mut written = family_figures(&file, format, rep)?;
+    if let Some(fit) = &rep.poly_fit {
+        let name = format!("poly ({}, {})", fit.n, fit.m);
+        written.extend(residual_figures(
+            &file,
+            format,
+            ds,
+            rep.chamber,
+            fit,
+            &name,
+        )?);
+        written.push(vp_figure(&file, format, ds, rep.chamber, fit, &name)?);
+    }
+    Ok(written)
+}
+
+/// Each family's RMSE (bars) and AICc (points) over its models.
+fn family_figures(
+    file: &dyn Fn(String) -> PathBuf,
+    format: PlotFormat,
+    rep: &ChamberReport,
+) -> Result<Vec<PathBuf>, Error> {
+    let mut written = Vec::new();
     for fam in Family::ALL {
         let rows: Vec<_> = rep.models.iter().filter(|m| m.family == fam).collect();
         if rows.is_empty() {
@@ -56,9 +79,19 @@ pub fn write_all(
         )?;
         written.push(path);
     }
-    let Some(fit) = &rep.poly_fit else {
-        return Ok(written);
-    };
+    Ok(written)
+}
+
+/// The selected polynomial's held-out residual against volume, and its histogram (the training
+/// rows when nothing is held out).
+fn residual_figures(
+    file: &dyn Fn(String) -> PathBuf,
+    format: PlotFormat,
+    ds: &Dataset,
+    chamber: u8,
+    fit: &PolyFit,
+    name: &str,
+) -> Result<Vec<PathBuf>, Error> {
     let held = if ds.heldout.iter().any(|&h| h) {
         ds.heldout()
     } else {
@@ -71,25 +104,34 @@ pub fn write_all(
         .zip(&held.p)
         .map(|((&v, &q), &p)| (v, p - fit.predict(v, q)))
         .collect();
-    let name = format!("poly ({}, {})", fit.n, fit.m);
-    let path = file(format!("ch{}-residual-vs-volume", rep.chamber));
+    let scatter_path = file(format!("ch{chamber}-residual-vs-volume"));
     scatter(
-        &canvas(&path, (900, 600), format),
-        &path,
+        &canvas(&scatter_path, (900, 600), format),
+        &scatter_path,
         &format!("{name}: held-out residual vs volume"),
         ("volume (mm3)", "P - P_hat (kPa)"),
         &[(resid.clone(), BLUE.mix(0.3))],
     )?;
-    written.push(path);
-    let path = file(format!("ch{}-error-histogram", rep.chamber));
+    let hist_path = file(format!("ch{chamber}-error-histogram"));
     histogram(
-        &canvas(&path, (900, 600), format),
-        &path,
+        &canvas(&hist_path, (900, 600), format),
+        &hist_path,
         &format!("{name}: held-out error distribution (0.05 kPa bins)"),
         &resid.iter().map(|r| r.1).collect::<Vec<_>>(),
         0.05,
     )?;
-    written.push(path);
+    Ok(vec![scatter_path, hist_path])
+}
+
+/// The measured and predicted V-P curves over every row (thinned to [`MAX_POINTS`]).
+fn vp_figure(
+    file: &dyn Fn(String) -> PathBuf,
+    format: PlotFormat,
+    ds: &Dataset,
+    chamber: u8,
+    fit: &PolyFit,
+    name: &str,
+) -> Result<PathBuf, Error> {
     let all = ds.all();
     let step = all.len().div_ceil(MAX_POINTS).max(1);
     let measured: Vec<(f64, f64)> = all
@@ -106,7 +148,7 @@ pub fn write_all(
         .step_by(step)
         .map(|(&v, &q)| (v, fit.predict(v, q)))
         .collect();
-    let path = file(format!("ch{}-vp", rep.chamber));
+    let path = file(format!("ch{chamber}-vp"));
     scatter(
         &canvas(&path, (900, 600), format),
         &path,
@@ -117,8 +159,7 @@ pub fn write_all(
             (measured, RGBColor(60, 60, 60).mix(0.5)),
         ],
     )?;
-    written.push(path);
-    Ok(written)
+    Ok(path)
 }
 
 /// A white canvas.
