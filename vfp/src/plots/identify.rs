@@ -39,16 +39,16 @@ pub fn write_all(
     let file = |stem: String| dir.join(format.file(&stem));
     let mut written = family_figures(&file, format, rep)?;
     if let Some(fit) = &rep.poly_fit {
-        let name = format!("poly ({}, {})", fit.n, fit.m);
-        written.extend(residual_figures(
-            &file,
+        let figs = FitFigures {
+            file: &file,
             format,
             ds,
-            rep.chamber,
+            chamber: rep.chamber,
             fit,
-            &name,
-        )?);
-        written.push(vp_figure(&file, format, ds, rep.chamber, fit, &name)?);
+            name: format!("poly ({}, {})", fit.n, fit.m),
+        };
+        written.extend(figs.residuals()?);
+        written.push(figs.vp()?);
     }
     Ok(written)
 }
@@ -82,84 +82,85 @@ fn family_figures(
     Ok(written)
 }
 
-/// The selected polynomial's held-out residual against volume, and its histogram (the training
-/// rows when nothing is held out).
-fn residual_figures(
-    file: &dyn Fn(String) -> PathBuf,
+/// The selected polynomial's figures for one chamber.
+struct FitFigures<'a> {
+    file: &'a dyn Fn(String) -> PathBuf,
     format: PlotFormat,
-    ds: &Dataset,
+    ds: &'a Dataset,
     chamber: u8,
-    fit: &PolyFit,
-    name: &str,
-) -> Result<Vec<PathBuf>, Error> {
-    let held = if ds.heldout.iter().any(|&h| h) {
-        ds.heldout()
-    } else {
-        ds.train()
-    };
-    let resid: Vec<(f64, f64)> = held
-        .v
-        .iter()
-        .zip(&held.vdot)
-        .zip(&held.p)
-        .map(|((&v, &q), &p)| (v, p - fit.predict(v, q)))
-        .collect();
-    let scatter_path = file(format!("ch{chamber}-residual-vs-volume"));
-    scatter(
-        &canvas(&scatter_path, (900, 600), format),
-        &scatter_path,
-        &format!("{name}: held-out residual vs volume"),
-        ("volume (mm3)", "P - P_hat (kPa)"),
-        &[(resid.clone(), BLUE.mix(0.3))],
-    )?;
-    let hist_path = file(format!("ch{chamber}-error-histogram"));
-    histogram(
-        &canvas(&hist_path, (900, 600), format),
-        &hist_path,
-        &format!("{name}: held-out error distribution (0.05 kPa bins)"),
-        &resid.iter().map(|r| r.1).collect::<Vec<_>>(),
-        0.05,
-    )?;
-    Ok(vec![scatter_path, hist_path])
+    fit: &'a PolyFit,
+    /// The model as the titles name it.
+    name: String,
 }
 
-/// The measured and predicted V-P curves over every row (thinned to [`MAX_POINTS`]).
-fn vp_figure(
-    file: &dyn Fn(String) -> PathBuf,
-    format: PlotFormat,
-    ds: &Dataset,
-    chamber: u8,
-    fit: &PolyFit,
-    name: &str,
-) -> Result<PathBuf, Error> {
-    let all = ds.all();
-    let step = all.len().div_ceil(MAX_POINTS).max(1);
-    let measured: Vec<(f64, f64)> = all
-        .v
-        .iter()
-        .zip(&all.p)
-        .step_by(step)
-        .map(|(&v, &p)| (v, p))
-        .collect();
-    let predicted: Vec<(f64, f64)> = all
-        .v
-        .iter()
-        .zip(&all.vdot)
-        .step_by(step)
-        .map(|(&v, &q)| (v, fit.predict(v, q)))
-        .collect();
-    let path = file(format!("ch{chamber}-vp"));
-    scatter(
-        &canvas(&path, (900, 600), format),
-        &path,
-        &format!("V-P curves: measured (grey) and {name} (blue)"),
-        ("volume (mm3)", "pressure (kPa)"),
-        &[
-            (predicted, BLUE.mix(0.25)),
-            (measured, RGBColor(60, 60, 60).mix(0.5)),
-        ],
-    )?;
-    Ok(path)
+impl FitFigures<'_> {
+    /// The held-out residual against volume, and its histogram (the training rows when nothing is
+    /// held out).
+    fn residuals(&self) -> Result<Vec<PathBuf>, Error> {
+        let (ds, fit, name) = (self.ds, self.fit, &self.name);
+        let held = if ds.heldout.iter().any(|&h| h) {
+            ds.heldout()
+        } else {
+            ds.train()
+        };
+        let resid: Vec<(f64, f64)> = held
+            .v
+            .iter()
+            .zip(&held.vdot)
+            .zip(&held.p)
+            .map(|((&v, &q), &p)| (v, p - fit.predict(v, q)))
+            .collect();
+        let scatter_path = (self.file)(format!("ch{}-residual-vs-volume", self.chamber));
+        scatter(
+            &canvas(&scatter_path, (900, 600), self.format),
+            &scatter_path,
+            &format!("{name}: held-out residual vs volume"),
+            ("volume (mm3)", "P - P_hat (kPa)"),
+            &[(resid.clone(), BLUE.mix(0.3))],
+        )?;
+        let hist_path = (self.file)(format!("ch{}-error-histogram", self.chamber));
+        histogram(
+            &canvas(&hist_path, (900, 600), self.format),
+            &hist_path,
+            &format!("{name}: held-out error distribution (0.05 kPa bins)"),
+            &resid.iter().map(|r| r.1).collect::<Vec<_>>(),
+            0.05,
+        )?;
+        Ok(vec![scatter_path, hist_path])
+    }
+
+    /// The measured and predicted V-P curves over every row (thinned to [`MAX_POINTS`]).
+    fn vp(&self) -> Result<PathBuf, Error> {
+        let (ds, fit, name) = (self.ds, self.fit, &self.name);
+        let all = ds.all();
+        let step = all.len().div_ceil(MAX_POINTS).max(1);
+        let measured: Vec<(f64, f64)> = all
+            .v
+            .iter()
+            .zip(&all.p)
+            .step_by(step)
+            .map(|(&v, &p)| (v, p))
+            .collect();
+        let predicted: Vec<(f64, f64)> = all
+            .v
+            .iter()
+            .zip(&all.vdot)
+            .step_by(step)
+            .map(|(&v, &q)| (v, fit.predict(v, q)))
+            .collect();
+        let path = (self.file)(format!("ch{}-vp", self.chamber));
+        scatter(
+            &canvas(&path, (900, 600), self.format),
+            &path,
+            &format!("V-P curves: measured (grey) and {name} (blue)"),
+            ("volume (mm3)", "pressure (kPa)"),
+            &[
+                (predicted, BLUE.mix(0.25)),
+                (measured, RGBColor(60, 60, 60).mix(0.5)),
+            ],
+        )?;
+        Ok(path)
+    }
 }
 
 /// A white canvas.
