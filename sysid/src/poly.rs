@@ -420,7 +420,7 @@ pub fn fit(data: Xy, n: usize, m: usize, scaling: Option<Scaling>) -> Result<Pol
     };
     let centre = data.p.iter().sum::<f64>() / data.p.len() as f64;
     let mt = Moments::gather(data, &scaling, centre);
-    fit_from(data, n, m, scaling, &mt)
+    fit_moments(data, n, m, scaling, &mt, centre)
 }
 
 /// [`fit`] with `data`'s moments already gathered under `scaling`, its pressure centred at its
@@ -438,6 +438,19 @@ pub fn fit_from(
         return Err(PolyError::Degree { n, m });
     }
     let centre = data.p.iter().sum::<f64>() / data.p.len() as f64;
+    fit_moments(data, n, m, scaling, mt, centre)
+}
+
+/// [`fit`] and [`fit_from`] once `data` is checked and its moments `mt` gathered, the pressure
+/// centred at `centre`.
+fn fit_moments(
+    data: Xy,
+    n: usize,
+    m: usize,
+    scaling: Scaling,
+    mt: &Moments,
+    centre: f64,
+) -> Result<PolyFit, PolyError> {
     let (c, xtx_inv, sse) = match Restricted::new(mt, n, m, &scaling, centre)
         .ok()
         .and_then(|g| g.inverse_if_conditioned())

@@ -828,14 +828,17 @@ impl<R: BufRead> Lines<R> {
             self.stopped = true;
             return Ok(None);
         }
-        if let Err(e) = std::str::from_utf8(&text) {
-            // The lines before the bad one come first (rare: checked twice).
-            let start = memchr::memrchr(b'\n', &text[..e.valid_up_to()]).map_or(0, |i| i + 1);
-            text.truncate(start);
-            self.pending = Some(self.bad_utf8(first_line + newlines(&text)));
-        }
-        if let Ok(t) = std::str::from_utf8(&text) {
-            keep_comments(t, &mut self.comments);
+        match std::str::from_utf8(&text) {
+            Ok(t) => keep_comments(t, &mut self.comments),
+            Err(e) => {
+                // The lines before the bad one come first (rare: checked twice).
+                let start = memchr::memrchr(b'\n', &text[..e.valid_up_to()]).map_or(0, |i| i + 1);
+                text.truncate(start);
+                self.pending = Some(self.bad_utf8(first_line + newlines(&text)));
+                if let Ok(t) = std::str::from_utf8(&text) {
+                    keep_comments(t, &mut self.comments);
+                }
+            }
         }
         let unterminated = text.last().is_some_and(|&b| b != b'\n');
         self.number += newlines(&text) + u64::from(unterminated);
@@ -960,13 +963,13 @@ fn header<R: BufRead>(
     file: &str,
 ) -> Result<(Vec<String>, u64, u8), LogError> {
     let (names, line, delimiter) = loop {
-        let Some((mut text, line, delimiter)) = lines.header_line()? else {
+        let Some((mut row_text, line, delimiter)) = lines.header_line()? else {
             return Err(LogError::Empty {
                 file: file.into(),
                 what: "no header row",
             });
         };
-        let rows = rows::cut_growing(&mut text, line, delimiter, Rows::default(), |t| {
+        let rows = rows::cut_growing(&mut row_text, line, delimiter, Rows::default(), |t| {
             lines.append_line(t)
         });
         if let Some(e) = lines.pending.take() {
@@ -975,9 +978,9 @@ fn header<R: BufRead>(
         if rows.len() == 0 {
             continue;
         }
-        let fields = rows.row(&text, 0);
+        let fields = rows.row(&row_text, 0);
         let names: Vec<String> = (0..fields.len())
-            .map(|i| text_of(fields.get(i)).trim().to_string())
+            .map(|i| text(fields.get(i).unwrap_or_default()).trim().to_string())
             .collect();
         if names.iter().any(|n| !n.is_empty()) {
             break (names, line, delimiter);
@@ -993,11 +996,6 @@ fn header<R: BufRead>(
         }
     }
     Ok((names, line, delimiter))
-}
-
-/// A header field's text (`""` for none).
-fn text_of(b: Option<&[u8]>) -> &str {
-    text(b.unwrap_or_default())
 }
 
 impl Columns {

@@ -143,8 +143,16 @@ fn cut_from(src: &mut impl Source, first_line: u64, delimiter: u8, mut into: Row
         line: first_line,
     };
     let mut at = 0;
+    // The first carriage return at or after `at`, when the text's first `searched` bytes have
+    // one (searched again once passed, or once a quoted row has taken more lines).
+    let (mut cr, mut searched) = (None, 0);
     while at < src.text().len() {
-        at = if memchr(b'\r', &src.text()[at..]).is_none() {
+        let text = src.text();
+        if cr.map_or(searched < text.len(), |c| c < at) {
+            cr = memchr(b'\r', &text[at..]).map(|i| at + i);
+            searched = text.len();
+        }
+        at = if cr.is_none() {
             cx.without_returns(src, at)
         } else {
             cx.by_lines(src, at)
