@@ -439,3 +439,57 @@ fn a_long_file_keeps_its_comments_and_its_line_numbers() {
         }
     }
 }
+
+/// A file that is no log stops at a clear error naming its line, with the rows before it read,
+/// and without being read whole: a line of megabytes without a line end (in the header, in the
+/// first block, far into the file) and a quote left open over megabytes of short lines. Rows and
+/// lines of up to a megabyte still read.
+#[test]
+fn a_line_or_quoted_field_of_megabytes_is_an_error_at_its_line() {
+    let head = "time_s,volume_mm3,pressure_kpa,note\n";
+    let rows = |from: usize, n: usize| -> String {
+        (from..from + n)
+            .map(|i| format!("{},{},{},n\n", 0.04 * i as f64, i % 7, 0.5))
+            .collect()
+    };
+    let blob = "x".repeat(3 << 20);
+    // Read both ways (the two-thread file loop and the row loop): the rows before, the error.
+    let check = |bytes: &[u8], good_rows: usize, line: u64, what: &str| {
+        for (k, (out, end)) in [read_two_threads(bytes), read_row_by_row(bytes)]
+            .into_iter()
+            .enumerate()
+        {
+            assert_eq!(out.len(), good_rows, "{what}, reader {k}");
+            let e = end.unwrap_err();
+            assert!(
+                e.starts_with(&format!("t.csv:{line}: ")),
+                "{what}, reader {k}: {e}"
+            );
+            assert!(e.len() < 200, "{what}: the message quotes the blob");
+        }
+    };
+    // The header line itself.
+    check(format!("# a\n{blob}\n").as_bytes(), 0, 2, "header");
+    // A long line right after the header and far into the file (past many blocks).
+    for n in [0, 5_000] {
+        let text = format!("{head}{}{blob}", rows(0, n));
+        check(text.as_bytes(), n, n as u64 + 2, "line");
+        let text = format!("{head}{}1,2,3,{blob}\n{}", rows(0, n), rows(n, 3));
+        check(text.as_bytes(), n, n as u64 + 2, "line with its end");
+    }
+    // A quote left open, its field running on over short lines.
+    let open = "y\n".repeat(1 << 20);
+    for n in [0, 5_000] {
+        let text = format!("{head}{}9,1,1,\"note\n{open}", rows(0, n));
+        check(text.as_bytes(), n, n as u64 + 2, "open quote");
+    }
+    let text = format!("\"time_s\n{open}");
+    check(text.as_bytes(), 0, 1, "open quote in the header");
+    // Just under the limits: a long note and a quoted field over many lines read.
+    let long = "z".repeat((1 << 20) - 100);
+    let quoted = "q\n".repeat(200_000);
+    let text = format!("{head}0,1,1,{long}\n0.04,1,1,\"{quoted}\"\n0.08,1,1,n\n");
+    let (out, end) = read_two_threads(text.as_bytes());
+    assert!(end.is_ok(), "{end:?}");
+    assert_eq!(out.len(), 3);
+}

@@ -708,6 +708,12 @@ fn hand_on(
 /// Bytes of whole lines [`Lines`] loads at a time once the header is found.
 const BLOCK_BYTES: usize = 64 * 1024;
 
+/// The longest line a log may have, and the most a quoted field may carry on over lines: far
+/// above a log's lines (a few hundred bytes), low enough that a file that is no log (megabytes
+/// without a line end, a quote left open) stops at an error instead of being read whole. It
+/// also keeps a block's offsets within the 32 bits [`rows`] stores them in.
+const MAX_LINE_BYTES: usize = 1 << 20;
+
 /// A block of whole lines as [`Lines`] loads it.
 struct Block {
     /// Its text; its rows when `cut`; buffers for its samples.
@@ -734,6 +740,8 @@ struct Lines<R> {
     /// An error met after the lines loaded (handed on after them), and whether it was.
     pending: Option<LogError>,
     stopped: bool,
+    /// Whether a quoted row was refused more lines ([`Lines::carry_on`]).
+    overlong: bool,
 }
 
 impl<R: BufRead> Lines<R> {
@@ -745,6 +753,7 @@ impl<R: BufRead> Lines<R> {
             comments: Vec::new(),
             pending: None,
             stopped: false,
+            overlong: false,
         }
     }
 
@@ -763,13 +772,41 @@ impl<R: BufRead> Lines<R> {
         }
     }
 
+    fn overlong_line(&self, line: u64) -> LogError {
+        LogError::Malformed {
+            file: self.file.clone(),
+            line,
+            message: format!(
+                "no line end within {} MiB: not a log line",
+                MAX_LINE_BYTES >> 20
+            ),
+        }
+    }
+
+    /// Appends to `text` the rest of a line, at most [`MAX_LINE_BYTES`] of it: the bytes read,
+    /// and whether the line was longer (it did not end within them).
+    fn read_line(&mut self, text: &mut Vec<u8>) -> std::io::Result<(usize, bool)> {
+        let n = (&mut self.inner)
+            .take(MAX_LINE_BYTES as u64)
+            .read_until(b'\n', text)?;
+        let over = n == MAX_LINE_BYTES
+            && text.last() != Some(&b'\n')
+            && !self.inner.fill_buf()?.is_empty();
+        Ok((n, over))
+    }
+
     /// Appends the next line to `text` (checked, its comment kept); `false` at the end of the
     /// input, or at an error, which is then `pending`.
     fn append_line(&mut self, text: &mut Vec<u8>) -> bool {
         let start = text.len();
-        match self.inner.read_until(b'\n', text) {
-            Ok(0) => return false,
-            Ok(_) => {}
+        match self.read_line(text) {
+            Ok((0, _)) => return false,
+            Ok((_, false)) => {}
+            Ok((_, true)) => {
+                text.truncate(start);
+                self.pending = Some(self.overlong_line(self.number + 1));
+                return false;
+            }
             Err(e) => {
                 self.pending = Some(self.io_error(e));
                 return false;
@@ -788,6 +825,32 @@ impl<R: BufRead> Lines<R> {
             }
         }
         true
+    }
+
+    /// [`Self::append_line`] for a quoted field carried on past its line's end, until `text`
+    /// holds `limit` bytes; then refused ([`Self::refuse_overlong`] names the row).
+    fn carry_on(&mut self, text: &mut Vec<u8>, limit: usize) -> bool {
+        if text.len() >= limit {
+            self.overlong = true;
+            return false;
+        }
+        self.append_line(text)
+    }
+
+    /// After a cut in which [`Self::carry_on`] refused a row more lines: that row, the last,
+    /// dropped, and the error naming the line where it starts made `pending`.
+    fn refuse_overlong(&mut self, rows: &mut Rows) {
+        if std::mem::take(&mut self.overlong) {
+            let line = rows.pop().unwrap_or(self.number);
+            self.pending = Some(LogError::Malformed {
+                file: self.file.clone(),
+                line,
+                message: format!(
+                    "a quoted field runs on over more than {} MiB of lines: a quote left open?",
+                    MAX_LINE_BYTES >> 20
+                ),
+            });
+        }
     }
 
     /// The next block of whole lines (`None` at the end of the input, or after an error). A line
@@ -819,12 +882,21 @@ impl<R: BufRead> Lines<R> {
         }
         text.truncate(filled);
         if text.last().is_some_and(|&b| b != b'\n') {
-            if let Err(e) = self.inner.read_until(b'\n', &mut text) {
-                self.stopped = true;
-                return Err(self.io_error(e));
+            match self.read_line(&mut text) {
+                Ok((_, false)) => {}
+                Ok((_, true)) => {
+                    // The lines before the long one come first.
+                    let start = memchr::memrchr(b'\n', &text).map_or(0, |i| i + 1);
+                    text.truncate(start);
+                    self.pending = Some(self.overlong_line(first_line + newlines(&text)));
+                }
+                Err(e) => {
+                    self.stopped = true;
+                    return Err(self.io_error(e));
+                }
             }
         }
-        if text.is_empty() {
+        if text.is_empty() && self.pending.is_none() {
             self.stopped = true;
             return Ok(None);
         }
@@ -844,9 +916,12 @@ impl<R: BufRead> Lines<R> {
         self.number += newlines(&text) + u64::from(unterminated);
         let cut = self.pending.is_none() && memchr::memchr(b'"', &text).is_some();
         let rows = if cut {
-            rows::cut_growing(&mut text, first_line, delimiter, rows, |t| {
-                self.append_line(t)
-            })
+            let limit = text.len() + MAX_LINE_BYTES;
+            let mut rows = rows::cut_growing(&mut text, first_line, delimiter, rows, |t| {
+                self.carry_on(t, limit)
+            });
+            self.refuse_overlong(&mut rows);
+            rows
         } else {
             rows
         };
@@ -969,9 +1044,11 @@ fn header<R: BufRead>(
                 what: "no header row",
             });
         };
-        let rows = rows::cut_growing(&mut row_text, line, delimiter, Rows::default(), |t| {
-            lines.append_line(t)
+        let limit = row_text.len() + MAX_LINE_BYTES;
+        let mut rows = rows::cut_growing(&mut row_text, line, delimiter, Rows::default(), |t| {
+            lines.carry_on(t, limit)
         });
+        lines.refuse_overlong(&mut rows);
         if let Some(e) = lines.pending.take() {
             return Err(e);
         }

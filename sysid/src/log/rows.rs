@@ -64,6 +64,15 @@ impl Rows {
         self.side.clear();
     }
 
+    /// Drops the last row; the line where it started (`None` when there are no rows).
+    pub fn pop(&mut self) -> Option<u64> {
+        let line = self.lines.pop()?;
+        self.ends.pop();
+        self.fields
+            .truncate(self.ends.last().map_or(0, |&e| e as usize));
+        Some(line)
+    }
+
     /// Number of rows.
     pub fn len(&self) -> usize {
         self.lines.len()
