@@ -740,8 +740,6 @@ struct Lines<R> {
     /// An error met after the lines loaded (handed on after them), and whether it was.
     pending: Option<LogError>,
     stopped: bool,
-    /// Whether a quoted row was refused more lines ([`Lines::carry_on`]).
-    overlong: bool,
 }
 
 impl<R: BufRead> Lines<R> {
@@ -753,7 +751,6 @@ impl<R: BufRead> Lines<R> {
             comments: Vec::new(),
             pending: None,
             stopped: false,
-            overlong: false,
         }
     }
 
@@ -764,23 +761,38 @@ impl<R: BufRead> Lines<R> {
         }
     }
 
-    fn bad_utf8(&self, line: u64) -> LogError {
+    fn malformed(&self, line: u64, message: String) -> LogError {
         LogError::Malformed {
             file: self.file.clone(),
             line,
-            message: "invalid UTF-8".into(),
+            message,
         }
     }
 
+    fn bad_utf8(&self, line: u64) -> LogError {
+        self.malformed(line, "invalid UTF-8".into())
+    }
+
     fn overlong_line(&self, line: u64) -> LogError {
-        LogError::Malformed {
-            file: self.file.clone(),
+        let mib = MAX_LINE_BYTES >> 20;
+        self.malformed(
             line,
-            message: format!(
-                "no line end within {} MiB: not a log line",
-                MAX_LINE_BYTES >> 20
-            ),
-        }
+            format!("no line end within {mib} MiB: not a log line"),
+        )
+    }
+
+    /// Drops from `text` (a block whose first line is `first_line`) the line holding byte `at`
+    /// and all after it, and makes `error` at that line `pending`: the lines before it come first.
+    fn stop_at(
+        &mut self,
+        text: &mut Vec<u8>,
+        at: usize,
+        first_line: u64,
+        error: fn(&Self, u64) -> LogError,
+    ) {
+        let start = memchr::memrchr(b'\n', &text[..at]).map_or(0, |i| i + 1);
+        text.truncate(start);
+        self.pending = Some(error(self, first_line + newlines(text)));
     }
 
     /// Appends to `text` the rest of a line, at most [`MAX_LINE_BYTES`] of it: the bytes read,
@@ -827,30 +839,25 @@ impl<R: BufRead> Lines<R> {
         true
     }
 
-    /// [`Self::append_line`] for a quoted field carried on past its line's end, until `text`
-    /// holds `limit` bytes; then refused ([`Self::refuse_overlong`] names the row).
-    fn carry_on(&mut self, text: &mut Vec<u8>, limit: usize) -> bool {
-        if text.len() >= limit {
-            self.overlong = true;
-            return false;
-        }
-        self.append_line(text)
-    }
-
-    /// After a cut in which [`Self::carry_on`] refused a row more lines: that row, the last,
-    /// dropped, and the error naming the line where it starts made `pending`.
-    fn refuse_overlong(&mut self, rows: &mut Rows) {
-        if std::mem::take(&mut self.overlong) {
+    /// `text`'s rows (whole lines from `first_line`), a quoted field open at its end taking the
+    /// next lines ([`rows::cut_growing`]) for at most [`MAX_LINE_BYTES`] more; past that the
+    /// row is dropped and an error naming the line where it starts is `pending`.
+    fn cut_rows(&mut self, text: &mut Vec<u8>, first_line: u64, delimiter: u8, into: Rows) -> Rows {
+        let limit = text.len() + MAX_LINE_BYTES;
+        let mut overlong = false;
+        let mut rows = rows::cut_growing(text, first_line, delimiter, into, |t| {
+            overlong = t.len() >= limit;
+            !overlong && self.append_line(t)
+        });
+        if overlong {
             let line = rows.pop().unwrap_or(self.number);
-            self.pending = Some(LogError::Malformed {
-                file: self.file.clone(),
-                line,
-                message: format!(
-                    "a quoted field runs on over more than {} MiB of lines: a quote left open?",
-                    MAX_LINE_BYTES >> 20
-                ),
-            });
+            let mib = MAX_LINE_BYTES >> 20;
+            let message = format!(
+                "a quoted field runs on over more than {mib} MiB of lines: a quote left open?"
+            );
+            self.pending = Some(self.malformed(line, message));
         }
+        rows
     }
 
     /// The next block of whole lines (`None` at the end of the input, or after an error). A line
@@ -885,10 +892,8 @@ impl<R: BufRead> Lines<R> {
             match self.read_line(&mut text) {
                 Ok((_, false)) => {}
                 Ok((_, true)) => {
-                    // The lines before the long one come first.
-                    let start = memchr::memrchr(b'\n', &text).map_or(0, |i| i + 1);
-                    text.truncate(start);
-                    self.pending = Some(self.overlong_line(first_line + newlines(&text)));
+                    let end = text.len();
+                    self.stop_at(&mut text, end, first_line, Self::overlong_line);
                 }
                 Err(e) => {
                     self.stopped = true;
@@ -904,9 +909,7 @@ impl<R: BufRead> Lines<R> {
             Ok(t) => keep_comments(t, &mut self.comments),
             Err(e) => {
                 // The lines before the bad one come first (rare: checked twice).
-                let start = memchr::memrchr(b'\n', &text[..e.valid_up_to()]).map_or(0, |i| i + 1);
-                text.truncate(start);
-                self.pending = Some(self.bad_utf8(first_line + newlines(&text)));
+                self.stop_at(&mut text, e.valid_up_to(), first_line, Self::bad_utf8);
                 if let Ok(t) = std::str::from_utf8(&text) {
                     keep_comments(t, &mut self.comments);
                 }
@@ -916,12 +919,7 @@ impl<R: BufRead> Lines<R> {
         self.number += newlines(&text) + u64::from(unterminated);
         let cut = self.pending.is_none() && memchr::memchr(b'"', &text).is_some();
         let rows = if cut {
-            let limit = text.len() + MAX_LINE_BYTES;
-            let mut rows = rows::cut_growing(&mut text, first_line, delimiter, rows, |t| {
-                self.carry_on(t, limit)
-            });
-            self.refuse_overlong(&mut rows);
-            rows
+            self.cut_rows(&mut text, first_line, delimiter, rows)
         } else {
             rows
         };
@@ -1044,11 +1042,7 @@ fn header<R: BufRead>(
                 what: "no header row",
             });
         };
-        let limit = row_text.len() + MAX_LINE_BYTES;
-        let mut rows = rows::cut_growing(&mut row_text, line, delimiter, Rows::default(), |t| {
-            lines.carry_on(t, limit)
-        });
-        lines.refuse_overlong(&mut rows);
+        let rows = lines.cut_rows(&mut row_text, line, delimiter, Rows::default());
         if let Some(e) = lines.pending.take() {
             return Err(e);
         }
