@@ -97,15 +97,16 @@ fn third_size_hysteresis_on_irregular_strokes() {
 }
 
 /// The lags on irregular strokes: a sensor lag, and an air pocket at a third of its preset size
-/// (6.7 mm³), are named with their parameters, but the held-out RMSE ends at 1.106 σ and 1.146 σ,
-/// over the 10 % of the acceptance; within the 15 % the protocol-log tests (`residual_hostsim.rs`)
-/// hold.
+/// (6.7 mm³), are named with their parameters. The board's frame is the mean of 8 conversions
+/// over its 40 ms, and the lags act inside it; the loop runs them over the motion rebuilt at
+/// those instants (`lag_in_frames`), so a move starting or stopping inside a frame is not
+/// smeared over the frames around it (the cubic between frames ended at 1.106 σ and 1.146 σ).
 #[test]
 fn lags_on_irregular_strokes() {
     let o = run(&strokes("sensor lag", preset("sensor-lag"), gaussian(), 35));
     assert_eq!(names(&o.d), ["sensor_lag"]);
     assert!((param(&o, "sensor_lag", "time_constant") - 0.02).abs() < 0.003);
-    assert!(o.d.final_model.rmse_heldout <= 1.15 * o.sigma);
+    check(&o, &["sensor_lag"]);
     let air = Effects {
         air_pocket_mm3: [20.0 / 3.0; 3],
         ..Effects::default()
@@ -116,28 +117,37 @@ fn lags_on_irregular_strokes() {
         (param(&o, "air_compliance", "air_volume_at_atmospheric_pressure") - 20.0 / 3.0).abs()
             < 1.0
     );
-    assert!(o.d.final_model.rmse_heldout <= 1.15 * o.sigma);
+    check(&o, &["air_compliance"]);
 }
 
-/// Open (issue #17): the cases where the loop does not yet meet the acceptance on host-sim's
-/// irregular strokes. `cargo test --release -p sysid --test residual_hostsim_shapes -- --ignored
-/// --nocapture` shows them: a sensor lag at a third of its size (6.7 ms) is taken by its
-/// look-alike, a delivery lag (1.29 σ); the three effects at once (hysteresis, sensor lag, air
-/// pocket) are all named, but the air pocket's lag and the sensor lag trade against each other
-/// (24.9 ms for 20, 16.5 mm³ for 20) and the error ends at 1.62 σ.
+/// A sensor lag at a third of its preset size (6.7 ms, a sixth of a frame) is told from its
+/// look-alike, a delivery lag, and sized.
 #[test]
-#[ignore = "open: third-size sensor lag and three effects at once on host-sim (issue #17)"]
-fn open_sensor_lag_third_size_and_three_at_once() {
+fn third_size_sensor_lag_on_irregular_strokes() {
     let lag = Effects {
         sensor_lag_s: 0.02 / 3.0,
         ..Effects::default()
     };
-    let small = run(&strokes("sensor lag / 3", lag, gaussian(), 37));
+    let o = run(&strokes("sensor lag / 3", lag, gaussian(), 37));
+    assert_eq!(names(&o.d), ["sensor_lag"]);
+    assert!((param(&o, "sensor_lag", "time_constant") - 0.02 / 3.0).abs() < 0.001);
+    check(&o, &["sensor_lag"]);
+}
+
+/// Open (issue #17): the three effects at once (hysteresis, sensor lag, air pocket, all at their
+/// preset sizes) on host-sim's irregular strokes. `cargo test --release -p sysid --test
+/// residual_hostsim_shapes -- --ignored --nocapture` shows it: all three are named, but the
+/// error ends at 1.53 σ (sensor lag 23.5 ms for 20, air pocket 17.6 mm³ for 20, hysteresis width
+/// 21.5 mm³ for 20). The lags inside the frames are not what is missing: the full-size air pocket
+/// alone ends at 1.10 σ, hysteresis with it at 1.37 σ (hysteresis switches on the chamber's
+/// volume, which the air pocket moves away from the logged one), a sensor lag with it at 1.57 σ.
+#[test]
+#[ignore = "open: three effects at once on host-sim (issue #17)"]
+fn open_three_at_once() {
     let mut three = preset("hysteresis");
     three.sensor_lag_s = preset("sensor-lag").sensor_lag_s;
     three.air_pocket_mm3 = preset("air").air_pocket_mm3;
     let all = run(&strokes("three at once", three, gaussian(), 33));
-    check(&small, &["sensor_lag"]);
     check(&all, &["hysteresis", "sensor_lag", "air_compliance"]);
 }
 

@@ -28,6 +28,7 @@ pub mod analysis;
 mod basis;
 pub mod effects;
 pub mod export;
+pub(crate) mod inframe;
 mod lsq;
 pub mod select;
 pub(crate) mod signal;

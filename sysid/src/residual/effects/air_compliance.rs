@@ -113,16 +113,12 @@ impl EffectModel for AirCompliance {
         Some(0)
     }
 
+    /// The board's form ([`Effect::point_sampled`]; the loop's lags inside the frames,
+    /// [`Self::lag_time_constants`]): the lag of each column's cubic between frames, backward
+    /// slopes; else Akima's.
     fn filter(&self, e: &Effect, prep: &Prepared, cols: &mut [Vec<f64>]) {
         let t = &prep.series.t;
-        let damping = e.damping.clone();
-        let tau: Vec<f64> = (0..t.len())
-            .map(|k| {
-                let c = damping.as_ref().map_or(0.0, |d| d[k].max(0.0));
-                let p = prep.p_sched[k].max(-0.9 * P_ATM_KPA);
-                c * e.theta * P_ATM_KPA / (P_ATM_KPA + p).powi(2)
-            })
-            .collect();
+        let tau = time_constants(e, prep);
         // Over each interval the time constant at its midpoint (the mean of its ends): second-order
         // accurate where τ changes fast, at the reversals.
         let mid = |k: usize| 0.5 * (tau[k] + tau[k.saturating_sub(1)]);
@@ -133,6 +129,12 @@ impl EffectModel for AirCompliance {
             return;
         }
         signal::lag_cubic_apply_all(t, &coeffs, cols);
+    }
+
+    /// `τ_k = c_k·V_a·P_atm/(P_atm + P_k)²` over frame k: the loop's form, run inside the frames
+    /// (`lag_in_frames`).
+    fn lag_time_constants(&self, e: &Effect, prep: &Prepared) -> Option<Vec<f64>> {
+        Some(time_constants(e, prep))
     }
 
     fn uses_measured_pressure(&self) -> bool {
@@ -171,4 +173,17 @@ impl EffectModel for AirCompliance {
             "the board's chain applies Boyle's law to the measured pressure and lags P̂ with the polynomial's damping (`model <ch> effect air_compliance <V_a>`)",
         )
     }
+}
+
+/// The air lag's time constant at every frame, `τ_k = c_k·V_a·P_atm/(P_atm + P_k)²` (c the damping
+/// schedule, P the measured pressure, floored at −0.9 P_atm).
+fn time_constants(e: &Effect, prep: &Prepared) -> Vec<f64> {
+    let damping = e.damping.as_deref();
+    (0..prep.series.len())
+        .map(|k| {
+            let c = damping.map_or(0.0, |d| d[k].max(0.0));
+            let p = prep.p_sched[k].max(-0.9 * P_ATM_KPA);
+            c * e.theta * P_ATM_KPA / (P_ATM_KPA + p).powi(2)
+        })
+        .collect()
 }

@@ -5,6 +5,7 @@
 use super::{
     param, DeviceSupport, Effect, EffectModel, Fitted, Inputs, Param, Prepared, Scales, Search,
 };
+use crate::residual::inframe::LagChain;
 use crate::residual::signal;
 
 /// The commanded motion delivered through a critically damped lag.
@@ -31,12 +32,27 @@ impl EffectModel for DeliveryLag {
         Some(0)
     }
 
-    /// Each stage lags the volume with the flow as its exact slopes (the lag of a derivative is
-    /// the derivative of the lag), the flow with Akima slopes; on point samples (the board's
-    /// form, which only has the past) the flow with the accelerations at the samples as slopes,
-    /// each the end slope of the volume's cubic over the last interval
-    /// (`signal::acceleration_causal`).
+    /// On the logged motion (the loop's form), both stages run inside the frames: over the motion
+    /// rebuilt at the instants each frame averages ([`Prepared::sub_motion`]), the volume and flow
+    /// then averaged back over each frame, `v'_k = (1/S) Σ_j (L_τ² v)(t_kj)` (and v̇'), as the
+    /// frames average what the chamber received. Otherwise each stage lags the volume with the
+    /// flow as its exact slopes (the lag of a derivative is the derivative of the lag), the flow
+    /// with Akima slopes; on point samples (the board's form, which only has the past) the flow
+    /// with the accelerations at the samples as slopes, each the end slope of the volume's cubic
+    /// over the last interval (`signal::acceleration_causal`).
     fn transform_inputs(&self, e: &Effect, prep: &Prepared, inputs: &mut Inputs) {
+        if inputs.raw && !e.point_sampled {
+            let n = prep.series.len();
+            let sub = prep.sub_motion();
+            let taus = vec![vec![e.theta; n]; 2];
+            let mut chain = LagChain::new(&sub.t, &taus, 2);
+            chain.block(0..n);
+            let (mut v, mut f) = (Vec::with_capacity(n), Vec::with_capacity(n));
+            chain.frames(0, &sub.v, &mut v);
+            chain.frames(1, &sub.f, &mut f);
+            (inputs.v, inputs.f) = (v, f);
+            return;
+        }
         let t = &prep.series.t;
         let c = signal::lag_cubic_coeffs(t, |_| e.theta);
         for _ in 0..2 {

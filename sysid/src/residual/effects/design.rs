@@ -5,6 +5,7 @@
 
 use super::{cruise_speeds, CountLag, EffectKind};
 use crate::residual::basis::PolyBasis;
+use crate::residual::inframe::{self, SubMotion};
 use crate::residual::lsq;
 use crate::residual::signal;
 use crate::residual::Series;
@@ -88,6 +89,9 @@ pub struct Prepared {
     pub scales: Scales,
     /// The logged motion rebuilt at `signal::SUB_SAMPLES` instants per frame (position, flow).
     pub subframe: (Vec<f64>, Vec<f64>),
+    /// The motion at the same instants as the output lags see it inside the frames
+    /// ([`Prepared::sub_motion`]), made on first use and shared by clones.
+    sub_motion: std::sync::Arc<std::sync::OnceLock<SubMotion>>,
     /// The speeds the log dwells at ([`cruise_speeds`]), where a pump ripple's count lag is fitted.
     pub cruise_speeds: std::sync::Arc<Vec<f64>>,
     /// Training row indices.
@@ -99,6 +103,15 @@ pub struct Prepared {
 }
 
 impl Prepared {
+    /// The logged motion rebuilt at the instants each frame averages, with the fewest corners of
+    /// flow (`inframe::sparse_motion`), where the output lags run ([`super::lag_in_frames`]).
+    pub fn sub_motion(&self) -> &SubMotion {
+        self.sub_motion.get_or_init(|| {
+            let se = &self.series;
+            inframe::sparse_motion(&se.t, &se.v, &se.vdot)
+        })
+    }
+
     /// Baseline columns on the raw inputs. Computed afresh each time (products of Chebyshev
     /// values, as cheap as copying them): a cached copy would hold another (n+1)(m+1) numbers per
     /// sample for the whole run.
@@ -131,6 +144,7 @@ impl Prepared {
         let subframe = signal::frame_instants(&series.t, &series.v, &series.vdot);
         Self {
             subframe,
+            sub_motion: Default::default(),
             cruise_speeds: std::sync::Arc::new(cruise_speeds(&series.vdot)),
             basis,
             p_sched,
@@ -252,14 +266,15 @@ pub fn build(prep: &Prepared, effects: &[Effect]) -> Design {
     // two added ones.
     let width = prep.basis.len() + 2 * effects.len();
     let permit = Some(prep.gate.acquire(width * prep.series.len() * 8));
-    let mut cols = if transforms_inputs(effects) {
-        input_transformed_columns(prep, effects)
-    } else {
-        prep.raw_columns()
+    let inputs = transforms_inputs(effects).then(|| transformed_inputs(prep, effects));
+    let mut cols = match &inputs {
+        Some((v, f)) => prep.basis.columns(v, f),
+        None => prep.raw_columns(),
     };
     let mut labels: Vec<String> = (0..cols.len()).map(|i| prep.basis.label(i)).collect();
     let mut owner: Vec<Option<usize>> = vec![None; cols.len()];
-    added_and_filters(prep, effects, &mut cols, &mut labels, &mut owner);
+    added_columns(prep, effects, &mut cols, &mut labels, &mut owner);
+    output_filters(prep, effects, inputs.as_ref(), &mut cols);
     Design {
         cols,
         labels,
@@ -297,19 +312,13 @@ pub fn sse_structured(prep: &Prepared, effects: &[Effect]) -> Option<f64> {
     // outside the baseline's [−1, 1].
     let b = &PolyBasis::for_data(&v, &f, prep.basis.n, prep.basis.m).ok()?;
     let (mut extra, mut labels, mut owner) = (Vec::new(), Vec::new(), Vec::new());
-    added_and_filters(prep, effects, &mut extra, &mut labels, &mut owner);
+    added_columns(prep, effects, &mut extra, &mut labels, &mut owner);
     let extra: Vec<Vec<f64>> = extra.iter().map(|c| gather(c)).collect();
     let y = gather(&se.p);
     let mean = y.iter().sum::<f64>() / y.len().max(1) as f64;
     let yc: Vec<f64> = y.iter().map(|p| p - mean).collect();
     let factors = |r: std::ops::Range<usize>| b.factors(&v[r.clone()], &f[r], 2 * b.n, 2 * b.m);
     Some(lsq::sse_fast_poly(factors, b.n, b.m, &extra, &yc))
-}
-
-/// Baseline columns on the inputs after the input transforms (module docs).
-fn input_transformed_columns(prep: &Prepared, effects: &[Effect]) -> Vec<Vec<f64>> {
-    let (v, f) = transformed_inputs(prep, effects);
-    prep.basis.columns(&v, &f)
 }
 
 /// The volume and flow an input transform acts on, as the transforms before it left them.
@@ -346,9 +355,8 @@ fn transformed_inputs(prep: &Prepared, effects: &[Effect]) -> (Vec<f64>, Vec<f64
     (inputs.v, inputs.f)
 }
 
-/// Appends the effects' added columns (in the order of `effects`) and applies the output filters
-/// (in the order of their [`super::EffectModel::filter_stage`]).
-fn added_and_filters(
+/// Appends the effects' added columns (in the order of `effects`).
+fn added_columns(
     prep: &Prepared,
     effects: &[Effect],
     cols: &mut Vec<Vec<f64>>,
@@ -362,11 +370,30 @@ fn added_and_filters(
             owner.push(Some(idx));
         }
     }
+}
+
+/// Applies the output filters in the order of their [`super::EffectModel::filter_stage`]: when
+/// they are all lags in the loop's frame-mean form, inside the frames ([`super::lag_in_frames`];
+/// `inputs` the transformed volume and flow the baseline's columns were evaluated on, if any);
+/// otherwise (a filter in the board's form) each by its own [`super::EffectModel::filter`].
+fn output_filters(
+    prep: &Prepared,
+    effects: &[Effect],
+    inputs: Option<&(Vec<f64>, Vec<f64>)>,
+    cols: &mut [Vec<f64>],
+) {
     let mut filters: Vec<&Effect> = effects
         .iter()
         .filter(|e| e.kind.filter_stage().is_some())
         .collect();
+    if filters.is_empty() {
+        return;
+    }
     filters.sort_by_key(|e| e.kind.filter_stage());
+    if let Some(taus) = super::lag_in_frames::lag_time_constants(prep, &filters) {
+        super::lag_in_frames::apply(prep, inputs, prep.basis.len(), &taus, cols);
+        return;
+    }
     for e in filters {
         e.kind.filter(e, prep, cols);
     }
@@ -375,7 +402,7 @@ fn added_and_filters(
 #[cfg(test)]
 mod tests {
     use super::super::{
-        AirCompliance, Backlash, Hysteresis, Leak, OffsetDrift, Ripple, SensorLag, VolumeDrift,
+        Hysteresis, Leak, OffsetDrift, Ripple, SensorLag, VolumeDrift,
     };
     use super::*;
 
@@ -458,27 +485,18 @@ mod tests {
     }
 
     #[test]
-    fn filtering_the_known_design_equals_building_with_the_lag() {
-        // Identity: sensor lag is build's last step, so LagBase's SSE is the SSE of the design
-        // built with the lag, for a model with input transforms, added columns and air.
-        let len = 1500;
-        let prep = two_tones(len);
-        let air = Effect {
-            damping: Some(std::sync::Arc::new(vec![0.01; len])),
-            ..Effect::new(EffectKind(&AirCompliance), 10.0)
-        };
-        let base = vec![
-            Effect::new(EffectKind(&Backlash), 2.0),
-            Effect::new(EffectKind(&Hysteresis), 20.0),
-            air,
-        ];
-        let lb = super::super::sensor_lag::LagBase::new(build(&prep, &base));
-        for tau in [0.01, 0.2] {
-            let mut with = base.clone();
-            with.push(Effect::new(EffectKind(&SensorLag), tau));
-            let d = build(&prep, &with);
-            let direct = lsq::sse_fast(&d.cols, &prep.series.p, &prep.train_rows);
-            assert!((lb.sse(&prep, tau) - direct).abs() <= 1e-12 * direct);
+    fn a_lag_inside_the_frames_shorter_than_anything_is_the_design_itself() {
+        // Identity: each column is rebuilt inside the frames with its frame means kept, so a lag
+        // of 1 ns leaves the design (baseline and added columns) as built without it.
+        let prep = two_tones(1500);
+        let hyst = Effect::new(EffectKind(&Hysteresis), 20.0);
+        let plain = build(&prep, std::slice::from_ref(&hyst));
+        let lagged = build(&prep, &[hyst, Effect::new(EffectKind(&SensorLag), 1e-9)]);
+        for (a, b) in plain.cols.iter().zip(&lagged.cols) {
+            let scale = a.iter().fold(0.0f64, |m, x| m.max(x.abs()));
+            for (x, y) in a.iter().zip(b) {
+                assert!((x - y).abs() <= 1e-6 * scale, "{x} vs {y}");
+            }
         }
     }
 }

@@ -117,6 +117,7 @@ pub mod design;
 pub mod gated_ripple;
 pub mod hysteresis;
 pub mod inertance;
+pub mod lag_in_frames;
 pub mod leak;
 pub mod offset_drift;
 pub mod pump_ripple;
@@ -350,6 +351,13 @@ pub trait EffectModel: Send + Sync {
 
     /// Filters every design column (each over every sample).
     fn filter(&self, _e: &Effect, _prep: &Prepared, _cols: &mut [Vec<f64>]) {}
+
+    /// For an output filter that is a first-order lag `τ(t) ẏ + y = x`: its time constant over
+    /// each frame (s). The loop's form then runs it inside the frames ([`lag_in_frames`]) rather
+    /// than through [`Self::filter`]; `None` (default) for no such lag.
+    fn lag_time_constants(&self, _e: &Effect, _prep: &Prepared) -> Option<Vec<f64>> {
+        None
+    }
 
     /// Whether a prediction with the effect uses the measured pressure as a scheduling input.
     fn uses_measured_pressure(&self) -> bool {

@@ -1,14 +1,10 @@
 //! Sensor lag: the pressure sensor (or its filter) as a first-order lag `τ Ṗ_m + P_m = P`, an
-//! output filter on every design column (exact because the model is linear in its coefficients;
-//! each column's Akima interpolant between frames is lagged exactly, `signal::lag_cubic_coeffs`).
-//! It is the last step of the design, so its search only filters the current model's design
-//! ([`LagBase`]).
+//! output filter on every design column (exact because the model is linear in its coefficients).
+//! The sensor lags each conversion and the frame averages them, so the loop runs the lag inside
+//! the frames, on the motion rebuilt at the conversion instants (`super::lag_in_frames`); the
+//! board's form lags each column's cubic between frames (`signal::lag_cubic_coeffs`).
 
-use super::{
-    param, Design, DeviceSupport, Effect, EffectKind, EffectModel, Fitted, Param, Prepared, Scales,
-    Search, Stage,
-};
-use crate::residual::lsq;
+use super::{param, DeviceSupport, Effect, EffectModel, Fitted, Param, Prepared, Scales, Search};
 use crate::residual::signal;
 
 /// First-order lag of the pressure sensor.
@@ -35,49 +31,49 @@ impl EffectModel for SensorLag {
         ))
     }
 
+    /// From a twentieth of a frame (run inside the frames, a lag that short still moves each
+    /// frame's mean: by τ times the pressure's rate) to 3 s.
     fn search(&self, sc: &Scales) -> Search {
-        Search::Log(0.25 * sc.dt, (3.0f64).min(sc.duration / 20.0).max(sc.dt))
+        Search::Log(0.05 * sc.dt, (3.0f64).min(sc.duration / 20.0).max(sc.dt))
     }
 
     fn has_nonlinear(&self) -> bool {
         true
     }
 
-    /// Filters the whole design at every trial τ (but see [`Self::fast_sse`]).
+    /// Rebuilds and lags the whole design inside the frames at every trial τ.
     fn cost_guess(&self) -> f64 {
-        1e2
-    }
-
-    /// Added to a model without a sensor lag, the lag is the design's last step: filter the
-    /// current design at each τ instead of rebuilding it.
-    fn fast_sse<'a>(
-        &self,
-        prep: &'a Prepared,
-        cur: &'a Stage,
-    ) -> Option<Box<dyn Fn(f64) -> f64 + 'a>> {
-        let me = EffectKind(&SensorLag);
-        if cur.effects.iter().any(|e| e.kind == me) {
-            return None;
-        }
-        let lb = LagBase::new(cur.columns(prep));
-        Some(Box::new(move |tau| lb.sse(prep, tau)))
+        1e3
     }
 
     fn filter_stage(&self) -> Option<u32> {
         Some(10)
     }
 
-    /// The lag of each column's cubic between samples: Akima's slopes on frame means; in the
-    /// board's form ([`Effect::point_sampled`]), which only has the past, the backward
-    /// differences (`signal::backward_slopes`).
+    /// On frame means (the default) the lag runs inside the frames ([`Self::lag_time_constants`]).
+    /// This filter is the other two forms: on instants ([`Effect::point_sampled`], a sampling
+    /// sensor), the lag of each column's cubic between samples with Akima's slopes; in the
+    /// board's form ([`Effect::board_form`]), which only has the past, the cubic's slopes are
+    /// backward differences (`signal::backward_slopes`).
     fn filter(&self, e: &Effect, prep: &Prepared, cols: &mut [Vec<f64>]) {
         let t = &prep.series.t;
         let coeffs = signal::lag_cubic_coeffs(t, |_| e.theta);
-        if e.point_sampled {
+        if e.board_form {
             signal::lag_causal_apply_all(t, &coeffs, cols);
         } else {
             signal::lag_cubic_apply_all(t, &coeffs, cols);
         }
+    }
+
+    /// A log's samples may be frame means (our firmware: the lag acts inside each frame) or
+    /// instants (a sampling sensor: the lag of the cubic between them); both are fitted.
+    fn tries_point_sampled(&self) -> bool {
+        true
+    }
+
+    /// τ over every frame: on frame means, run inside the frames (`lag_in_frames`).
+    fn lag_time_constants(&self, e: &Effect, prep: &Prepared) -> Option<Vec<f64>> {
+        Some(vec![e.theta; prep.series.len()])
     }
 
     fn params(&self, f: &Fitted) -> Vec<Param> {
@@ -93,34 +89,5 @@ impl EffectModel for SensorLag {
         DeviceSupport::on_device(
             "the board's chain lags P̂ by τ over the cubic between frames with backward-difference slopes (`model <ch> effect sensor_lag <tau>`; the loop's Akima slopes look ahead, the export refits τ in the board's form)",
         )
-    }
-}
-
-/// A design about to be filtered by a sensor lag: sensor lag is the last step of
-/// [`super::build`], so adding it to a model whose design is known only filters that design, and
-/// a search over τ need not rebuild it. Each trial streams the filtered design into the Gram sum
-/// a block of rows at a time (`signal::LagStream`, `lsq::sse_fast_streamed`): the design is held
-/// once, whatever the number of trials.
-pub struct LagBase {
-    design: Design,
-}
-
-impl LagBase {
-    /// The design (every sample) of the model the lag is added to.
-    pub fn new(design: Design) -> Self {
-        Self { design }
-    }
-
-    /// Training SSE of the design filtered by a sensor lag of time constant `tau`.
-    pub fn sse(&self, prep: &Prepared, tau: f64) -> f64 {
-        let (t, cols) = (&prep.series.t, &self.design.cols);
-        if cols.iter().any(|c| c.len() != t.len()) {
-            return f64::INFINITY;
-        }
-        let coeffs = signal::lag_cubic_coeffs(t, |_| tau);
-        let mut run = signal::LagStream::new(t, &coeffs, signal::LagSlopes::Akima, cols);
-        lsq::sse_fast_streamed(cols.len(), &prep.series.p, &prep.train_rows, |hi, out| {
-            run.advance(cols, hi, out)
-        })
     }
 }
