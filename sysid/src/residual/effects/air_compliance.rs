@@ -83,8 +83,10 @@ impl EffectModel for AirCompliance {
                 })
                 .collect::<Vec<f64>>(),
         );
+        let point_sampled = last.point_sampled;
         let remake = |th: f64| Effect {
             damping: Some(d2.clone()),
+            point_sampled,
             ..Effect::new(kind, th)
         };
         let (u, _) = golden(va.ln() - 0.7, va.ln() + 0.7, 10, |x| {
@@ -113,9 +115,16 @@ impl EffectModel for AirCompliance {
         Some(0)
     }
 
-    /// The board's form ([`Effect::point_sampled`]; the loop's lags inside the frames,
-    /// [`Self::lag_time_constants`]): the lag of each column's cubic between frames, backward
-    /// slopes; else Akima's.
+    /// A log's samples may be frame means (the lag acts inside each frame) or instants (the lag
+    /// of the cubic between them); both are fitted, as for the sensor lag.
+    fn tries_point_sampled(&self) -> bool {
+        true
+    }
+
+    /// On frame means (the default) the lag runs inside the frames ([`Self::lag_time_constants`]).
+    /// This filter is the other two forms: on instants ([`Effect::point_sampled`]), the lag of
+    /// each column's cubic between samples with Akima's slopes; in the board's form
+    /// ([`Effect::board_form`]), which only has the past, with backward-difference slopes.
     fn filter(&self, e: &Effect, prep: &Prepared, cols: &mut [Vec<f64>]) {
         let t = &prep.series.t;
         let tau = time_constants(e, prep);
@@ -123,7 +132,7 @@ impl EffectModel for AirCompliance {
         // accurate where τ changes fast, at the reversals.
         let mid = |k: usize| 0.5 * (tau[k] + tau[k.saturating_sub(1)]);
         let coeffs = signal::lag_cubic_coeffs(t, mid);
-        if e.point_sampled {
+        if e.board_form {
             // The board's form: slopes from the past only (`signal::backward_slopes`).
             signal::lag_causal_apply_all(t, &coeffs, cols);
             return;

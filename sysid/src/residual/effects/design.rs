@@ -401,9 +401,7 @@ fn output_filters(
 
 #[cfg(test)]
 mod tests {
-    use super::super::{
-        Hysteresis, Leak, OffsetDrift, Ripple, SensorLag, VolumeDrift,
-    };
+    use super::super::{Hysteresis, Leak, OffsetDrift, Ripple, SensorLag, VolumeDrift};
     use super::*;
 
     /// `len` frames at 25 Hz of two incommensurate tones, so (v, v̇) fills an area (one tone traces
