@@ -256,7 +256,7 @@ pub(crate) fn with(base: &[Effect], e: Effect) -> Vec<Effect> {
 pub fn search(prep: &Prepared, cur: &Stage, kind: EffectKind) -> Option<Candidate> {
     let mut trials = Trials::new(prep, cur, kind);
     let found = trials.best_theta()?;
-    // The shortcut may hold the current design (sensor lag's `LagBase`); the fits below build
+    // The shortcut may hold the current design (an effect's `fast_sse`); the fits below build
     // their own, so let it go first.
     trials.fast = None;
     let stage = match found.prefit.or_else(|| trials.fit(found.theta)) {

@@ -38,10 +38,11 @@ pub struct Effect {
     pub damping: Option<std::sync::Arc<Vec<f64>>>,
     /// Pump ripple: the stiffness `k = ∂P/∂v` per sample, from the model it was added to.
     pub stiffness: Option<std::sync::Arc<Vec<f64>>>,
-    /// Backlash and transport delay: the log's samples are instants (a sampling sensor) rather
-    /// than means over each frame (an averaging one, the default): the play operator then acts on
-    /// the samples themselves, and a delayed flow is the volume interpolant's derivative. The
-    /// search tries both and keeps the better fit.
+    /// Backlash, transport delay, sensor lag and air compliance: the log's samples are instants
+    /// (a sampling sensor) rather than means over each frame (an averaging one, the default): the
+    /// play operator then acts on the samples themselves, a delayed flow is the volume
+    /// interpolant's derivative, and a lag acts on each column's cubic between samples instead of
+    /// inside the frames. The search tries both and keeps the better fit.
     pub point_sampled: bool,
     /// Set by the export ([`crate::residual::export`]): the effect in the form the board runs it,
     /// where that differs from the point-sampled one. Backlash: the play operator on the nut's

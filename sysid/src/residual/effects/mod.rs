@@ -37,11 +37,15 @@
 //!   ([`EffectModel::filter_stage`]).
 //!
 //! A log's frame is the mean of the sensor's conversions over its interval, and an effect acts
-//! inside it. The filters therefore lag each column's Akima interpolant between frames exactly
-//! (`signal::lag_cubic_coeffs`; a mean commutes with a linear filter, so this is the lag of the
-//! frame-averaged signal), and backlash runs its play operator on the nut's motion rebuilt at
-//! eight instants per frame and averages the plunger back (`signal::play_frames`): a dead band
-//! shorter than a frame is then neither all-or-nothing nor placed at a frame instant.
+//! inside it. The lags (sensor lag, air compliance's dynamic part, delivery lag) therefore run
+//! over the motion rebuilt at the instants each frame averages, with the logged frame means and
+//! the fewest corners of flow, and are averaged back over each frame ([`lag_in_frames`]): a move
+//! that starts or stops inside a frame is neither smeared over the frames around it nor placed
+//! at a frame instant. (On instants, [`Effect::point_sampled`], the output lags act on each
+//! column's Akima cubic between samples, `signal::lag_cubic_coeffs`.) Backlash runs its play
+//! operator on the nut's motion rebuilt at eight instants per frame and averages the plunger
+//! back (`signal::play_frames`): a dead band shorter than a frame is then neither all-or-nothing
+//! nor placed at a frame instant.
 //!
 //! Where a transform needs the pressure itself (leak, air compliance) it uses the measured
 //! pressure unfiltered; it only schedules or integrates it, never differentiates it, so the
