@@ -45,6 +45,20 @@ pub fn frame_span(t: &[f64], k: usize) -> f64 {
     }
 }
 
+/// Frame k's intervals between instants of [`sub_instants`] `ts`: the one ending at its first
+/// instant (from the frame before's last; 0 for the first frame), and the one between its own
+/// instants (equal by construction; taken as one, so that a lag's coefficients are computed twice
+/// per frame rather than at every instant).
+pub fn frame_intervals(ts: &[f64], k: usize) -> (f64, f64) {
+    let first = k * S;
+    let h0 = if k == 0 {
+        0.0
+    } else {
+        ts[first] - ts[first - 1]
+    };
+    (h0, (ts[first + S - 1] - ts[first]) / (S - 1) as f64)
+}
+
 /// The instants `t_kj = t_k + Δ_k((j + ½)/S − ½)` spread evenly over each frame's span.
 pub fn sub_instants(t: &[f64]) -> Vec<f64> {
     let mut out = Vec::with_capacity(t.len() * S);
@@ -80,6 +94,10 @@ pub fn sparse_motion(t: &[f64], v: &[f64], f: &[f64]) -> SubMotion {
 /// Reweighting passes of [`sparse_flow`] at most.
 const IRLS_PASSES: usize = 100;
 
+/// Frames per window of [`sparse_flow`], and the frames of data a window sees beyond each end.
+const WINDOW: usize = 256;
+const MARGIN: usize = 24;
+
 /// The flow at S instants per frame whose frame means are `fbar` and whose second differences
 /// `d_i = q_{i−1} − 2q_i + q_{i+1}` are sparsest: `min Σ|d_i|` subject to `(1/S)Σ_j q_kj = f̄_k`,
 /// by iteratively reweighted least squares, each pass
@@ -90,11 +108,32 @@ const IRLS_PASSES: usize = 100;
 ///
 /// ε = 10⁻⁴ of the largest |f̄| (below it a corner is not worth resolving), W large enough that
 /// the means hold to 10⁻⁶ of that scale; from the flow held over each frame, until no sample moves
-/// by more than 10⁻⁶ of the scale. Each pass is a banded symmetric system (bandwidth S − 1).
+/// by more than 10⁻⁴ of the scale (a flow that close moves a lagged pressure by far less than a
+/// sensor's noise). Each pass is a banded symmetric system (bandwidth S − 1).
+///
+/// Solved in windows of [`WINDOW`] frames, each with [`MARGIN`] frames of data either side (a
+/// corner's pull on the flow dies out within a frame or two: the means pin every frame), on the
+/// available cores: each window stops reweighting when it has settled, so quiet stretches cost a
+/// pass or two and the memory is a window's.
 pub fn sparse_flow(fbar: &[f64]) -> Vec<f64> {
     let scale = fbar.iter().fold(0.0f64, |a, f| a.max(f.abs()));
+    let n = fbar.len();
+    if scale == 0.0 || !scale.is_finite() || n < 2 {
+        return fbar.iter().flat_map(|&f| [f; S]).collect();
+    }
+    let parts = crate::par::par_map(n.div_ceil(WINDOW), |w| {
+        let (c0, c1) = (w * WINDOW, ((w + 1) * WINDOW).min(n));
+        let (e0, e1) = (c0.saturating_sub(MARGIN), (c1 + MARGIN).min(n));
+        let q = sparse_flow_window(&fbar[e0..e1], scale);
+        q[(c0 - e0) * S..(c1 - e0) * S].to_vec()
+    });
+    parts.concat()
+}
+
+/// [`sparse_flow`] on one window, `scale` the whole series' largest |f̄|.
+fn sparse_flow_window(fbar: &[f64], scale: f64) -> Vec<f64> {
     let mut q: Vec<f64> = fbar.iter().flat_map(|&f| [f; S]).collect();
-    if scale == 0.0 || !scale.is_finite() || fbar.len() < 2 {
+    if fbar.len() < 2 {
         return q;
     }
     let eps = 1e-4 * scale;
@@ -113,7 +152,7 @@ pub fn sparse_flow(fbar: &[f64]) -> Vec<f64> {
             .zip(&q)
             .fold(0.0f64, |a, (x, y)| a.max((x - y).abs()));
         q = next;
-        if moved <= 1e-6 * scale {
+        if moved <= 1e-4 * scale {
             break;
         }
     }
@@ -211,79 +250,73 @@ pub fn foh(h: f64, tau: f64) -> (f64, f64) {
 /// First-order lags in series, `τ_s(t) ẏ_s + y_s = y_{s−1}` (`y_0` the input), run over the
 /// instants of [`sub_instants`] with the input linear between them ([`foh`]), each lag's time
 /// constant that of the frame the interval ends in, started at rest; each frame's output is the
-/// mean of the last lag over the frame's instants. Fed a block of frames at a time
-/// ([`LagChain::block`]), one column after another ([`LagChain::frames`]); the state is kept per
-/// column.
-pub struct LagChain<'a> {
-    ts: &'a [f64],
-    taus: &'a [Vec<f64>],
-    /// Per column and lag, `(y_{i−1}, x_{i−1})`; empty until the column's first instant.
-    state: Vec<Vec<(f64, f64)>>,
-    /// The current block's first frame, and per lag the [`foh`] coefficients of each of its
-    /// instants (the interval ending there).
-    block: (usize, Vec<Vec<(f64, f64)>>),
+/// mean of the last lag over the frame's instants. Holds the lags' coefficients, two per frame
+/// ([`frame_intervals`]): [`LagChain::frame_means`] runs a column through them;
+/// `lag_in_frames` runs a whole design through them a frame at a time ([`LagChain::coefficients`]).
+pub struct LagChain {
+    /// Per lag and frame, the [`foh`] coefficients of the interval ending at the frame's first
+    /// instant and of those between its instants.
+    coeffs: Vec<Vec<[(f64, f64); 2]>>,
 }
 
-impl<'a> LagChain<'a> {
-    /// Lags with per-frame time constants `taus[s][k]` over the instants `ts`, for `cols` columns.
-    pub fn new(ts: &'a [f64], taus: &'a [Vec<f64>], cols: usize) -> Self {
-        Self {
-            ts,
-            taus,
-            state: vec![Vec::new(); cols],
-            block: (0, Vec::new()),
-        }
-    }
-
-    /// Starts the block of frames `frames`: the coefficients of its instants (computed once for
-    /// all columns; repeated intervals and time constants reuse the last ones).
-    pub fn block(&mut self, frames: std::ops::Range<usize>) {
-        let coeffs = self
-            .taus
+impl LagChain {
+    /// Lags with per-frame time constants `taus[s][k]` over the instants `ts` (repeated intervals
+    /// and time constants reuse the last coefficients).
+    pub fn new(ts: &[f64], taus: &[Vec<f64>]) -> Self {
+        let coeffs = taus
             .iter()
             .map(|tau| {
                 let mut last = (f64::NAN, f64::NAN, (0.0, 1.0));
-                (frames.start * S..frames.end * S)
-                    .map(|i| {
-                        let h = if i == 0 {
-                            0.0
-                        } else {
-                            self.ts[i] - self.ts[i - 1]
-                        };
-                        let tk = tau[i / S];
-                        if (h, tk) != (last.0, last.1) {
-                            last = (h, tk, foh(h, tk));
-                        }
-                        last.2
+                let mut at = |h: f64, tk: f64| {
+                    if (h, tk) != (last.0, last.1) {
+                        last = (h, tk, foh(h, tk));
+                    }
+                    last.2
+                };
+                (0..tau.len())
+                    .map(|k| {
+                        let (h0, h) = frame_intervals(ts, k);
+                        [at(h0, tau[k]), at(h, tau[k])]
                     })
                     .collect()
             })
             .collect();
-        self.block = (frames.start, coeffs);
+        Self { coeffs }
     }
 
-    /// Column `c`'s values `x` at the instants of the current block's frames (S per frame), through
-    /// the lags; the frame means appended to `out`.
-    pub fn frames(&mut self, c: usize, x: &[f64], out: &mut Vec<f64>) {
-        let st = &mut self.state[c];
-        if st.is_empty() {
-            st.resize(self.taus.len(), (x[0], x[0]));
-        }
-        let coeffs = &self.block.1;
-        for (k, frame) in x.chunks(S).enumerate() {
-            let mut sum = 0.0;
-            for (j, &xi) in frame.iter().enumerate() {
-                let mut u = xi;
-                for ((y, x0), cs) in st.iter_mut().zip(coeffs) {
-                    let (a, one_minus_g) = cs[k * S + j];
-                    let out = a * *y + (1.0 - a) * *x0 + one_minus_g * (u - *x0);
-                    (*y, *x0) = (out, u);
-                    u = out;
+    /// Number of lags.
+    pub fn lags(&self) -> usize {
+        self.coeffs.len()
+    }
+
+    /// Lag s's coefficients `(a, 1 − g)` at frame k's instant j.
+    pub fn coefficients(&self, s: usize, k: usize, j: usize) -> (f64, f64) {
+        self.coeffs[s][k][usize::from(j > 0)]
+    }
+
+    /// A column's values `x` at the instants (S per frame) through the lags; its frame means.
+    pub fn frame_means(&self, x: &[f64]) -> Vec<f64> {
+        let Some(&x0) = x.first() else {
+            return Vec::new();
+        };
+        let mut st = vec![(x0, x0); self.lags()];
+        x.chunks(S)
+            .enumerate()
+            .map(|(k, frame)| {
+                let mut sum = 0.0;
+                for (j, &xi) in frame.iter().enumerate() {
+                    let mut u = xi;
+                    for (s, (y, x0)) in st.iter_mut().enumerate() {
+                        let (a, one_minus_g) = self.coefficients(s, k, j);
+                        let out = a * *y + (1.0 - a) * *x0 + one_minus_g * (u - *x0);
+                        (*y, *x0) = (out, u);
+                        u = out;
+                    }
+                    sum += u;
                 }
-                sum += u;
-            }
-            out.push(sum / S as f64);
-        }
+                sum / S as f64
+            })
+            .collect()
     }
 }
 
@@ -358,12 +391,7 @@ mod tests {
         let x: Vec<f64> = ts.iter().map(|&s| r * s).collect();
         for (lag, want) in [(tau, r * (t[150] - tau)), (0.0, r * t[150])] {
             let taus = vec![vec![lag; t.len()]];
-            let mut chain = LagChain::new(&ts, &taus, 1);
-            let mut out = Vec::new();
-            chain.block(0..100);
-            chain.frames(0, &x[..100 * S], &mut out);
-            chain.block(100..200);
-            chain.frames(0, &x[100 * S..], &mut out);
+            let out = LagChain::new(&ts, &taus).frame_means(&x);
             assert!((out[150] - want).abs() < 1e-9, "{} vs {want}", out[150]);
         }
     }

@@ -45,12 +45,8 @@ impl EffectModel for DeliveryLag {
             let n = prep.series.len();
             let sub = prep.sub_motion();
             let taus = vec![vec![e.theta; n]; 2];
-            let mut chain = LagChain::new(&sub.t, &taus, 2);
-            chain.block(0..n);
-            let (mut v, mut f) = (Vec::with_capacity(n), Vec::with_capacity(n));
-            chain.frames(0, &sub.v, &mut v);
-            chain.frames(1, &sub.f, &mut f);
-            (inputs.v, inputs.f) = (v, f);
+            let chain = LagChain::new(&sub.t, &taus);
+            (inputs.v, inputs.f) = (chain.frame_means(&sub.v), chain.frame_means(&sub.f));
             return;
         }
         let t = &prep.series.t;

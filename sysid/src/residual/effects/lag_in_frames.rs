@@ -21,10 +21,6 @@ use super::{Effect, Prepared};
 use crate::residual::inframe::{LagChain, SubMotion};
 use crate::residual::signal;
 
-/// Frames per block: the baseline's columns are evaluated at the instants of one block at a
-/// time, so the design is never held at the instants' resolution.
-const BLOCK: usize = 2048;
-
 /// The lags' per-frame time constants in the order they act, when every filter in `filters`
 /// (in stage order) is a lag in the loop's frame-mean form; `None` otherwise (a filter in the
 /// board's form, [`Effect::point_sampled`], keeps its own frame-level filter).
@@ -42,7 +38,10 @@ pub fn lag_time_constants(prep: &Prepared, filters: &[&Effect]) -> Option<Vec<Ve
 
 /// Replaces every column of `cols` (the first `nb` the baseline's, on the inputs `inputs` when a
 /// transform changed them) by its frame means through the lags `taus` inside the frames (module
-/// docs).
+/// docs). One pass over the frames for all columns at once: each frame's values at its instants
+/// are made in a small buffer (the baseline's Chebyshev factors once per instant, shared by its
+/// columns), shifted to the frame's value, run through the lags column by column in step and
+/// averaged, so nothing is held at the instants' resolution.
 pub fn apply(
     prep: &Prepared,
     inputs: Option<&(Vec<f64>, Vec<f64>)>,
@@ -51,97 +50,207 @@ pub fn apply(
     cols: &mut [Vec<f64>],
 ) {
     let n = prep.series.len();
-    if n < 2 || cols.iter().any(|c| c.len() != n) {
+    if n < 2 || cols.iter().any(|c| c.len() != n) || taus.is_empty() {
         return;
     }
     let sub = prep.sub_motion();
+    let t = &prep.series.t;
     let slopes: Vec<Vec<f64>> = cols[nb..]
         .iter()
-        .map(|c| signal::akima_slopes(&prep.series.t, c))
+        .map(|c| signal::akima_slopes(t, c))
         .collect();
-    let mut chain = LagChain::new(&sub.t, taus, cols.len());
-    let mut out: Vec<Vec<f64>> = vec![Vec::with_capacity(n); cols.len()];
-    let mut x = Vec::new();
-    for k0 in (0..n).step_by(BLOCK) {
-        let k1 = (k0 + BLOCK).min(n);
-        let base = baseline_at_instants(prep, sub, inputs, k0..k1);
-        chain.block(k0..k1);
+    let nc = cols.len();
+    let chain = LagChain::new(&sub.t, taus);
+    let mut frame = Frame::new(nc, taus.len());
+    // The frames' values a block at a time, frame by frame (one column after another, the reads
+    // and writes stream; frame by frame across 50 columns, they would miss the cache).
+    let mut tile = Vec::with_capacity(TILE * nc);
+    for k0 in (0..n).step_by(TILE) {
+        let k1 = (k0 + TILE).min(n);
+        tile.clear();
+        tile.resize((k1 - k0) * nc, 0.0);
         for (c, col) in cols.iter().enumerate() {
-            x.clear();
-            match c.checked_sub(nb) {
-                None => x.extend_from_slice(&base[c]),
-                Some(a) => {
-                    cubic_at_instants(&prep.series.t, &sub.t, col, &slopes[a], k0..k1, &mut x)
+            for (i, &x) in col[k0..k1].iter().enumerate() {
+                tile[i * nc + c] = x;
+            }
+        }
+        for (k, row) in (k0..k1).zip(tile.chunks_exact_mut(nc)) {
+            frame.coefficients(&chain, k);
+            frame.baseline(prep, sub, inputs, nb, k);
+            frame.added(t, &sub.t[k * S..(k + 1) * S], cols, &slopes, nb, k);
+            frame.lag_and_average(row);
+        }
+        for (c, col) in cols.iter_mut().enumerate() {
+            for (i, x) in col[k0..k1].iter_mut().enumerate() {
+                *x = tile[i * nc + c];
+            }
+        }
+    }
+}
+
+/// Frames per block of [`apply`].
+const TILE: usize = 128;
+
+/// Instants per frame.
+const S: usize = signal::SUB_SAMPLES;
+
+/// The working state of [`apply`]: one frame's values at its instants, the lags' states and
+/// coefficients, per column.
+struct Frame {
+    nc: usize,
+    lags: usize,
+    /// `x[j·nc + c]`: column c at the frame's instant j.
+    x: Vec<f64>,
+    /// Per lag s and column c (`s·nc + c`), the lag's output and input at the last instant.
+    y: Vec<f64>,
+    xin: Vec<f64>,
+    /// Per lag s and instant j (`s·S + j`), the coefficients of the interval ending there.
+    coef: Vec<(f64, f64)>,
+    /// Column c's frame value before it was replaced (the cubic of the next frame needs it).
+    prev: Vec<f64>,
+    /// Per column: the shift to the frame's value, the running sum, the value passing the lags.
+    shift: Vec<f64>,
+    sum: Vec<f64>,
+    u: Vec<f64>,
+    started: bool,
+}
+
+impl Frame {
+    fn new(nc: usize, lags: usize) -> Self {
+        Self {
+            nc,
+            lags,
+            x: vec![0.0; S * nc],
+            y: vec![0.0; lags * nc],
+            xin: vec![0.0; lags * nc],
+            coef: vec![(0.0, 1.0); lags * S],
+            prev: vec![0.0; nc],
+            shift: vec![0.0; nc],
+            sum: vec![0.0; nc],
+            u: vec![0.0; nc],
+            started: false,
+        }
+    }
+
+    /// The lags' coefficients over frame k's instants.
+    fn coefficients(&mut self, chain: &LagChain, k: usize) {
+        for s in 0..self.lags {
+            for j in 0..S {
+                self.coef[s * S + j] = chain.coefficients(s, k, j);
+            }
+        }
+    }
+
+    /// The baseline's columns at frame k's instants: the rebuilt motion, moved by the input
+    /// transforms' change at the frame (`inputs` minus the logged volume and flow).
+    fn baseline(
+        &mut self,
+        prep: &Prepared,
+        sub: &SubMotion,
+        inputs: Option<&(Vec<f64>, Vec<f64>)>,
+        nb: usize,
+        k: usize,
+    ) {
+        let se = &prep.series;
+        let (dv, df) = inputs.map_or((0.0, 0.0), |(vi, fi)| (vi[k] - se.v[k], fi[k] - se.vdot[k]));
+        let basis = &prep.basis;
+        let (dn, dm) = (basis.n, basis.m);
+        let (mut tv, mut tf) = ([0.0; 16], [0.0; 16]);
+        for j in 0..S {
+            let i = k * S + j;
+            let (xs, ys) = basis.scaling.apply(sub.v[i] + dv, sub.f[i] + df);
+            crate::poly::chebyshev(xs, &mut tv[..=dn]);
+            crate::poly::chebyshev(ys, &mut tf[..=dm]);
+            let row = &mut self.x[j * self.nc..j * self.nc + nb];
+            for (a, chunk) in row.chunks_mut(dm + 1).enumerate() {
+                for (b, out) in chunk.iter_mut().enumerate() {
+                    *out = tv[a] * tf[b];
                 }
             }
-            keep_means(&mut x, &col[k0..k1]);
-            chain.frames(c, &x, &mut out[c]);
         }
     }
-    for (c, o) in cols.iter_mut().zip(out) {
-        *c = o;
-    }
-}
 
-/// The baseline's columns at the instants of frames `frames`: the rebuilt motion, moved by the
-/// input transforms' change at each frame (`inputs` minus the logged volume and flow).
-fn baseline_at_instants(
-    prep: &Prepared,
-    sub: &SubMotion,
-    inputs: Option<&(Vec<f64>, Vec<f64>)>,
-    frames: std::ops::Range<usize>,
-) -> Vec<Vec<f64>> {
-    let s = signal::SUB_SAMPLES;
-    let rows = frames.start * s..frames.end * s;
-    let (mut v, mut f) = (sub.v[rows.clone()].to_vec(), sub.f[rows].to_vec());
-    if let Some((vi, fi)) = inputs {
-        let se = &prep.series;
-        for (i, k) in frames.clone().enumerate() {
-            let (dv, df) = (vi[k] - se.v[k], fi[k] - se.vdot[k]);
-            v[i * s..(i + 1) * s].iter_mut().for_each(|x| *x += dv);
-            f[i * s..(i + 1) * s].iter_mut().for_each(|x| *x += df);
-        }
-    }
-    prep.basis.columns(&v, &f)
-}
-
-/// A frame-level column `x` (Akima slopes `m`) at the instants `ts` of frames `frames`: the cubic
-/// Hermite of the interval each instant falls in (held beyond the first and last frames).
-fn cubic_at_instants(
-    t: &[f64],
-    ts: &[f64],
-    x: &[f64],
-    m: &[f64],
-    frames: std::ops::Range<usize>,
-    out: &mut Vec<f64>,
-) {
-    let s = signal::SUB_SAMPLES;
-    let n = t.len();
-    for k in frames {
-        for &u in &ts[k * s..(k + 1) * s] {
-            let j = if u < t[k] { k.checked_sub(1) } else { Some(k) };
-            let Some(j) = j.filter(|&j| j + 1 < n) else {
-                out.push(x[k]);
+    /// The added columns (frame values only) at frame k's instants `ts`: each column's cubic
+    /// Hermite (Akima slopes `m`) of the interval each instant falls in, held beyond the first
+    /// and last frames.
+    fn added(
+        &mut self,
+        t: &[f64],
+        ts: &[f64],
+        cols: &[Vec<f64>],
+        slopes: &[Vec<f64>],
+        nb: usize,
+        k: usize,
+    ) {
+        let n = t.len();
+        for (j, &u) in ts.iter().enumerate() {
+            let lo = if u < t[k] { k.checked_sub(1) } else { Some(k) };
+            let row = &mut self.x[j * self.nc..(j + 1) * self.nc];
+            let Some(lo) = lo.filter(|&lo| lo + 1 < n) else {
+                for c in nb..self.nc {
+                    row[c] = cols[c][k];
+                }
                 continue;
             };
-            let h = t[j + 1] - t[j];
-            let r = (u - t[j]) / h;
+            let h = t[lo + 1] - t[lo];
+            let r = (u - t[lo]) / h;
             let (r2, r3) = (r * r, r * r * r);
-            out.push(
-                (2.0 * r3 - 3.0 * r2 + 1.0) * x[j]
-                    + (r3 - 2.0 * r2 + r) * h * m[j]
-                    + (3.0 * r2 - 2.0 * r3) * x[j + 1]
-                    + (r3 - r2) * h * m[j + 1],
-            );
+            let w = [
+                2.0 * r3 - 3.0 * r2 + 1.0,
+                (r3 - 2.0 * r2 + r) * h,
+                3.0 * r2 - 2.0 * r3,
+                (r3 - r2) * h,
+            ];
+            for (c, m) in (nb..self.nc).zip(slopes) {
+                // The frame before's value as it was (`cols` may hold its new one).
+                let x0 = if lo < k { self.prev[c] } else { cols[c][lo] };
+                row[c] = w[0] * x0 + w[1] * m[lo] + w[2] * cols[c][lo + 1] + w[3] * m[lo + 1];
+            }
         }
     }
-}
 
-/// Shifts each frame's values in `x` (S per frame) so that their mean is the frame's `mean`.
-fn keep_means(x: &mut [f64], mean: &[f64]) {
-    let s = signal::SUB_SAMPLES;
-    for (frame, &m) in x.chunks_mut(s).zip(mean) {
-        let shift = m - frame.iter().sum::<f64>() / s as f64;
-        frame.iter_mut().for_each(|x| *x += shift);
+    /// Each column's values shifted so that their mean is the frame's value, through the lags
+    /// (started at rest at the first instant), averaged: the frame's new values replace its
+    /// values `row` (one per column).
+    fn lag_and_average(&mut self, row: &mut [f64]) {
+        let nc = self.nc;
+        for (c, sh) in self.shift.iter_mut().enumerate() {
+            let sum: f64 = (0..S).map(|j| self.x[j * nc + c]).sum();
+            *sh = row[c] - sum / S as f64;
+        }
+        if !self.started {
+            for s in 0..self.lags {
+                for c in 0..nc {
+                    let x0 = self.x[c] + self.shift[c];
+                    (self.y[s * nc + c], self.xin[s * nc + c]) = (x0, x0);
+                }
+            }
+            self.started = true;
+        }
+        self.sum.fill(0.0);
+        for (j, xj) in self.x.chunks_exact(nc).enumerate() {
+            for ((u, x), sh) in self.u.iter_mut().zip(xj).zip(&self.shift) {
+                *u = x + sh;
+            }
+            for ((y, xin), &(a, one_minus_g)) in self
+                .y
+                .chunks_exact_mut(nc)
+                .zip(self.xin.chunks_exact_mut(nc))
+                .zip(self.coef.iter().skip(j).step_by(S))
+            {
+                for ((y, xin), u) in y.iter_mut().zip(xin.iter_mut()).zip(self.u.iter_mut()) {
+                    let out = a * *y + (1.0 - a) * *xin + one_minus_g * (*u - *xin);
+                    (*y, *xin) = (out, *u);
+                    *u = out;
+                }
+            }
+            for (sum, u) in self.sum.iter_mut().zip(&self.u) {
+                *sum += u;
+            }
+        }
+        for ((x, prev), sum) in row.iter_mut().zip(&mut self.prev).zip(&self.sum) {
+            *prev = *x;
+            *x = sum / S as f64;
+        }
     }
 }
