@@ -22,15 +22,33 @@ use super::signal::SUB_SAMPLES;
 /// Instants per frame (the firmware's oversampling, as [`SUB_SAMPLES`]).
 const S: usize = SUB_SAMPLES;
 
-/// The motion at [`SUB_SAMPLES`] instants per frame (frame k's at `k·S ..`, in time order).
+/// The motion at [`SUB_SAMPLES`] instants per frame, kept as the flow there (S numbers per
+/// frame); the instants and volumes are made a frame at a time from the log's frame times and
+/// volumes ([`frame_instants`], [`SubMotion::volumes`]).
 #[derive(Clone, Debug, Default)]
 pub struct SubMotion {
-    /// Instants, s.
-    pub t: Vec<f64>,
-    /// Volume, mm³.
-    pub v: Vec<f64>,
-    /// Flow, mm³/s.
+    /// Flow at frame k's instants at `k·S ..`, mm³/s.
     pub f: Vec<f64>,
+}
+
+impl SubMotion {
+    /// Frame k's flows at its instants.
+    pub fn flows(&self, k: usize) -> &[f64] {
+        &self.f[k * S..(k + 1) * S]
+    }
+
+    /// Frame k's volumes at its instants (frame times `t`, logged volumes `v`): the flow's
+    /// trapezoidal integral over the frame, shifted so that its mean over the frame is `v[k]`.
+    pub fn volumes(&self, t: &[f64], v: &[f64], k: usize) -> [f64; S] {
+        let ts = frame_instants(t, k);
+        let q = self.flows(k);
+        let mut x = [0.0; S];
+        for j in 1..S {
+            x[j] = x[j - 1] + 0.5 * (q[j] + q[j - 1]) * (ts[j] - ts[j - 1]);
+        }
+        let shift = v[k] - x.iter().sum::<f64>() / S as f64;
+        x.map(|x| x + shift)
+    }
 }
 
 /// The span a frame averages over: half the distance between its neighbours (a whole interval
@@ -45,50 +63,29 @@ pub fn frame_span(t: &[f64], k: usize) -> f64 {
     }
 }
 
-/// Frame k's intervals between instants of [`sub_instants`] `ts`: the one ending at its first
-/// instant (from the frame before's last; 0 for the first frame), and the one between its own
-/// instants (equal by construction; taken as one, so that a lag's coefficients are computed twice
-/// per frame rather than at every instant).
-pub fn frame_intervals(ts: &[f64], k: usize) -> (f64, f64) {
-    let first = k * S;
-    let h0 = if k == 0 {
-        0.0
-    } else {
-        ts[first] - ts[first - 1]
+/// Frame k's instants `t_kj = t_k + Δ_k((j + ½)/S − ½)`, spread evenly over its span Δ_k.
+pub fn frame_instants(t: &[f64], k: usize) -> [f64; S] {
+    let span = frame_span(t, k);
+    std::array::from_fn(|j| t[k] + span * ((j as f64 + 0.5) / S as f64 - 0.5))
+}
+
+/// Frame k's intervals between instants ([`frame_instants`] of frame times `t`): the one ending
+/// at its first instant (from the frame before's last; 0 for the first frame), and the one
+/// between its own instants (all equal: a lag's coefficients are computed twice per frame rather
+/// than at every instant).
+pub fn frame_intervals(t: &[f64], k: usize) -> (f64, f64) {
+    let h0 = match k.checked_sub(1) {
+        None => 0.0,
+        Some(b) => frame_instants(t, k)[0] - frame_instants(t, b)[S - 1],
     };
-    (h0, (ts[first + S - 1] - ts[first]) / (S - 1) as f64)
+    (h0, frame_span(t, k) / S as f64)
 }
 
-/// The instants `t_kj = t_k + Δ_k((j + ½)/S − ½)` spread evenly over each frame's span.
-pub fn sub_instants(t: &[f64]) -> Vec<f64> {
-    let mut out = Vec::with_capacity(t.len() * S);
-    for k in 0..t.len() {
-        let span = frame_span(t, k);
-        out.extend((0..S).map(|j| t[k] + span * ((j as f64 + 0.5) / S as f64 - 0.5)));
-    }
-    out
-}
-
-/// The motion rebuilt at the instants of [`sub_instants`] from frame means of volume `v` and flow
-/// `f` (module docs): the flow whose frame means are `f` with the sparsest second differences
-/// ([`sparse_flow`]); the volume its trapezoidal integral, shifted in each frame so that its mean
-/// over the frame's instants is the logged volume.
-pub fn sparse_motion(t: &[f64], v: &[f64], f: &[f64]) -> SubMotion {
-    let ts = sub_instants(t);
-    let q = sparse_flow(f);
-    let mut x = Vec::with_capacity(q.len());
-    let mut acc = 0.0;
-    for i in 0..q.len() {
-        if i > 0 {
-            acc += 0.5 * (q[i] + q[i - 1]) * (ts[i] - ts[i - 1]);
-        }
-        x.push(acc);
-    }
-    for (k, frame) in x.chunks_mut(S).enumerate() {
-        let shift = v[k] - frame.iter().sum::<f64>() / S as f64;
-        frame.iter_mut().for_each(|x| *x += shift);
-    }
-    SubMotion { t: ts, v: x, f: q }
+/// The motion rebuilt at the instants of [`frame_instants`] from frame means of flow `f` (module
+/// docs): the flow whose frame means are `f` with the sparsest second differences
+/// ([`sparse_flow`]); the volumes follow from it ([`SubMotion::volumes`]).
+pub fn sparse_motion(f: &[f64]) -> SubMotion {
+    SubMotion { f: sparse_flow(f) }
 }
 
 /// Reweighting passes of [`sparse_flow`] at most.
@@ -248,7 +245,7 @@ pub fn foh(h: f64, tau: f64) -> (f64, f64) {
 }
 
 /// First-order lags in series, `τ_s(t) ẏ_s + y_s = y_{s−1}` (`y_0` the input), run over the
-/// instants of [`sub_instants`] with the input linear between them ([`foh`]), each lag's time
+/// instants of [`frame_instants`] with the input linear between them ([`foh`]), each lag's time
 /// constant that of the frame the interval ends in, started at rest; each frame's output is the
 /// mean of the last lag over the frame's instants. Holds the lags' coefficients, two per frame
 /// ([`frame_intervals`]): [`LagChain::frame_means`] runs a column through them;
@@ -257,12 +254,13 @@ pub struct LagChain {
     /// Per lag and frame, the [`foh`] coefficients of the interval ending at the frame's first
     /// instant and of those between its instants.
     coeffs: Vec<Vec<[(f64, f64); 2]>>,
+    frames: usize,
 }
 
 impl LagChain {
-    /// Lags with per-frame time constants `taus[s][k]` over the instants `ts` (repeated intervals
-    /// and time constants reuse the last coefficients).
-    pub fn new(ts: &[f64], taus: &[Vec<f64>]) -> Self {
+    /// Lags with per-frame time constants `taus[s][k]` over the instants of the frames at times
+    /// `t` (repeated intervals and time constants reuse the last coefficients).
+    pub fn new(t: &[f64], taus: &[Vec<f64>]) -> Self {
         let coeffs = taus
             .iter()
             .map(|tau| {
@@ -275,13 +273,16 @@ impl LagChain {
                 };
                 (0..tau.len())
                     .map(|k| {
-                        let (h0, h) = frame_intervals(ts, k);
+                        let (h0, h) = frame_intervals(t, k);
                         [at(h0, tau[k]), at(h, tau[k])]
                     })
                     .collect()
             })
             .collect();
-        Self { coeffs }
+        Self {
+            coeffs,
+            frames: t.len(),
+        }
     }
 
     /// Number of lags.
@@ -294,15 +295,15 @@ impl LagChain {
         self.coeffs[s][k][usize::from(j > 0)]
     }
 
-    /// A column's values `x` at the instants (S per frame) through the lags; its frame means.
-    pub fn frame_means(&self, x: &[f64]) -> Vec<f64> {
-        let Some(&x0) = x.first() else {
-            return Vec::new();
-        };
-        let mut st = vec![(x0, x0); self.lags()];
-        x.chunks(S)
-            .enumerate()
-            .map(|(k, frame)| {
+    /// A column's values at the instants (`x(k)`, frame k's) through the lags; its frame means.
+    pub fn frame_means(&self, x: impl Fn(usize) -> [f64; S]) -> Vec<f64> {
+        let mut st: Vec<(f64, f64)> = Vec::new();
+        (0..self.frames)
+            .map(|k| {
+                let frame = x(k);
+                if st.is_empty() {
+                    st = vec![(frame[0], frame[0]); self.lags()];
+                }
                 let mut sum = 0.0;
                 for (j, &xi) in frame.iter().enumerate() {
                     let mut u = xi;
@@ -386,12 +387,11 @@ mod tests {
         // instants of the settled output is r(mean t − τ). With τ = 0 each frame's mean is that
         // of its input.
         let t: Vec<f64> = (0..200).map(|k| 0.04 * k as f64).collect();
-        let ts = sub_instants(&t);
         let (r, tau) = (3.0, 0.05);
-        let x: Vec<f64> = ts.iter().map(|&s| r * s).collect();
+        let x = |k: usize| frame_instants(&t, k).map(|s| r * s);
         for (lag, want) in [(tau, r * (t[150] - tau)), (0.0, r * t[150])] {
             let taus = vec![vec![lag; t.len()]];
-            let out = LagChain::new(&ts, &taus).frame_means(&x);
+            let out = LagChain::new(&t, &taus).frame_means(x);
             assert!((out[150] - want).abs() < 1e-9, "{} vs {want}", out[150]);
         }
     }

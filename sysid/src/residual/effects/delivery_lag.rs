@@ -45,8 +45,10 @@ impl EffectModel for DeliveryLag {
             let n = prep.series.len();
             let sub = prep.sub_motion();
             let taus = vec![vec![e.theta; n]; 2];
-            let chain = LagChain::new(&sub.t, &taus);
-            (inputs.v, inputs.f) = (chain.frame_means(&sub.v), chain.frame_means(&sub.f));
+            let se = &prep.series;
+            let chain = LagChain::new(&se.t, &taus);
+            inputs.v = chain.frame_means(|k| sub.volumes(&se.t, &se.v, k));
+            inputs.f = chain.frame_means(|k| sub.flows(k).try_into().expect("S flows per frame"));
             return;
         }
         let t = &prep.series.t;

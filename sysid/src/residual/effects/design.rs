@@ -109,7 +109,7 @@ impl Prepared {
     pub fn sub_motion(&self) -> &SubMotion {
         self.sub_motion.get_or_init(|| {
             let se = &self.series;
-            inframe::sparse_motion(&se.t, &se.v, &se.vdot)
+            inframe::sparse_motion(&se.vdot)
         })
     }
 

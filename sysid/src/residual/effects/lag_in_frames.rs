@@ -1,6 +1,6 @@
 //! The output lags (sensor lag, air compliance's dynamic part) as an averaging sensor reports
 //! them: each column of the design is rebuilt at the instants a frame averages
-//! (`inframe::sub_instants`), run through the lags there and averaged back over each frame,
+//! (`inframe::frame_instants`), run through the lags there and averaged back over each frame,
 //!
 //! ```text
 //! X̄_k = (1/S) Σ_j y(t_kj),   τ_s(t) ẏ_s + y_s = y_{s−1},   y_0 = x(t),
@@ -18,7 +18,7 @@
 //! the design is the frame-level one exactly.
 
 use super::{Effect, Prepared};
-use crate::residual::inframe::{LagChain, SubMotion};
+use crate::residual::inframe::{self, LagChain, SubMotion};
 use crate::residual::signal;
 
 /// The lags' per-frame time constants in the order they act, when every filter in `filters`
@@ -60,7 +60,7 @@ pub fn apply(
         .map(|c| signal::akima_slopes(t, c))
         .collect();
     let nc = cols.len();
-    let chain = LagChain::new(&sub.t, taus);
+    let chain = LagChain::new(t, taus);
     let mut frame = Frame::new(nc, taus.len());
     // The frames' values a block at a time, frame by frame (one column after another, the reads
     // and writes stream; frame by frame across 50 columns, they would miss the cache).
@@ -77,7 +77,7 @@ pub fn apply(
         for (k, row) in (k0..k1).zip(tile.chunks_exact_mut(nc)) {
             frame.coefficients(&chain, k);
             frame.baseline(prep, sub, inputs, nb, k);
-            frame.added(t, &sub.t[k * S..(k + 1) * S], cols, &slopes, nb, k);
+            frame.added(t, &inframe::frame_instants(t, k), cols, &slopes, nb, k);
             frame.lag_and_average(row);
         }
         for (c, col) in cols.iter_mut().enumerate() {
@@ -156,9 +156,9 @@ impl Frame {
         let basis = &prep.basis;
         let (dn, dm) = (basis.n, basis.m);
         let (mut tv, mut tf) = ([0.0; 16], [0.0; 16]);
+        let (v, f) = (sub.volumes(&se.t, &se.v, k), sub.flows(k));
         for j in 0..S {
-            let i = k * S + j;
-            let (xs, ys) = basis.scaling.apply(sub.v[i] + dv, sub.f[i] + df);
+            let (xs, ys) = basis.scaling.apply(v[j] + dv, f[j] + df);
             crate::poly::chebyshev(xs, &mut tv[..=dn]);
             crate::poly::chebyshev(ys, &mut tf[..=dm]);
             let row = &mut self.x[j * self.nc..j * self.nc + nb];
