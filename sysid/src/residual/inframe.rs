@@ -33,8 +33,8 @@ pub struct SubMotion {
 
 impl SubMotion {
     /// Frame k's flows at its instants.
-    pub fn flows(&self, k: usize) -> &[f64] {
-        &self.f[k * S..(k + 1) * S]
+    pub fn flows(&self, k: usize) -> [f64; S] {
+        std::array::from_fn(|j| self.f[k * S + j])
     }
 
     /// Frame k's volumes at its instants (frame times `t`, logged volumes `v`): the flow's

@@ -42,13 +42,15 @@ impl EffectModel for DeliveryLag {
     /// over the last interval (`signal::acceleration_causal`).
     fn transform_inputs(&self, e: &Effect, prep: &Prepared, inputs: &mut Inputs) {
         if inputs.raw && !e.point_sampled {
-            let n = prep.series.len();
-            let sub = prep.sub_motion();
-            let taus = vec![vec![e.theta; n]; 2];
-            let se = &prep.series;
-            let chain = LagChain::new(&se.t, &taus);
-            inputs.v = chain.frame_means(|k| sub.volumes(&se.t, &se.v, k));
-            inputs.f = chain.frame_means(|k| sub.flows(k).try_into().expect("S flows per frame"));
+            let made = prep.memo_inputs(self.name(), e.theta, || {
+                let (se, sub) = (&prep.series, prep.sub_motion());
+                let chain = LagChain::new(&se.t, &vec![vec![e.theta; se.len()]; 2]);
+                (
+                    chain.frame_means(|k| sub.volumes(&se.t, &se.v, k)),
+                    chain.frame_means(|k| sub.flows(k)),
+                )
+            });
+            (inputs.v, inputs.f) = (made.0.clone(), made.1.clone());
             return;
         }
         let t = &prep.series.t;

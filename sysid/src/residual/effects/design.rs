@@ -93,6 +93,8 @@ pub struct Prepared {
     /// The motion at the same instants as the output lags see it inside the frames
     /// ([`Prepared::sub_motion`]), made on first use and shared by clones.
     sub_motion: std::sync::Arc<std::sync::OnceLock<SubMotion>>,
+    /// The last inputs an effect's transform made from the logged motion ([`Prepared::memo_inputs`]).
+    input_memo: std::sync::Arc<std::sync::Mutex<Vec<InputMemo>>>,
     /// The speeds the log dwells at ([`cruise_speeds`]), where a pump ripple's count lag is fitted.
     pub cruise_speeds: std::sync::Arc<Vec<f64>>,
     /// Training row indices.
@@ -103,6 +105,12 @@ pub struct Prepared {
     pub held_rows: Vec<usize>,
 }
 
+/// An effect's name and parameter (its bits), and the volume and flow it made.
+type InputMemo = ((&'static str, u64), std::sync::Arc<(Vec<f64>, Vec<f64>)>);
+
+/// Inputs [`Prepared::memo_inputs`] keeps (each two numbers per sample).
+const INPUT_MEMOS: usize = 2;
+
 impl Prepared {
     /// The logged motion rebuilt at the instants each frame averages, with the fewest corners of
     /// flow (`inframe::sparse_motion`), where the output lags run ([`super::lag_in_frames`]).
@@ -111,6 +119,36 @@ impl Prepared {
             let se = &self.series;
             inframe::sparse_motion(&se.vdot)
         })
+    }
+
+    /// The volume and flow effect `name` at parameter `theta` makes from the logged motion:
+    /// `make()` the first time, after that (while it is among the last [`INPUT_MEMOS`]) the same
+    /// numbers again. A search over another effect's parameter rebuilds the design many times
+    /// with this one unchanged, and the lags inside the frames cost many times a design column.
+    pub fn memo_inputs(
+        &self,
+        name: &'static str,
+        theta: f64,
+        make: impl FnOnce() -> (Vec<f64>, Vec<f64>),
+    ) -> std::sync::Arc<(Vec<f64>, Vec<f64>)> {
+        let key = (name, theta.to_bits());
+        let lock = |m: &std::sync::Mutex<Vec<InputMemo>>| {
+            m.lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner)
+                .clone()
+        };
+        if let Some((_, found)) = lock(&self.input_memo).into_iter().find(|(k, _)| *k == key) {
+            return found;
+        }
+        let made = std::sync::Arc::new(make());
+        let mut memo = self
+            .input_memo
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        memo.retain(|(k, _)| *k != key);
+        memo.insert(0, (key, made.clone()));
+        memo.truncate(INPUT_MEMOS);
+        made
     }
 
     /// Baseline columns on the raw inputs. Computed afresh each time (products of Chebyshev
@@ -146,6 +184,7 @@ impl Prepared {
         Self {
             subframe,
             sub_motion: Default::default(),
+            input_memo: Default::default(),
             cruise_speeds: std::sync::Arc::new(cruise_speeds(&series.vdot)),
             basis,
             p_sched,
