@@ -26,6 +26,33 @@ pub(crate) fn par_map<T: Send>(count: usize, f: impl Fn(usize) -> T + Sync) -> V
         .collect()
 }
 
+/// `f(first, chunk)` on `items` cut into contiguous chunks of nearly equal length (one per core,
+/// none shorter than `min` unless `items` is), `first` the chunk's first index, on the available
+/// cores. Each chunk is `f`'s alone, so the result does not depend on the cutting when `f` treats
+/// each item on its own.
+pub(crate) fn par_chunks_mut<T: Send>(
+    items: &mut [T],
+    min: usize,
+    f: impl Fn(usize, &mut [T]) + Sync,
+) {
+    let threads = std::thread::available_parallelism()
+        .map_or(1, |t| t.get())
+        .min(8)
+        .min(items.len() / min.max(1))
+        .max(1);
+    if threads == 1 {
+        f(0, items);
+        return;
+    }
+    let len = items.len().div_ceil(threads);
+    let f = &f;
+    std::thread::scope(|s| {
+        for (k, chunk) in items.chunks_mut(len).enumerate() {
+            s.spawn(move || f(k * len, chunk));
+        }
+    });
+}
+
 /// Items per task of [`par_map_items`].
 const ITEMS_PER_TASK: usize = 8192;
 

@@ -378,21 +378,31 @@ impl<'a> Trials<'a> {
     /// Each sampling form's parameter by its training SSE; between the two forms, like between
     /// candidates, the held-out error decides (the forms have the same parameter count). The
     /// winner's fit is kept.
+    ///
+    /// On instants (the lag of the cubic between samples: cheap) by the grid and golden search.
+    /// On frame means the lag runs inside the frames, and each trial rebuilds the design at the
+    /// frames' instants, several times the cost: the two forms' objectives have their best grid
+    /// points at or near the same place (they differ by what happens within a frame), so that
+    /// search descends the same grid from the instants' best point ([`grid_descent`]).
     fn both_forms(&self, lo: f64, hi: f64) -> Found {
         let objective = |x: f64| self.objective(x);
-        let averaged = grid_search(Coord::Log, log_grid(lo, hi, 8), &objective);
-        let fit_averaged = self.fit(averaged);
+        let grid = log_grid(lo, hi, 8);
         self.point.set(true);
-        let instants = grid_search(Coord::Log, log_grid(lo, hi, 8), &objective);
+        let vals: Vec<f64> = grid.iter().map(|&g| objective(g)).collect();
+        let best = argmin(&vals);
+        let instants = refine(Coord::Log, &grid, best, vals[best], &objective);
         let fit_instants = self.fit(instants);
+        self.point.set(false);
+        let averaged = grid_descent(Coord::Log, &grid, best, &objective);
+        let fit_averaged = self.fit(averaged);
         let heldout = |s: &Option<Stage>| s.as_ref().map_or(f64::INFINITY, |s| s.rmse_heldout);
         if heldout(&fit_instants) < heldout(&fit_averaged) {
+            self.point.set(true);
             Found {
                 theta: instants,
                 prefit: fit_instants,
             }
         } else {
-            self.point.set(false);
             Found {
                 theta: averaged,
                 prefit: fit_averaged,
@@ -461,15 +471,54 @@ fn log_grid(lo: f64, hi: f64, n: usize) -> Vec<f64> {
 /// Grid search then golden refinement between the best point's neighbours.
 fn grid_search(coord: Coord, grid: Vec<f64>, objective: &impl Fn(f64) -> f64) -> f64 {
     let vals: Vec<f64> = grid.iter().map(|&g| objective(g)).collect();
-    let (i, _) = vals.iter().enumerate().fold(
-        (0, f64::INFINITY),
-        |a, (i, &v)| if v < a.1 { (i, v) } else { a },
-    );
+    let i = argmin(&vals);
+    refine(coord, &grid, i, vals[i], objective)
+}
+
+/// The index of the smallest value (the first of equals; 0 when none is below infinity).
+fn argmin(vals: &[f64]) -> usize {
+    vals.iter()
+        .enumerate()
+        .fold(
+            (0, f64::INFINITY),
+            |a, (i, &v)| if v < a.1 { (i, v) } else { a },
+        )
+        .0
+}
+
+/// [`grid_search`] from grid point `start` by descent: from a point, to the lower of its
+/// neighbours while one is lower than it, until a grid point is below both of its neighbours;
+/// then the same golden refinement. On an objective unimodal over the grid it ends at the grid's
+/// best point, as the whole grid does, evaluating a few points near `start` instead of all.
+fn grid_descent(coord: Coord, grid: &[f64], start: usize, objective: &impl Fn(f64) -> f64) -> f64 {
+    let mut vals = vec![None; grid.len()];
+    let mut at = |i: usize| *vals[i].get_or_insert_with(|| objective(grid[i]));
+    let mut i = start.min(grid.len() - 1);
+    loop {
+        let here = at(i);
+        let left = if i > 0 { at(i - 1) } else { f64::INFINITY };
+        let right = if i + 1 < grid.len() {
+            at(i + 1)
+        } else {
+            f64::INFINITY
+        };
+        if left < here && left <= right {
+            i -= 1;
+        } else if right < here {
+            i += 1;
+        } else {
+            return refine(coord, grid, i, here, objective);
+        }
+    }
+}
+
+/// Golden refinement between grid point i's neighbours, kept when below `at_i`, its value.
+fn refine(coord: Coord, grid: &[f64], i: usize, at_i: f64, objective: &impl Fn(f64) -> f64) -> f64 {
     let u: Vec<f64> = grid.iter().map(|&g| coord.from(g)).collect();
     let lo = u[i.saturating_sub(1)];
     let hi = u[(i + 1).min(u.len() - 1)];
     let (ub, sb) = golden(lo, hi, 9, |x| objective(coord.to(x)));
-    if sb < vals[i] {
+    if sb < at_i {
         coord.to(ub)
     } else {
         grid[i]

@@ -59,9 +59,38 @@ pub fn apply(
         .iter()
         .map(|c| signal::akima_slopes(t, c))
         .collect();
-    let nc = cols.len();
     let chain = LagChain::new(t, taus);
-    let mut frame = Frame::new(nc, taus.len());
+    // Columns are independent: a share of them on each core.
+    crate::par::par_chunks_mut(cols, 8, |c0, cols| {
+        let shared = Shared {
+            prep,
+            sub,
+            inputs,
+            chain: &chain,
+            slopes: &slopes,
+            nb,
+        };
+        run_columns(&shared, c0, cols);
+    });
+}
+
+/// What every share of the columns of [`apply`] reads.
+struct Shared<'a> {
+    prep: &'a Prepared,
+    sub: &'a SubMotion,
+    inputs: Option<&'a (Vec<f64>, Vec<f64>)>,
+    chain: &'a LagChain,
+    /// The added columns' Akima slopes (column `nb + a`'s at `a`).
+    slopes: &'a [Vec<f64>],
+    /// The baseline's columns are the first `nb` of the design.
+    nb: usize,
+}
+
+/// [`apply`] on the design's columns `c0 ..` (`cols`).
+fn run_columns(sh: &Shared<'_>, c0: usize, cols: &mut [Vec<f64>]) {
+    let (n, nc) = (sh.prep.series.len(), cols.len());
+    let t = &sh.prep.series.t;
+    let mut frame = Frame::new(c0, nc, sh.chain.lags());
     // The frames' values a block at a time, frame by frame (one column after another, the reads
     // and writes stream; frame by frame across 50 columns, they would miss the cache).
     let mut tile = Vec::with_capacity(TILE * nc);
@@ -75,9 +104,9 @@ pub fn apply(
             }
         }
         for (k, row) in (k0..k1).zip(tile.chunks_exact_mut(nc)) {
-            frame.coefficients(&chain, k);
-            frame.baseline(prep, sub, inputs, nb, k);
-            frame.added(t, &inframe::frame_instants(t, k), cols, &slopes, nb, k);
+            frame.coefficients(sh.chain, k);
+            frame.baseline(sh, k);
+            frame.added(sh, &inframe::frame_instants(t, k), cols, k);
             frame.lag_and_average(row);
         }
         for (c, col) in cols.iter_mut().enumerate() {
@@ -97,6 +126,8 @@ const S: usize = signal::SUB_SAMPLES;
 /// The working state of [`apply`]: one frame's values at its instants, the lags' states and
 /// coefficients, per column.
 struct Frame {
+    /// The design's index of the first column here, and the number of columns.
+    c0: usize,
     nc: usize,
     lags: usize,
     /// `x[j·nc + c]`: column c at the frame's instant j.
@@ -116,8 +147,9 @@ struct Frame {
 }
 
 impl Frame {
-    fn new(nc: usize, lags: usize) -> Self {
+    fn new(c0: usize, nc: usize, lags: usize) -> Self {
         Self {
+            c0,
             nc,
             lags,
             x: vec![0.0; S * nc],
@@ -141,53 +173,47 @@ impl Frame {
         }
     }
 
-    /// The baseline's columns at frame k's instants: the rebuilt motion, moved by the input
-    /// transforms' change at the frame (`inputs` minus the logged volume and flow).
-    fn baseline(
-        &mut self,
-        prep: &Prepared,
-        sub: &SubMotion,
-        inputs: Option<&(Vec<f64>, Vec<f64>)>,
-        nb: usize,
-        k: usize,
-    ) {
-        let se = &prep.series;
-        let (dv, df) = inputs.map_or((0.0, 0.0), |(vi, fi)| (vi[k] - se.v[k], fi[k] - se.vdot[k]));
-        let basis = &prep.basis;
+    /// The baseline's columns (those here) at frame k's instants: the rebuilt motion, moved by
+    /// the input transforms' change at the frame (`inputs` minus the logged volume and flow).
+    fn baseline(&mut self, sh: &Shared<'_>, k: usize) {
+        let end = sh.nb.min(self.c0 + self.nc);
+        if self.c0 >= end {
+            return;
+        }
+        let se = &sh.prep.series;
+        let (dv, df) = sh
+            .inputs
+            .map_or((0.0, 0.0), |(vi, fi)| (vi[k] - se.v[k], fi[k] - se.vdot[k]));
+        let basis = &sh.prep.basis;
         let (dn, dm) = (basis.n, basis.m);
         let (mut tv, mut tf) = ([0.0; 16], [0.0; 16]);
-        let (v, f) = (sub.volumes(&se.t, &se.v, k), sub.flows(k));
+        let (v, f) = (sh.sub.volumes(&se.t, &se.v, k), sh.sub.flows(k));
         for j in 0..S {
             let (xs, ys) = basis.scaling.apply(v[j] + dv, f[j] + df);
             crate::poly::chebyshev(xs, &mut tv[..=dn]);
             crate::poly::chebyshev(ys, &mut tf[..=dm]);
-            let row = &mut self.x[j * self.nc..j * self.nc + nb];
-            for (a, chunk) in row.chunks_mut(dm + 1).enumerate() {
-                for (b, out) in chunk.iter_mut().enumerate() {
-                    *out = tv[a] * tf[b];
-                }
+            let row = &mut self.x[j * self.nc..j * self.nc + end - self.c0];
+            for (c, out) in (self.c0..end).zip(row) {
+                *out = tv[c / (dm + 1)] * tf[c % (dm + 1)];
             }
         }
     }
 
-    /// The added columns (frame values only) at frame k's instants `ts`: each column's cubic
-    /// Hermite (Akima slopes `m`) of the interval each instant falls in, held beyond the first
+    /// The added columns here (frame values only) at frame k's instants `ts`: each column's
+    /// cubic Hermite (Akima slopes) of the interval each instant falls in, held beyond the first
     /// and last frames.
-    fn added(
-        &mut self,
-        t: &[f64],
-        ts: &[f64],
-        cols: &[Vec<f64>],
-        slopes: &[Vec<f64>],
-        nb: usize,
-        k: usize,
-    ) {
+    fn added(&mut self, sh: &Shared<'_>, ts: &[f64], cols: &[Vec<f64>], k: usize) {
+        let t = &sh.prep.series.t;
         let n = t.len();
+        let first = sh.nb.max(self.c0) - self.c0;
+        if first >= self.nc {
+            return;
+        }
         for (j, &u) in ts.iter().enumerate() {
             let lo = if u < t[k] { k.checked_sub(1) } else { Some(k) };
             let row = &mut self.x[j * self.nc..(j + 1) * self.nc];
             let Some(lo) = lo.filter(|&lo| lo + 1 < n) else {
-                for c in nb..self.nc {
+                for c in first..self.nc {
                     row[c] = cols[c][k];
                 }
                 continue;
@@ -201,7 +227,8 @@ impl Frame {
                 3.0 * r2 - 2.0 * r3,
                 (r3 - r2) * h,
             ];
-            for (c, m) in (nb..self.nc).zip(slopes) {
+            let slopes = &sh.slopes[self.c0 + first - sh.nb..];
+            for (c, m) in (first..self.nc).zip(slopes) {
                 // The frame before's value as it was (`cols` may hold its new one).
                 let x0 = if lo < k { self.prev[c] } else { cols[c][lo] };
                 row[c] = w[0] * x0 + w[1] * m[lo] + w[2] * cols[c][lo + 1] + w[3] * m[lo + 1];
