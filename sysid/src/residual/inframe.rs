@@ -17,7 +17,7 @@
 //! reweighted least squares), and the volume by integrating it, placed on each frame's mean.
 //! [`LagChain`] runs lags over those instants and averages each frame back.
 
-use super::signal::SUB_SAMPLES;
+use super::signal::{foh, SUB_SAMPLES};
 
 /// Instants per frame (the firmware's oversampling, as [`SUB_SAMPLES`]).
 const S: usize = SUB_SAMPLES;
@@ -225,23 +225,6 @@ fn band_solve(a: &mut [f64], y: &mut [f64], b: usize) {
         }
         y[i] = s / a[i * w];
     }
-}
-
-/// Coefficients `(a, 1 − g)` of the exact response of `τ ẏ + y = x` over an interval `h` on which
-/// x is linear: `y₁ = a y₀ + (1 − a) x₀ + (1 − g)(x₁ − x₀)`, `a = e^{−h/τ}`, `g = (τ/h)(1 − a)`;
-/// `(0, 1)` (the output is the input) when τ is negligible.
-pub fn foh(h: f64, tau: f64) -> (f64, f64) {
-    if tau <= 1e-9 * h || h <= 0.0 {
-        return (0.0, 1.0);
-    }
-    let r = h / tau;
-    let one_minus_a = -(-r).exp_m1();
-    let g = if r < 1e-6 {
-        1.0 - 0.5 * r
-    } else {
-        one_minus_a / r
-    };
-    (1.0 - one_minus_a, 1.0 - g)
 }
 
 /// First-order lags in series, `τ_s(t) ẏ_s + y_s = y_{s−1}` (`y_0` the input), run over the

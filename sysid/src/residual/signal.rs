@@ -55,17 +55,25 @@ pub fn lag_foh(t: &[f64], x: &[f64], tau: impl Fn(usize) -> f64) -> Vec<f64> {
 /// Per-sample coefficients `(a, 1 − g)` of the first-order-hold lag (see [`lag_foh`]).
 #[cfg(test)]
 pub fn lag_coeffs(t: &[f64], tau: impl Fn(usize) -> f64) -> Vec<(f64, f64)> {
-    per_interval(t, tau, (0.0, 1.0), |dt, tk| {
-        let r = dt / tk;
-        // 1 − a = −expm1(−r) without cancellation; g = (1 − a)/r, by its series for tiny r.
-        let one_minus_a = -(-r).exp_m1();
-        let g = if r < 1e-6 {
-            1.0 - 0.5 * r
-        } else {
-            one_minus_a / r
-        };
-        (1.0 - one_minus_a, 1.0 - g)
-    })
+    per_interval(t, tau, (0.0, 1.0), foh)
+}
+
+/// Coefficients `(a, 1 − g)` of the exact response of `τ ẏ + y = x` over an interval `h` on which
+/// x is linear: `y₁ = a y₀ + (1 − a) x₀ + (1 − g)(x₁ − x₀)`, `a = e^{−h/τ}`, `g = (τ/h)(1 − a)`
+/// (`1 − a = −expm1(−h/τ)` without cancellation; g by its series for tiny h/τ); `(0, 1)` (the
+/// output is the input) when τ is negligible.
+pub fn foh(h: f64, tau: f64) -> (f64, f64) {
+    if tau <= 1e-9 * h || h <= 0.0 {
+        return (0.0, 1.0);
+    }
+    let r = h / tau;
+    let one_minus_a = -(-r).exp_m1();
+    let g = if r < 1e-6 {
+        1.0 - 0.5 * r
+    } else {
+        one_minus_a / r
+    };
+    (1.0 - one_minus_a, 1.0 - g)
 }
 
 /// Per-sample coefficients of a lag: `identity` at the first sample and wherever τ is negligible
