@@ -242,14 +242,16 @@ pub struct LagChain {
 
 impl LagChain {
     /// Lags with per-frame time constants `taus[s][k]` over the instants of the frames at times
-    /// `t` (repeated intervals and time constants reuse the last coefficients).
+    /// `t` (a repeated time constant with an interval within 10⁻⁹ of the last reuses the last
+    /// coefficients).
     pub fn new(t: &[f64], taus: &[Vec<f64>]) -> Self {
         let coeffs = taus
             .iter()
             .map(|tau| {
                 let mut last = (f64::NAN, f64::NAN, (0.0, 1.0));
+                // Intervals equal but for rounding (a fixed frame rate) share coefficients.
                 let mut at = |h: f64, tk: f64| {
-                    if (h, tk) != (last.0, last.1) {
+                    if tk != last.1 || (h - last.0).abs() > 1e-9 * h {
                         last = (h, tk, foh(h, tk));
                     }
                     last.2
