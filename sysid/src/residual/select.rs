@@ -392,6 +392,25 @@ impl<'a> Trials<'a> {
         let best = argmin(&vals);
         let instants = refine(Coord::Log, &grid, best, vals[best], &objective);
         let fit_instants = self.fit(instants);
+        // An output lag inside the frames differs from one between samples only within a frame:
+        // where the lag on instants takes no more off the training SSE than a free parameter
+        // does by chance (one residual variance), the same lag inside the frames (a design
+        // rebuilt at the instants per trial) is not searched.
+        let (nt, p) = (
+            self.prep.train_rows.len() as f64,
+            self.cur.fit.beta.len() as f64 + 1.0,
+        );
+        let chance = self.cur.fit.sse / (nt - p).max(1.0);
+        let inside_frames = self
+            .kind
+            .lag_time_constants(&self.make(grid[best]), self.prep)
+            .is_some();
+        if inside_frames && self.cur.fit.sse - vals[best] <= chance {
+            return Found {
+                theta: instants,
+                prefit: fit_instants,
+            };
+        }
         self.point.set(false);
         let averaged = grid_descent(Coord::Log, &grid, best, &objective);
         let fit_averaged = self.fit(averaged);
