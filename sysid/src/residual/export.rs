@@ -57,7 +57,7 @@
 use model_core::poly::PolyModel;
 
 use super::effects::{Effect, Inertance, Prepared};
-use super::select::{fit_stage, golden, sse_of, Stage};
+use super::select::{brent, fit_stage, sse_of, Stage};
 use super::{
     diagnose, Config, DiagnoseError, Diagnosis, EffectKind, EffectModel, PolyBasis, Series,
 };
@@ -464,7 +464,7 @@ const RETUNED: [&str; 3] = ["sensor_lag", "delivery_lag", "air_compliance"];
 /// rebuilt from that frame alone ([`Effect::board_form`]), its delay on the volume's cubic Hermite
 /// ([`Effect::point_sampled`], the form the loop also fits point samples in). The loop may have kept the frame-mean form, whose τ is not the best
 /// device τ, so each lag's τ ([`RETUNED`]) is searched again in the device form around the
-/// loop's (golden section on ln τ over a factor e² either side, within the effect's search
+/// loop's (Brent's method on ln τ over a factor e² either side, within the effect's search
 /// range), minimising the training SSE with the polynomial refitted at each trial; a trial is
 /// kept only if it lowers that SSE, so the device-form refit never fits worse than at the loop's
 /// θ. The air pocket's damping schedule is taken from the device-form refit, at the chamber's
@@ -492,7 +492,7 @@ fn device_form(prep: &Prepared, effects: &mut [Effect], first: usize) {
             let before = sse(th.ln());
             let (a, b) = ((th.ln() - 2.0).max(lo), (th.ln() + 2.0).min(hi));
             if a < b {
-                let (u, after) = golden(a, b, 24, &mut sse);
+                let (u, after) = brent(a, b, 24, &mut sse);
                 if after < before {
                     effects[i].theta = u.exp();
                 }

@@ -552,10 +552,15 @@ fn rank_round(
 }
 
 /// Keeps a candidate: re-tunes the model's searched parameters and records the step, its
-/// "after" being the model as kept (so each step's "after" is the next step's "before").
+/// "after" being the model as kept (so each step's "after" is the next step's "before"). The
+/// re-tuned model replaces the candidate where it fits the training rows better, is physical,
+/// and keeps the step's gain on the held-out rows (its error there below the model's before
+/// the step): re-tuning follows the training rows only, and a drift's time polynomial tuned
+/// there can run far off over a held-out stretch.
 fn keep(prep: &effects::Prepared, sel: &mut Selection, r: Ranked, runner_up: Option<Rejected>) {
     let tuned = select::retune(prep, &r.cand.stage);
     let model = if tuned.fit.sse <= r.cand.stage.fit.sse
+        && tuned.rmse_heldout < sel.model.rmse_heldout
         && select::unphysical(&tuned, &prep.scales).is_none()
     {
         tuned

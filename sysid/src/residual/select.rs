@@ -2,7 +2,7 @@
 //!
 //! Each round, every candidate not yet in the model has its nonlinear parameter θ searched on the
 //! *training* rows (a log grid of 8 points, or 5 magnitudes of each sign, over a range set by the data's own
-//! scales, then golden-section refinement between the best point's neighbours; ripple starts from
+//! scales, then Brent's refinement between the best point's neighbours ([`brent`]); ripple starts from
 //! the peaks of the residual's Welch spectrum), all linear coefficients refitted jointly by QR.
 //! Candidates are ranked by held-out RMSE, and the best one is kept only if **both**
 //!
@@ -16,7 +16,7 @@
 //!
 //! If the best-ranked candidate fails, the next is tried; the loop ends when none passes. After an
 //! effect is accepted, the parameters θ of the effects already in the model are re-tuned, since
-//! each was found while the other effects were still missing: coordinate descent (golden section
+//! each was found while the other effects were still missing: coordinate descent (Brent's method
 //! in a bracket around each value) with Hooke and Jeeves' pattern move after each sweep, until a
 //! sweep gains less than [`RETUNE_TOL`] ([`retune`]). Two effects that trade against each other
 //! (an air pocket's lag and a sensor lag) walk their valley together; with one pass of brackets,
@@ -132,37 +132,49 @@ pub(crate) fn sse_of(prep: &Prepared, effects: &[Effect]) -> f64 {
     lsq::sse_fast(&design.cols, &prep.series.p, &prep.train_rows)
 }
 
-/// Golden-section minimisation of `f` on [a, b] (unimodal within the bracket).
-pub(crate) fn golden(
-    mut a: f64,
-    mut b: f64,
-    iters: usize,
-    mut f: impl FnMut(f64) -> f64,
-) -> (f64, f64) {
-    let g = 0.5 * (5f64.sqrt() - 1.0);
-    let mut c = b - g * (b - a);
-    let mut d = a + g * (b - a);
-    let mut fc = f(c);
-    let mut fd = f(d);
-    for _ in 0..iters {
-        if fc < fd {
-            b = d;
-            d = c;
-            fd = fc;
-            c = b - g * (b - a);
-            fc = f(c);
-        } else {
-            a = c;
-            c = d;
-            fc = fd;
-            d = a + g * (b - a);
-            fd = f(d);
+/// Minimises `f` on [a, b] (unimodal within the bracket) by Brent's method (argmin's
+/// `BrentOpt`: parabolic steps through the three best points, golden-section steps where those
+/// fail), to the precision `iters` golden-section steps would reach (a bracket shrunk to
+/// `0.618^(iters+1)` of its width) and with at most as many evaluations (`iters + 2`); on a
+/// smooth minimum it needs about half of them. Returns the best point evaluated and its value.
+pub(crate) fn brent(a: f64, b: f64, iters: usize, f: impl FnMut(f64) -> f64) -> (f64, f64) {
+    use argmin::core::{CostFunction, Error, Executor};
+    use argmin::solver::brent::BrentOpt;
+    use std::cell::{Cell, RefCell};
+
+    /// The objective, and the best point it has seen (what is returned, whatever the solver's
+    /// state: a non-finite value never wins).
+    struct Objective<'a, F> {
+        f: &'a RefCell<F>,
+        best: &'a Cell<(f64, f64)>,
+    }
+    impl<F: FnMut(f64) -> f64> CostFunction for Objective<'_, F> {
+        type Param = f64;
+        type Output = f64;
+        fn cost(&self, x: &f64) -> Result<f64, Error> {
+            let y = (self.f.borrow_mut())(*x);
+            if y < self.best.get().1 {
+                self.best.set((*x, y));
+            }
+            Ok(if y.is_nan() { f64::INFINITY } else { y })
         }
     }
-    if fc < fd {
-        (c, fc)
-    } else {
-        (d, fd)
+    let (a, b) = if a <= b { (a, b) } else { (b, a) };
+    let f = RefCell::new(f);
+    let best = Cell::new((0.5 * (a + b), f64::INFINITY));
+    let golden = 0.5 * (5f64.sqrt() - 1.0);
+    let precision = (b - a) * golden.powi(iters as i32 + 1);
+    if precision > 0.0 {
+        let solver = BrentOpt::new(a, b).set_tolerance(f64::EPSILON.sqrt(), 0.25 * precision);
+        // Whatever ends the run (convergence, the iteration cap, an error), the best point seen
+        // is the answer; the solver's first evaluation is outside its iterations.
+        let _ = Executor::new(Objective { f: &f, best: &best }, solver)
+            .configure(|state| state.max_iters(iters as u64 + 1))
+            .run();
+    }
+    match best.get() {
+        (x, y) if y < f64::INFINITY => (x, y),
+        (mid, _) => (mid, (f.borrow_mut())(mid)),
     }
 }
 
@@ -379,11 +391,12 @@ impl<'a> Trials<'a> {
     /// candidates, the held-out error decides (the forms have the same parameter count). The
     /// winner's fit is kept.
     ///
-    /// On instants (the lag of the cubic between samples: cheap) by the grid and golden search.
+    /// On instants (the lag of the cubic between samples: cheap) by the grid and its refinement.
     /// On frame means the lag runs inside the frames, and each trial rebuilds the design at the
     /// frames' instants, several times the cost: the two forms' objectives have their best grid
     /// points at or near the same place (they differ by what happens within a frame), so that
-    /// search descends the same grid from the instants' best point ([`grid_descent`]).
+    /// search refines around the instants' best grid point, moving along the grid only where
+    /// the minimum lies beyond ([`grid_descent`]).
     fn both_forms(&self, lo: f64, hi: f64) -> Found {
         let objective = |x: f64| self.objective(x);
         let grid = log_grid(lo, hi, 8);
@@ -436,7 +449,7 @@ impl<'a> Trials<'a> {
         let mut best = (f64::INFINITY, f64::NAN);
         for lambda in scan.starts {
             let kappa = 1.0 / lambda;
-            let (kb, s) = golden(kappa - scan.step, kappa + scan.step, 12, |x| {
+            let (kb, s) = brent(kappa - scan.step, kappa + scan.step, 12, |x| {
                 self.objective(1.0 / x)
             });
             if s < best.0 {
@@ -458,7 +471,7 @@ impl<'a> Trials<'a> {
         peaks.sort_by(|&a, &b| psd[b].total_cmp(&psd[a]));
         let mut best = (f64::INFINITY, f64::NAN);
         for &k in peaks.iter().take(2) {
-            let (f, s) = golden(freq[k] - df, freq[k] + df, 12, |x| self.objective(x));
+            let (f, s) = brent(freq[k] - df, freq[k] + df, 12, |x| self.objective(x));
             if s < best.0 {
                 best = (s, f);
             }
@@ -487,7 +500,7 @@ fn log_grid(lo: f64, hi: f64, n: usize) -> Vec<f64> {
         .collect()
 }
 
-/// Grid search then golden refinement between the best point's neighbours.
+/// Grid search then [`brent`] between the best point's neighbours.
 fn grid_search(coord: Coord, grid: Vec<f64>, objective: &impl Fn(f64) -> f64) -> f64 {
     let vals: Vec<f64> = grid.iter().map(|&g| objective(g)).collect();
     let i = argmin(&vals);
@@ -505,38 +518,37 @@ fn argmin(vals: &[f64]) -> usize {
         .0
 }
 
-/// [`grid_search`] from grid point `start` by descent: from a point, to the lower of its
-/// neighbours while one is lower than it, until a grid point is below both of its neighbours;
-/// then the same golden refinement. On an objective unimodal over the grid it ends at the grid's
-/// best point, as the whole grid does, evaluating a few points near `start` instead of all.
+/// [`grid_search`]'s refinement around grid point `start` without the grid: [`brent`] between
+/// its neighbours, and where the best point found lies at an end of that bracket (the minimum
+/// may lie beyond it), the same a grid step that way, until it lies inside or the grid ends. On
+/// an objective unimodal over the grid that lands where the whole grid and the refinement do,
+/// evaluating a few points near `start` instead of the grid.
 fn grid_descent(coord: Coord, grid: &[f64], start: usize, objective: &impl Fn(f64) -> f64) -> f64 {
-    let mut vals = vec![None; grid.len()];
-    let mut at = |i: usize| *vals[i].get_or_insert_with(|| objective(grid[i]));
-    let mut i = start.min(grid.len() - 1);
+    let u: Vec<f64> = grid.iter().map(|&g| coord.from(g)).collect();
+    let last = u.len() - 1;
+    let mut i = start.min(last);
+    let mut way = 0i8;
     loop {
-        let here = at(i);
-        let left = if i > 0 { at(i - 1) } else { f64::INFINITY };
-        let right = if i + 1 < grid.len() {
-            at(i + 1)
+        let (lo, hi) = (u[i.saturating_sub(1)], u[(i + 1).min(last)]);
+        let (x, _) = brent(lo, hi, 9, |x| objective(coord.to(x)));
+        // Within 2 % of the bracket from an end: as far as the refinement tells ends apart.
+        let near = 0.02 * (hi - lo);
+        if x - lo <= near && i > 1 && way <= 0 {
+            (i, way) = (i - 1, -1);
+        } else if hi - x <= near && i + 1 < last && way >= 0 {
+            (i, way) = (i + 1, 1);
         } else {
-            f64::INFINITY
-        };
-        if left < here && left <= right {
-            i -= 1;
-        } else if right < here {
-            i += 1;
-        } else {
-            return refine(coord, grid, i, here, objective);
+            return coord.to(x);
         }
     }
 }
 
-/// Golden refinement between grid point i's neighbours, kept when below `at_i`, its value.
+/// [`brent`] between grid point i's neighbours, kept when below `at_i`, its value.
 fn refine(coord: Coord, grid: &[f64], i: usize, at_i: f64, objective: &impl Fn(f64) -> f64) -> f64 {
     let u: Vec<f64> = grid.iter().map(|&g| coord.from(g)).collect();
     let lo = u[i.saturating_sub(1)];
     let hi = u[(i + 1).min(u.len() - 1)];
-    let (ub, sb) = golden(lo, hi, 9, |x| objective(coord.to(x)));
+    let (ub, sb) = brent(lo, hi, 9, |x| objective(coord.to(x)));
     if sb < at_i {
         coord.to(ub)
     } else {
@@ -550,6 +562,15 @@ fn refine(coord: Coord, grid: &[f64], i: usize, at_i: f64, objective: &impl Fn(f
 /// against each other (an air pocket's lag and a sensor lag) walk together towards their joint
 /// optimum, a bracket's width at a time.
 pub fn retune(prep: &Prepared, stage: &Stage) -> Stage {
+    // When the only re-tunable parameter is the one just searched (the last effect's), descent
+    // would search the same one-dimensional objective again (and on a lag inside the frames each
+    // trial rebuilds the design at the frames' instants).
+    let tunable: Vec<usize> = (0..stage.effects.len())
+        .filter(|&i| retune_bracket(prep, &stage.effects[i]).is_some())
+        .collect();
+    if tunable.is_empty() || tunable == [stage.effects.len() - 1] {
+        return stage.clone();
+    }
     let mut effects = stage.effects.clone();
     let mut sse = stage.fit.sse;
     for _ in 0..RETUNE_SWEEPS {
@@ -608,29 +629,41 @@ fn pattern_move(prep: &Prepared, start: &[Effect], effects: &mut Vec<Effect>, mu
 fn retune_sweep(prep: &Prepared, effects: &mut [Effect], mut sse: f64) -> f64 {
     for i in 0..effects.len() {
         let e = effects[i].clone();
-        let (coord, lo, hi) = match e.kind.search(&prep.scales) {
-            Search::Log(..) => (Coord::Log, e.theta.ln() - 0.7, e.theta.ln() + 0.7),
-            Search::Signed(..) => (Coord::Lin, e.theta * 0.5, e.theta * 1.5),
-            Search::Spectral => {
-                let df = 0.25 * prep.scales.dt.recip() / 4096.0_f64.min(prep.series.len() as f64);
-                (Coord::Lin, e.theta - df, e.theta + df)
-            }
-            Search::VolumeSpectral | Search::Degree(_) | Search::None => continue,
+        let Some((coord, lo, hi)) = retune_bracket(prep, &e) else {
+            continue;
         };
-        let (lo, hi) = if lo <= hi { (lo, hi) } else { (hi, lo) };
         let objective = |x: f64| {
             let mut trial = effects.to_vec();
             trial[i].theta = coord.to(x);
             sse_of(prep, &trial)
         };
         let current = objective(coord.from(e.theta));
-        let (u, s) = golden(lo, hi, 10, objective);
+        let (u, s) = brent(lo, hi, 10, objective);
         if s < current {
             effects[i].theta = coord.to(u);
             sse = s;
         }
     }
     sse
+}
+
+/// The coordinate and bracket [`retune_sweep`] searches effect `e`'s parameter in; `None` for
+/// a parameter it leaves as found (a scan's or a degree) or none.
+fn retune_bracket(prep: &Prepared, e: &Effect) -> Option<(Coord, f64, f64)> {
+    let (coord, lo, hi) = match e.kind.search(&prep.scales) {
+        Search::Log(..) => (Coord::Log, e.theta.ln() - 0.7, e.theta.ln() + 0.7),
+        Search::Signed(..) => (Coord::Lin, e.theta * 0.5, e.theta * 1.5),
+        Search::Spectral => {
+            let df = 0.25 * prep.scales.dt.recip() / 4096.0_f64.min(prep.series.len() as f64);
+            (Coord::Lin, e.theta - df, e.theta + df)
+        }
+        Search::VolumeSpectral | Search::Degree(_) | Search::None => return None,
+    };
+    Some(if lo <= hi {
+        (coord, lo, hi)
+    } else {
+        (coord, hi, lo)
+    })
 }
 
 /// Why a fitted model is not physically possible (the first offending effect: its index and the
@@ -755,4 +788,52 @@ pub fn effect_params(prep: &Prepared, stage: &Stage, i: usize) -> Vec<Param> {
         s2: stage.fit.sigma2() * inflate,
     };
     e.kind.params(&fitted)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::brent;
+
+    /// Brent's refinement reaches the precision `iters` golden-section steps would, within as
+    /// many evaluations, on minima it can and cannot fit by parabolas.
+    #[test]
+    fn brent_finds_the_minimum_to_the_golden_sections_precision_in_as_many_evaluations() {
+        let golden = 0.5 * (5f64.sqrt() - 1.0);
+        let cases: [(&str, f64, fn(f64) -> f64); 4] = [
+            ("quadratic", 0.37, |x| (x - 0.37).powi(2)),
+            ("quartic", -0.8, |x| (x + 0.8).powi(4) + 3.0),
+            ("kink", 1.3, |x| (x - 1.3).abs()),
+            ("at the end", 2.0, |x| -x),
+        ];
+        for (name, at, f) in cases {
+            for iters in [6, 9, 12] {
+                let mut evals = 0;
+                let (x, y) = brent(-2.0, 2.0, iters, |x| {
+                    evals += 1;
+                    f(x)
+                });
+                let precision = 4.0 * golden.powi(iters as i32 + 1);
+                assert!((x - at).abs() <= precision, "{name}, {iters}: {x} for {at}");
+                assert_eq!(y, f(x), "{name}: the value returned is the point's");
+                assert!(evals <= iters + 2, "{name}, {iters}: {evals} evaluations");
+            }
+        }
+        // A smooth minimum takes fewer evaluations than the golden section's 14.
+        let mut evals = 0;
+        brent(-2.0, 2.0, 12, |x| {
+            evals += 1;
+            (x - 0.37).powi(2) + 0.1 * (x - 0.37).powi(4)
+        });
+        assert!(evals <= 9, "{evals} evaluations on a smooth minimum");
+    }
+
+    /// A non-finite value never wins over a finite one (the search may stop at it: the best
+    /// finite point seen is the answer); where every value is non-finite, the bracket's middle.
+    #[test]
+    fn brent_skips_non_finite_values() {
+        let (x, y) = brent(0.0, 1.0, 9, |x| if x < 0.5 { f64::NAN } else { x });
+        assert!(x >= 0.5 && y == x, "{x} {y}");
+        let (x, y) = brent(0.0, 1.0, 9, |_| f64::NAN);
+        assert!(x == 0.5 && y.is_nan());
+    }
 }

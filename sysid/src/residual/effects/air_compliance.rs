@@ -12,7 +12,7 @@ use super::{
     param, DeviceSupport, Effect, EffectModel, Fitted, Inputs, Needs, Param, Prepared, Scales,
     Search, Stage, P_ATM_KPA,
 };
-use crate::residual::select::{fit_stage, golden, sse_of, with};
+use crate::residual::select::{brent, fit_stage, sse_of, with};
 use crate::residual::signal;
 
 /// Compressible air between plunger and chamber.
@@ -89,7 +89,7 @@ impl EffectModel for AirCompliance {
             point_sampled,
             ..Effect::new(kind, th)
         };
-        let (u, _) = golden(va.ln() - 0.7, va.ln() + 0.7, 10, |x| {
+        let (u, _) = brent(va.ln() - 0.7, va.ln() + 0.7, 10, |x| {
             sse_of(prep, &with(base, remake(x.exp())))
         });
         if let Some(s2) = fit_stage(prep, &with(base, remake(u.exp()))) {
