@@ -137,8 +137,8 @@ fn third_size_sensor_lag_on_irregular_strokes() {
 /// Open (issue #17): the three effects at once (hysteresis, sensor lag, air pocket, all at their
 /// preset sizes) on host-sim's irregular strokes. `cargo test --release -p sysid --test
 /// residual_hostsim_shapes -- --ignored --nocapture` shows it: all three are named, but the
-/// error ends at 1.535 σ (sensor lag 23.5 ms for 20, air pocket 17.6 mm³ for 20, hysteresis width
-/// 21.5 mm³ for 20). Running the lags inside the frames moved it little (1.62 σ before): the
+/// error ends at 1.565 σ (sensor lag 22.1 ms for 20, air pocket 18.5 mm³ for 20, hysteresis width
+/// 21.6 mm³ for 20). Running the lags inside the frames moved it little (1.62 σ before): the
 /// full-size air pocket is the weak part. On these strokes (seed 33) it ends at 1.104 σ alone,
 /// at 1.366 σ with the hysteresis (air 20.2 mm³, width 21.5: the hysteresis switches on the
 /// chamber's volume, which the air pocket moves away from the logged one, and the column follows

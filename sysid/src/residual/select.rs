@@ -799,7 +799,8 @@ mod tests {
     #[test]
     fn brent_finds_the_minimum_to_the_golden_sections_precision_in_as_many_evaluations() {
         let golden = 0.5 * (5f64.sqrt() - 1.0);
-        let cases: [(&str, f64, fn(f64) -> f64); 4] = [
+        type Case = (&'static str, f64, fn(f64) -> f64);
+        let cases: [Case; 4] = [
             ("quadratic", 0.37, |x| (x - 0.37).powi(2)),
             ("quartic", -0.8, |x| (x + 0.8).powi(4) + 3.0),
             ("kink", 1.3, |x| (x - 1.3).abs()),
