@@ -7,7 +7,7 @@
 //!
 //! ```text
 //! (v, v̇) ─ delivery lag ─ transport delay ─ backlash ─ leak ─ air (static) ─▶ (v′, v̇′)
-//! P_in = P̂_poly(v′, v̇′) [+ AR terms] + hysteresis(v) + inertance(v, v̇) + pump ripple(v, v̇)
+//! P_in = P̂_poly(v′, v̇′) [+ AR terms] + hysteresis(v′) + inertance(v, v̇) + pump ripple(v, v̇)
 //! P̂   = sensor lag( air lag( P_in ) )
 //! ```
 //!
@@ -18,7 +18,7 @@
 //!
 //! | effect | parameters | equation per frame k | state |
 //! | --- | --- | --- | --- |
-//! | `hysteresis` | w mm³ (> 0), H₀ kPa, H₁ kPa | `h_k = s + (h_{k−1} − s)·e^{−│v_k − v_{k−1}│/w}`, `s = sign(v_k − v_{k−1})` (unchanged when v is); `P_in += (H₀ + H₁·x)·h_k` | h, v_{k−1} |
+//! | `hysteresis` | w mm³ (> 0), H₀ kPa, H₁ kPa | on the chamber's volume v′ (the input transforms' output; v when there are none): `h_k = s + (h_{k−1} − s)·e^{−│v′_k − v′_{k−1}│/w}`, `s = sign(v′_k − v′_{k−1})` (unchanged when v′ is); `P_in += (H₀ + H₁·x′)·h_k`, x′ = (v′ − v_offset)/v_scale | h, v′_{k−1} |
 //! | `sensor_lag` | τ s (≥ 0) | `τ Ṗ_m + P_m = P` over the cubic between frames whose slopes are the backward differences `m_k = d_k + ½(d_k − d_{k−1})`, `d_k = (P_k − P_{k−1})/Δt` (a frame mean's slope from the past only; the secant on the second frame, 0 on the first): `P̂_k = a P̂_{k−1} + w₀ P_{k−1} + w₁ P_k + Δt(m₀ m_{k−1} + m₁ m_k)` (weights below) | P̂_{k−1}, P_{k−1}, P_{k−2}, m_{k−1} |
 //! | `delivery_lag` | τ s (≥ 0) | two stages of `τ ẏ + y = u` on v and on v̇; each stage: v by the cubic whose slopes are the flows, `y_k = a y_{k−1} + w₀ u_{k−1} + w₁ u_k + Δt(m₀ u̇_{k−1} + m₁ u̇_k)` (weights below), v̇ the same over the cubic whose slopes are the accelerations `ü_k = (−6(u_k − u_{k−1}) + 2Δt u̇_{k−1} + 4Δt u̇_k)/Δt²` (the end slope of the input volume's cubic over the frame: from the past only; 0 on the first frame) | per stage: output v, v̇, input v, v̇ and ü of the last frame |
 //! | `transport_delay` | d s (0 ≤ d ≤ [`MAX_DELAY_FRAMES`] − 2 frames) | `(v′, v̇′)` at `t_k − d` on the cubic Hermite through the stored frames (slopes = flows), flow = that cubic's derivative; before the first frame: the first frame | the last [`MAX_DELAY_FRAMES`] frames of its input |
@@ -579,6 +579,11 @@ impl Chain {
                 vdot_in: inp.vdot,
             });
         }
+        // A frame's own motion must be finite even where the output only reads earlier frames
+        // (a transport delay): a non-finite one is an error, not a frame that happened.
+        if !(inp.v.is_finite() && inp.vdot.is_finite()) {
+            return Err(ModelError::NonFinite);
+        }
         if !state.primed && !state.prepared {
             state.derived = self.derive(inp.dt)?;
         }
@@ -590,7 +595,7 @@ impl Chain {
         } else {
             model.eval_ar(v_in, f_in, hist)?
         };
-        let (mut p, mut k, c) = self.added(&mut slot, primed, inp, model, e, gain);
+        let (mut p, mut k, c) = self.added(&mut slot, primed, inp, model, e, (v_in, f_in, gain));
         let mut k_air = 0.0f32;
         // The output filters, after every added term: air's lag, then the sensor's.
         if let Some(i) = self.position(EffectKind::AirCompliance) {
@@ -625,7 +630,8 @@ impl Chain {
     }
 
     /// The added terms (hysteresis, inertance, pump ripple) on the polynomial's `e`:
-    /// `(P_in, k, c)` before the output filters.
+    /// `(P_in, k, c)` before the output filters. `(v′, v̇′, gain)`: the transformed inputs and
+    /// `∂v′/∂v`; the hysteron switches on the chamber's volume v′.
     fn added(
         &self,
         slot: &mut [[f32; 8]; MAX_EFFECTS],
@@ -633,17 +639,22 @@ impl Chain {
         inp: ChainInput,
         model: &PolyModel,
         e: crate::poly::Eval,
-        gain: f32,
+        (v_in, f_in, gain): (f32, f32, f32),
     ) -> (f32, f32, f32) {
         let (mut p, mut k, mut c) = (e.p, gain * e.k, gain * e.c);
+        let chamber = ChainInput {
+            v: v_in,
+            vdot: f_in,
+            ..inp
+        };
         for (i, eff) in self.effects().iter().enumerate() {
             let s = &mut slot[i];
             let [p0, p1, p2] = eff.params;
             match eff.kind {
                 EffectKind::Hysteresis => {
-                    let (dp, dk) = hysteresis(s, primed, inp, (p0, p1, p2), model);
+                    let (dp, dk) = hysteresis(s, primed, chamber, (p0, p1, p2), model);
                     p += dp;
-                    k += dk;
+                    k += gain * dk;
                 }
                 EffectKind::Inertance => {
                     let dt = inp.dt;

@@ -253,13 +253,14 @@ mod reference {
         let c_poly: Vec<f64> = (0..n).map(|k| c_raw(sh, &SBA1_RAW, v[k], f[k])).collect();
         let k_poly: Vec<f64> = (0..n).map(|k| k_raw(sh, &SBA1_RAW, v[k], f[k])).collect();
         if let Some(p) = get(EffectKind::Hysteresis) {
+            // On the chamber's volume: the transforms' output.
             let mut h = 0.0f64;
             for k in 0..n {
-                let dv = if k == 0 { 0.0 } else { seq.v[k] - seq.v[k - 1] };
+                let dv = if k == 0 { 0.0 } else { v[k] - v[k - 1] };
                 if dv != 0.0 {
                     h = dv.signum() + (h - dv.signum()) * (-dv.abs() / p[0]).exp();
                 }
-                let x = (seq.v[k] - 275.0) / 275.0;
+                let x = (v[k] - 275.0) / 275.0;
                 out[k] += (p[1] + p[2] * x) * h;
             }
         }

@@ -165,6 +165,33 @@ proptest! {
         prop_assert!(e <= TOL, "worst {e:e} of the range");
     }
 
+    /// The hysteron switches on the chamber's volume, what an input transform (a delivery lag,
+    /// an air pocket) leaves of the logged one, on the board as in the loop.
+    #[test]
+    fn hysteresis_on_the_transformed_volume(
+        segs in segments(),
+        w in 2.0..80.0f64,
+        tau in 0.005..0.2f64,
+        va in 1.0..40.0f64,
+        c in 0.02..0.15f64,
+    ) {
+        let named = |n: &str| EffectKind::named(n).expect("known effect");
+        let s = series(&segs, 200.0, 0.02, c, 0.5, 0.0);
+        let chain = [
+            Effect::new(named("delivery_lag"), tau),
+            Effect::new(named("hysteresis"), w),
+        ];
+        let e = worst_relative(&s, &[], &chain);
+        prop_assert!(e <= TOL, "delivery lag: worst {e:e} of the range");
+        let s = series(&segs, 200.0, 0.03, c, 0.5, va);
+        let chain = [
+            Effect::new(named("air_compliance"), va),
+            Effect::new(named("hysteresis"), w),
+        ];
+        let e = worst_relative(&s, &[], &chain);
+        prop_assert!(e <= TOL, "air pocket: worst {e:e} of the range");
+    }
+
     /// Inertance in the chain (what the augmented export carries) and folded into the
     /// polynomial as its AR(1) term (`device_model`'s alternative). Flow changes only at segment
     /// ends, so a draw whose every change falls on a held-out frame leaves the causal

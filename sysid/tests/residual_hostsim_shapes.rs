@@ -137,13 +137,12 @@ fn third_size_sensor_lag_on_irregular_strokes() {
 /// Open (issue #17): the three effects at once (hysteresis, sensor lag, air pocket, all at their
 /// preset sizes) on host-sim's irregular strokes. `cargo test --release -p sysid --test
 /// residual_hostsim_shapes -- --ignored --nocapture` shows it: all three are named, but the
-/// error ends at 1.565 σ (sensor lag 22.1 ms for 20, air pocket 18.5 mm³ for 20, hysteresis width
-/// 21.6 mm³ for 20). Running the lags inside the frames moved it little (1.62 σ before): the
-/// full-size air pocket is the weak part. On these strokes (seed 33) it ends at 1.104 σ alone,
-/// at 1.366 σ with the hysteresis (air 20.2 mm³, width 21.5: the hysteresis switches on the
-/// chamber's volume, which the air pocket moves away from the logged one, and the column follows
-/// the logged one), and with the sensor lag the lag is taken by its look-alike (delivery lag
-/// 8.2 ms, air 22.8 mm³, 1.939 σ).
+/// error ends at 1.340 σ (sensor lag 23.9 ms for 20, air pocket 17.2 mm³ for 20, hysteresis width
+/// 20.3 mm³ for 20): the air pocket's lag and the sensor lag trade against each other. On these
+/// strokes (seed 33) the full-size air pocket alone ends at 1.105 σ (20.03 mm³), and with the
+/// hysteresis at 1.096 σ (20.01 mm³, width 19.97). With the hysteron on the logged volume rather
+/// than the chamber's (the air pocket moves one from the other) that pair ended at 1.366 σ and
+/// the three at 1.565 σ, width 21.6 mm³.
 #[test]
 #[ignore = "open: three effects at once on host-sim (issue #17)"]
 fn open_three_at_once() {

@@ -313,7 +313,14 @@ pub fn build(prep: &Prepared, effects: &[Effect]) -> Design {
     };
     let mut labels: Vec<String> = (0..cols.len()).map(|i| prep.basis.label(i)).collect();
     let mut owner: Vec<Option<usize>> = vec![None; cols.len()];
-    added_columns(prep, effects, &mut cols, &mut labels, &mut owner);
+    added_columns(
+        prep,
+        effects,
+        inputs.as_ref().map(|(v, _)| v.as_slice()),
+        &mut cols,
+        &mut labels,
+        &mut owner,
+    );
     output_filters(prep, effects, inputs.as_ref(), &mut cols);
     Design {
         cols,
@@ -340,11 +347,10 @@ pub fn sse_structured(prep: &Prepared, effects: &[Effect]) -> Option<f64> {
     let se = &prep.series;
     let rows = &prep.train_rows;
     let gather = |x: &[f64]| -> Vec<f64> { rows.iter().map(|&r| x[r]).collect() };
-    let (v, f) = if transforms_inputs(effects) {
-        let (v, f) = transformed_inputs(prep, effects);
-        (gather(&v), gather(&f))
-    } else {
-        (gather(&se.v), gather(&se.vdot))
+    let moved = transforms_inputs(effects).then(|| transformed_inputs(prep, effects));
+    let (v, f) = match &moved {
+        Some((v, f)) => (gather(v), gather(f)),
+        None => (gather(&se.v), gather(&se.vdot)),
     };
     // The span of T_i(x)T_j(y), i ≤ n, j ≤ m, is every polynomial of degree ≤ (n, m) in (v, v̇)
     // whatever the affine scaling, and so is the SSE; scaling onto the transformed inputs' own
@@ -352,7 +358,14 @@ pub fn sse_structured(prep: &Prepared, effects: &[Effect]) -> Option<f64> {
     // outside the baseline's [−1, 1].
     let b = &PolyBasis::for_data(&v, &f, prep.basis.n, prep.basis.m).ok()?;
     let (mut extra, mut labels, mut owner) = (Vec::new(), Vec::new(), Vec::new());
-    added_columns(prep, effects, &mut extra, &mut labels, &mut owner);
+    added_columns(
+        prep,
+        effects,
+        moved.as_ref().map(|(v, _)| v.as_slice()),
+        &mut extra,
+        &mut labels,
+        &mut owner,
+    );
     let extra: Vec<Vec<f64>> = extra.iter().map(|c| gather(c)).collect();
     let y = gather(&se.p);
     let mean = y.iter().sum::<f64>() / y.len().max(1) as f64;
@@ -399,12 +412,14 @@ fn transformed_inputs(prep: &Prepared, effects: &[Effect]) -> (Vec<f64>, Vec<f64
 fn added_columns(
     prep: &Prepared,
     effects: &[Effect],
+    moved: Option<&[f64]>,
     cols: &mut Vec<Vec<f64>>,
     labels: &mut Vec<String>,
     owner: &mut Vec<Option<usize>>,
 ) {
     for (idx, e) in effects.iter().enumerate() {
-        for c in e.kind.columns(e, prep) {
+        let v = moved.unwrap_or(&prep.series.v);
+        for c in e.kind.columns_on(e, prep, v) {
             cols.push(c.values);
             labels.push(c.label);
             owner.push(Some(idx));

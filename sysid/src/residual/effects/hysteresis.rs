@@ -1,5 +1,6 @@
 //! Hysteresis: a direction-dependent, rate-independent pressure offset, two added columns
-//! `H(v)·h_w(t)` with `H(v) = H₀ + H₁ x` (x the scaled volume) and `h_w ∈ [−1, 1]` a Duhem
+//! `H(v)·h_w(t)` with `H(v) = H₀ + H₁ x` (x the scaled volume; v the chamber's: the logged
+//! volume after the input transforms, such as an air pocket's compression) and `h_w ∈ [−1, 1]` a Duhem
 //! hysteron, `dh_w = (s − h_w)|dv|/w`, `s = sign(dv)`: it switches exponentially in volume after
 //! each reversal, w the volume over which 63 % of the switch happens, and depends on the path of v,
 //! never on its speed. Admissible only if the gap `inflation − deflation = 2(H₀ + H₁x)` is
@@ -31,7 +32,12 @@ impl EffectModel for Hysteresis {
     }
 
     fn columns(&self, e: &Effect, prep: &Prepared) -> Vec<Column> {
-        let v = &prep.series.v;
+        self.columns_on(e, prep, &prep.series.v)
+    }
+
+    /// The hysteron switches on the chamber's volume: the logged one moved by the input
+    /// transforms (an air pocket's compression, a leak's loss).
+    fn columns_on(&self, e: &Effect, prep: &Prepared, v: &[f64]) -> Vec<Column> {
         let h = signal::duhem(v, e.theta);
         let hx: Vec<f64> = h
             .iter()
@@ -83,7 +89,7 @@ impl EffectModel for Hysteresis {
 
     fn device_support(&self) -> DeviceSupport {
         DeviceSupport::on_device(
-            "the board's chain runs the same hysteron on the frames' volume (`model <ch> effect hysteresis <w> <H0> <H1>`)",
+            "the board's chain runs the same hysteron on the chamber's volume (the frames' volume after the input transforms: `model <ch> effect hysteresis <w> <H0> <H1>`)",
         )
     }
 }

@@ -347,6 +347,13 @@ pub trait EffectModel: Send + Sync {
         Vec::new()
     }
 
+    /// Columns added to the design when the input transforms moved the volume to `v` (the
+    /// chamber's; default: [`Self::columns`], on the logged motion).
+    fn columns_on(&self, e: &Effect, prep: &Prepared, v: &[f64]) -> Vec<Column> {
+        let _ = v;
+        self.columns(e, prep)
+    }
+
     /// Place among the output filters (lower first: air compliance 0, sensor lag 10); `None` for
     /// no output filter (default).
     fn filter_stage(&self) -> Option<u32> {
