@@ -41,7 +41,7 @@ impl EffectModel for SealFriction {
         true
     }
 
-    fn columns(&self, e: &Effect, prep: &Prepared) -> Vec<Column> {
+    fn columns(&self, e: &Effect, prep: &Prepared, _v: &[f64]) -> Vec<Column> {
         let col = prep
             .series
             .vdot

@@ -419,7 +419,7 @@ fn added_columns(
 ) {
     for (idx, e) in effects.iter().enumerate() {
         let v = moved.unwrap_or(&prep.series.v);
-        for c in e.kind.columns_on(e, prep, v) {
+        for c in e.kind.columns(e, prep, v) {
             cols.push(c.values);
             labels.push(c.label);
             owner.push(Some(idx));

@@ -34,9 +34,9 @@ impl EffectModel for GatedRipple {
         true
     }
 
-    fn columns(&self, e: &Effect, prep: &Prepared) -> Vec<Column> {
+    fn columns(&self, e: &Effect, prep: &Prepared, v: &[f64]) -> Vec<Column> {
         let moving = moving(&prep.series.vdot);
-        let mut cols = Ripple.columns(e, prep);
+        let mut cols = Ripple.columns(e, prep, v);
         for c in &mut cols {
             for (x, &m) in c.values.iter_mut().zip(&moving) {
                 if !m {

@@ -31,13 +31,9 @@ impl EffectModel for Hysteresis {
         true
     }
 
-    fn columns(&self, e: &Effect, prep: &Prepared) -> Vec<Column> {
-        self.columns_on(e, prep, &prep.series.v)
-    }
-
     /// The hysteron switches on the chamber's volume: the logged one moved by the input
     /// transforms (an air pocket's compression, a leak's loss).
-    fn columns_on(&self, e: &Effect, prep: &Prepared, v: &[f64]) -> Vec<Column> {
+    fn columns(&self, e: &Effect, prep: &Prepared, v: &[f64]) -> Vec<Column> {
         let h = signal::duhem(v, e.theta);
         let hx: Vec<f64> = h
             .iter()

@@ -18,7 +18,7 @@ impl EffectModel for Inertance {
     /// The loop's v̈ looks a sample ahead (`Series::vddot`); the board's form
     /// ([`Effect::board_form`]) has only the past: the end slope of the volume's cubic over the
     /// last frame (`signal::acceleration_causal`, as `model_core::chain` computes it).
-    fn columns(&self, e: &Effect, prep: &Prepared) -> Vec<Column> {
+    fn columns(&self, e: &Effect, prep: &Prepared, _v: &[f64]) -> Vec<Column> {
         let se = &prep.series;
         let acc = if e.board_form {
             crate::residual::signal::acceleration_causal(&se.t, &se.v, &se.vdot)

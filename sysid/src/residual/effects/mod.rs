@@ -77,7 +77,7 @@
 //!     fn story(&self) -> &'static str {
 //!         "Flow through a narrow fitting loses pressure with the square of its speed (Bernoulli), in the direction of flow."
 //!     }
-//!     fn columns(&self, _e: &Effect, prep: &Prepared) -> Vec<Column> {
+//!     fn columns(&self, _e: &Effect, prep: &Prepared, _v: &[f64]) -> Vec<Column> {
 //!         let q = &prep.series.vdot;
 //!         vec![Column::new(q.iter().map(|q| q * q.abs()).collect(), "orifice vdot|vdot|")]
 //!     }
@@ -342,16 +342,12 @@ pub trait EffectModel: Send + Sync {
     /// Transforms the volume and flow the baseline is evaluated on.
     fn transform_inputs(&self, _e: &Effect, _prep: &Prepared, _inputs: &mut Inputs) {}
 
-    /// Columns added to the design (default: none).
-    fn columns(&self, _e: &Effect, _prep: &Prepared) -> Vec<Column> {
+    /// Columns added to the design (default: none). `v` is the chamber's volume: the logged one
+    /// moved by the input transforms ahead of the effect (an air pocket's compression, a
+    /// delivery lag, a leak); an effect that follows the chamber (a wall's hysteresis) reads it,
+    /// one that follows the pump reads `prep.series`.
+    fn columns(&self, _e: &Effect, _prep: &Prepared, _v: &[f64]) -> Vec<Column> {
         Vec::new()
-    }
-
-    /// Columns added to the design when the input transforms moved the volume to `v` (the
-    /// chamber's; default: [`Self::columns`], on the logged motion).
-    fn columns_on(&self, e: &Effect, prep: &Prepared, v: &[f64]) -> Vec<Column> {
-        let _ = v;
-        self.columns(e, prep)
     }
 
     /// Place among the output filters (lower first: air compliance 0, sensor lag 10); `None` for

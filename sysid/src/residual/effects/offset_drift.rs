@@ -22,7 +22,7 @@ impl EffectModel for OffsetDrift {
         Search::Degree(3)
     }
 
-    fn columns(&self, e: &Effect, prep: &Prepared) -> Vec<Column> {
+    fn columns(&self, e: &Effect, prep: &Prepared, _v: &[f64]) -> Vec<Column> {
         (1..=(e.theta as usize))
             .map(|d| {
                 let col = prep.s.iter().map(|&s| legendre(d, s)).collect();

@@ -76,7 +76,7 @@ impl EffectModel for PumpRipple {
         (inputs.v, inputs.f) = pump_ripple_inputs(sub, e.theta, e.ripple_offset, &e.count_lag);
     }
 
-    fn columns(&self, e: &Effect, prep: &Prepared) -> Vec<Column> {
+    fn columns(&self, e: &Effect, prep: &Prepared, _v: &[f64]) -> Vec<Column> {
         let zero = Arc::new(vec![0.0; prep.series.len()]);
         let k = e.stiffness.as_ref().unwrap_or(&zero);
         let c = e.damping.as_ref().unwrap_or(&zero);

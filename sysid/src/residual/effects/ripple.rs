@@ -45,7 +45,7 @@ impl EffectModel for Ripple {
         true
     }
 
-    fn columns(&self, e: &Effect, prep: &Prepared) -> Vec<Column> {
+    fn columns(&self, e: &Effect, prep: &Prepared, _v: &[f64]) -> Vec<Column> {
         let t = &prep.series.t;
         let t0 = t[0];
         let w = 2.0 * std::f64::consts::PI * e.theta;
