@@ -68,11 +68,12 @@ fn air_pocket_is_named() {
     check_single(Inject::Air { volume_mm3: 40.0 }, "air_compliance", 3);
 }
 
-/// A larger pocket: named correctly, but the first-order (linear-lag) air model leaves
-/// 0.059 kPa > 1.15 σ, since the flow-squared damping term is not linearisable across the reversal
-/// transients of an 80 mm³ pocket. Kept visible as a known gap rather than loosened.
+/// A larger pocket (80 mm³). The first-order lag with the damping at the pump's flow left
+/// 1.19 σ here: the law's flow-squared term is not linearisable across the reversal transients
+/// of so large a pocket. With the damping at the flow midway between the pump's and the
+/// chamber's (`AirCompliance::refine`), exact for a law quadratic in flow, it is within the
+/// check's bound.
 #[test]
-#[ignore = "known gap: held-out RMSE 1.19 σ after air_compliance on an 80 mm³ pocket"]
 fn large_air_pocket_is_named() {
     check_single(Inject::Air { volume_mm3: 80.0 }, "air_compliance", 3);
 }

@@ -120,6 +120,19 @@ fn lags_on_irregular_strokes() {
     check(&o, &["air_compliance"]);
 }
 
+/// A full-size air pocket (20 mm³) on irregular strokes. Its lag linearises the law's flow term
+/// about the pump's flow, and the law is quadratic in flow: at a move's start the pocket takes
+/// much of the flow, and the linearised lag missed the square of it (1.105 σ). The damping the lag
+/// runs on is now the law's at the flow midway between the pump's and the chamber's, which for a
+/// quadratic makes it exact (`AirCompliance::refine`).
+#[test]
+fn full_size_air_pocket_on_irregular_strokes() {
+    let o = run(&strokes("air", preset("air"), gaussian(), 33));
+    assert_eq!(names(&o.d), ["air_compliance"]);
+    assert!((param(&o, "air_compliance", "air_volume_at_atmospheric_pressure") - 20.0).abs() < 0.6);
+    check(&o, &["air_compliance"]);
+}
+
 /// A sensor lag at a third of its preset size (6.7 ms, a sixth of a frame) is told from its
 /// look-alike, a delivery lag, and sized.
 #[test]
@@ -136,13 +149,14 @@ fn third_size_sensor_lag_on_irregular_strokes() {
 
 /// Open (issue #17): the three effects at once (hysteresis, sensor lag, air pocket, all at their
 /// preset sizes) on host-sim's irregular strokes. `cargo test --release -p sysid --test
-/// residual_hostsim_shapes -- --ignored --nocapture` shows it: all three are named, but the
-/// error ends at 1.340 σ (sensor lag 23.9 ms for 20, air pocket 17.2 mm³ for 20, hysteresis width
-/// 20.3 mm³ for 20): the air pocket's lag and the sensor lag trade against each other. On these
-/// strokes (seed 33) the full-size air pocket alone ends at 1.105 σ (20.03 mm³), and with the
-/// hysteresis at 1.096 σ (20.01 mm³, width 19.97). With the hysteron on the logged volume rather
-/// than the chamber's (the air pocket moves one from the other) that pair ended at 1.366 σ and
-/// the three at 1.565 σ, width 21.6 mm³.
+/// residual_hostsim_shapes -- --ignored --nocapture` shows it: all three are named and sized
+/// (hysteresis width 20.1 mm³ for 20, sensor lag 21.6 ms for 20, air pocket 18.7 mm³ for 20), and
+/// the error ends at 1.102 σ, 0.2 % over the bound. It was 1.340 σ before the air pocket's lag took
+/// the damping at the flow midway between the pump's and the chamber's, and its schedule the
+/// chamber's pressure behind the sensor lag (`design::pressure_schedule`); on seeds 34 and 35 the
+/// same case went 1.298 → 1.063 σ and 1.277 → 1.082 σ (not committed as tests: a seed that passes
+/// is not evidence this one does not fail). With the hysteron on the logged volume rather than the
+/// chamber's it was 1.565 σ.
 #[test]
 #[ignore = "open: three effects at once on host-sim (issue #17)"]
 fn open_three_at_once() {

@@ -4,7 +4,8 @@
 //! resistance `c = ∂P/∂v̇` (the model's damping, paper Section V-A), lags the pressure with the
 //! time constant of that resistance and the gas spring `dV/dP`, the output filter
 //! `τ(t) Ṗ + P = P_static`, `τ(t) = c(v, v̇)·V_a·P_atm/(P_atm + P)²`: most at low pressure. Both use
-//! the measured pressure as a scheduling input.
+//! the measured pressure as a scheduling input: the chamber's, so behind a sensor lag the model
+//! has, the reading with that lag undone ([`super::design::pressure_schedule`]).
 
 use std::sync::Arc;
 
@@ -67,6 +68,15 @@ impl EffectModel for AirCompliance {
     /// damping); take it once more from the augmented model, at the chamber's volume
     /// `v − V_a·P/(P_atm + P)` where the law is evaluated, and re-tune the air volume. (More
     /// passes were tried: they do not lower the SSE further.)
+    ///
+    /// The flow there is the one midway between the pump's, `v̇`, and the chamber's, `v̇ − ẋ`
+    /// (`ẋ = x'(P)·Ṗ` what the pocket takes, from the scheduled pressure's slopes): the law at the
+    /// chamber's flow is `g(v̇ − ẋ) = g(v̇) − g'(v̇ − ẋ/2)·ẋ` exactly when `g` is quadratic in flow
+    /// (the paper's m = 2), so the lag `τ Ṗ + P = g(v̇)` with `τ = g'(v̇ − ẋ/2)·x'(P)` carries the
+    /// law's flow-squared term, which the damping at `v̇` alone linearised away: at a move's start
+    /// the pocket takes much of the flow (`residual_hostsim_shapes`: 20 mm³ on irregular strokes,
+    /// 1.105 → 1.040 σ). `ẋ` enters only through the damping's slope in flow, so the slopes' noise
+    /// does not reach the fit.
     fn refine(&self, prep: &Prepared, base: &[Effect], mut stage: Stage) -> Stage {
         let Some(last) = stage.effects.last() else {
             return stage;
@@ -74,12 +84,17 @@ impl EffectModel for AirCompliance {
         let (kind, va) = (last.kind, last.theta);
         let beta = &stage.fit.beta[..prep.basis.len()];
         let se = &prep.series;
+        // The chamber's pressure behind the model's sensor lags, as the design will schedule it.
+        let sched = super::design::pressure_schedule(prep, &stage.effects);
+        let sched = sched.as_deref().unwrap_or(&prep.p_sched);
+        let dp = signal::akima_slopes(&se.t, sched);
         let d2 = Arc::new(
             (0..se.len())
                 .map(|k| {
-                    let p = prep.p_sched[k].max(-0.9 * P_ATM_KPA);
+                    let p = sched[k].max(-0.9 * P_ATM_KPA);
                     let v = se.v[k] - va * p / (P_ATM_KPA + p);
-                    prep.basis.damping(beta, v, se.vdot[k])
+                    let xdot = va * P_ATM_KPA / (P_ATM_KPA + p).powi(2) * dp[k];
+                    prep.basis.damping(beta, v, se.vdot[k] - 0.5 * xdot)
                 })
                 .collect::<Vec<f64>>(),
         );
@@ -105,8 +120,9 @@ impl EffectModel for AirCompliance {
     }
 
     fn transform_inputs(&self, e: &Effect, prep: &Prepared, inputs: &mut Inputs) {
+        let sched = e.scheduled_pressure(prep);
         for k in 0..inputs.v.len() {
-            let p = prep.p_sched[k].max(-0.9 * P_ATM_KPA);
+            let p = sched[k].max(-0.9 * P_ATM_KPA);
             inputs.v[k] -= e.theta * p / (P_ATM_KPA + p);
         }
     }
@@ -188,10 +204,11 @@ impl EffectModel for AirCompliance {
 /// schedule, P the measured pressure, floored at −0.9 P_atm).
 fn time_constants(e: &Effect, prep: &Prepared) -> Vec<f64> {
     let damping = e.damping.as_deref();
+    let sched = e.scheduled_pressure(prep);
     (0..prep.series.len())
         .map(|k| {
             let c = damping.map_or(0.0, |d| d[k].max(0.0));
-            let p = prep.p_sched[k].max(-0.9 * P_ATM_KPA);
+            let p = sched[k].max(-0.9 * P_ATM_KPA);
             c * e.theta * P_ATM_KPA / (P_ATM_KPA + p).powi(2)
         })
         .collect()

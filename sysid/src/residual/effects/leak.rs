@@ -1,5 +1,5 @@
 //! Leak: fluid escaping at a rate proportional to pressure, `q_leak = λ P`, the input transform
-//! `v' = v − λ ∫P dt`, `v̇' = v̇ − λ P`, with the measured pressure (integrated, never
+//! `v' = v − λ ∫P dt`, `v̇' = v̇ − λ P`, with the measured pressure (the chamber's, behind a sensor lag the model has; integrated, never
 //! differentiated, so its noise does not enter the regressors).
 
 use super::{
@@ -55,10 +55,19 @@ impl EffectModel for Leak {
         Some(50)
     }
 
+    /// The water lost with the chamber's pressure: `∫ P dt` taken off the volume, `P` off the flow.
     fn transform_inputs(&self, e: &Effect, prep: &Prepared, inputs: &mut Inputs) {
+        let p = e.scheduled_pressure(prep);
+        let int = match e.pressure {
+            Some(_) => std::borrow::Cow::Owned(crate::residual::signal::cumulative_integral(
+                &prep.series.t,
+                p,
+            )),
+            None => std::borrow::Cow::Borrowed(&prep.p_int),
+        };
         for k in 0..inputs.v.len() {
-            inputs.v[k] -= e.theta * prep.p_int[k];
-            inputs.f[k] -= e.theta * prep.p_sched[k];
+            inputs.v[k] -= e.theta * int[k];
+            inputs.f[k] -= e.theta * p[k];
         }
     }
 

@@ -366,9 +366,17 @@ pub trait EffectModel: Send + Sync {
         None
     }
 
-    /// Whether a prediction with the effect uses the measured pressure as a scheduling input.
+    /// Whether a prediction with the effect uses the measured pressure as a scheduling input
+    /// (the chamber's, behind the model's sensor lags: [`Effect::scheduled_pressure`]).
     fn uses_measured_pressure(&self) -> bool {
         false
+    }
+
+    /// For a lag of the reading behind the chamber's pressure (a sensor's): its time constant (s),
+    /// undone where an effect is scheduled on the chamber's pressure (`pressure_schedule`);
+    /// `None` (default) for any other effect, and for a lag of the pressure itself.
+    fn sensor_lag(&self, _e: &Effect, _sc: &Scales) -> Option<f64> {
+        None
     }
 
     /// Why the fitted effect is physically impossible or implausible on this log, from θ, its

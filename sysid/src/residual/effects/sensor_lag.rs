@@ -76,6 +76,12 @@ impl EffectModel for SensorLag {
         Some(vec![e.theta; prep.series.len()])
     }
 
+    /// A lag the neutral name calls the pressure's own dynamics ([`Self::neutral`]) is not the
+    /// sensor's: what the chamber holds lags too, and its reading is not undone.
+    fn sensor_lag(&self, e: &Effect, sc: &Scales) -> Option<f64> {
+        self.neutral(e, sc).is_none().then_some(e.theta)
+    }
+
     fn params(&self, f: &Fitted) -> Vec<Param> {
         vec![param("time_constant", f.effect.theta, f.theta_se, "s")]
     }
