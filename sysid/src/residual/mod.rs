@@ -314,6 +314,21 @@ pub struct Rejected {
     pub reason: String,
 }
 
+/// A kept effect replaced by a look-alike (`swap_look_alike`): forward selection adds one effect
+/// at a time, so an effect that alone explains most of two others' structure (a delivery lag for
+/// an air pocket's lag and a sensor lag together) is kept first and the others cannot follow.
+#[derive(Clone, Debug, Serialize)]
+pub struct SwapReport {
+    /// The effect taken out.
+    pub replaced: &'static str,
+    /// The look-alike put in its place.
+    pub by: &'static str,
+    /// Held-out RMSE of the model with the replaced effect (kPa).
+    pub rmse_heldout_before: f64,
+    /// Held-out RMSE with the look-alike in its place, the other effects re-tuned (kPa).
+    pub rmse_heldout_after: f64,
+}
+
 /// The final model's errors.
 #[derive(Clone, Debug, Serialize)]
 pub struct FinalReport {
@@ -380,6 +395,10 @@ pub struct Diagnosis {
     pub remaining: Vec<Signature>,
     /// Candidates tried in the last round and not kept.
     pub rejected_last_round: Vec<Rejected>,
+    /// Kept effects replaced by a look-alike that explains the same structure better in the
+    /// final model's company ([`SwapReport`]); absent when none was.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub swaps: Vec<SwapReport>,
     /// Residual summary before (baseline, held-out).
     pub before: AnalysisSummary,
     /// Residual summary after (final model, held-out).
@@ -421,7 +440,14 @@ struct KeptStep {
     test: NestedTest,
     /// The round's next-best candidate.
     runner_up: Option<Rejected>,
+    /// The round's look-alikes: the other candidates that passed, physical, with at least
+    /// [`LOOK_ALIKE_GAIN`] of the kept one's gain ([`swap_look_alike`] tries each in its place).
+    rivals: Vec<EffectKind>,
 }
+
+/// Share of a kept effect's held-out gain another candidate of its round must reach to be its
+/// look-alike: one that explains most of the same structure.
+const LOOK_ALIKE_GAIN: f64 = 0.5;
 
 /// What forward selection ends with.
 struct Selection {
@@ -433,6 +459,8 @@ struct Selection {
     rejected: Vec<Rejected>,
     /// Structure a candidate would have absorbed with an unphysical fit.
     unphysical: Vec<Signature>,
+    /// Look-alikes swapped in.
+    swaps: Vec<SwapReport>,
 }
 
 /// One searched candidate of a round, judged against the model it would extend.
@@ -472,18 +500,43 @@ pub fn diagnose(series: Series, cfg: &Config) -> Result<Diagnosis, DiagnoseError
 }
 
 /// Forward selection (step 4, [`select`]): each round searches every candidate not yet in the
-/// model, keeps the best-ranked one that passes and is physical, and stops when none does.
+/// model, keeps the best-ranked one that passes and is physical, and stops when none does. Then
+/// each kept effect's look-alikes are tried in its place ([`swap_look_alike`]); after a swap the
+/// replaced kind is out of the running and forward selection goes on from the swapped model.
 fn select_effects(prep: &effects::Prepared, baseline: &Stage, cfg: &Config) -> Selection {
     let mut sel = Selection {
         model: baseline.clone(),
         kept: Vec::new(),
         rejected: Vec::new(),
         unphysical: Vec::new(),
+        swaps: Vec::new(),
     };
     // Each candidate's search time in the previous round, to schedule the next (`search_all`).
     let mut costs = std::collections::HashMap::new();
+    let mut banned: Vec<EffectKind> = Vec::new();
+    loop {
+        forward(prep, cfg, &mut sel, &mut costs, &banned);
+        let what = "comparing look-alikes";
+        tell(cfg.progress, Progress::Stage { what, total: 0 });
+        let Some(swap) = swap_look_alike(prep, &sel, &banned) else {
+            break;
+        };
+        banned.push(swap.out);
+        apply_swap(prep, cfg, baseline, &mut sel, swap);
+    }
+    sel
+}
+
+/// Rounds of forward selection from `sel`'s model, with the kinds in `banned` left out.
+fn forward(
+    prep: &effects::Prepared,
+    cfg: &Config,
+    sel: &mut Selection,
+    costs: &mut std::collections::HashMap<EffectKind, f64>,
+    banned: &[EffectKind],
+) {
     while sel.model.effects.len() < cfg.max_effects {
-        let mut round = rank_round(prep, &sel.model, cfg, &mut costs);
+        let mut round = rank_round(prep, &sel.model, cfg, costs, banned);
         match round
             .iter()
             .position(|r| r.passes && r.unphysical.is_none())
@@ -493,15 +546,169 @@ fn select_effects(prep: &effects::Prepared, baseline: &Stage, cfg: &Config) -> S
                 tell(cfg.progress, Progress::Stage { what, total: 0 });
                 let winner = round.remove(i);
                 let runner_up = round.first().map(verdict);
-                keep(prep, &mut sel, winner, runner_up);
+                let gain = sel.model.rmse_heldout - winner.cand.stage.rmse_heldout;
+                let rivals = round
+                    .iter()
+                    .filter(|r| {
+                        r.passes
+                            && r.unphysical.is_none()
+                            && sel.model.rmse_heldout - r.cand.stage.rmse_heldout
+                                >= LOOK_ALIKE_GAIN * gain
+                    })
+                    .map(|r| r.cand.kind)
+                    .collect();
+                keep(prep, sel, winner, runner_up, rivals);
             }
             None => {
-                reject_round(&mut sel, &round);
+                reject_round(sel, &round);
                 break;
             }
         }
     }
-    sel
+}
+
+/// A kept effect replaced by a look-alike: the model with it, and the replaced kind.
+struct Swap {
+    out: EffectKind,
+    /// Where the replaced effect was in the model.
+    at: usize,
+    stage: Stage,
+}
+
+/// The best swap of one kept effect for one of its look-alikes ([`KeptStep::rivals`], not
+/// in the model or `banned`): the look-alike searched on the model without the effect, then
+/// every searched parameter re-tuned ([`select::retune`]), so that two lags that trade against
+/// each other find their joint optimum. A swap must be physical, add no parameter, and lower
+/// both the training SSE and the held-out RMSE; the best by held-out RMSE is returned.
+fn swap_look_alike(
+    prep: &effects::Prepared,
+    sel: &Selection,
+    banned: &[EffectKind],
+) -> Option<Swap> {
+    let model = &sel.model;
+    let mut best: Option<Swap> = None;
+    for step in &sel.kept {
+        let Some(at) = model.effects.iter().position(|e| e.kind == step.kind) else {
+            continue;
+        };
+        for &c in &step.rivals {
+            if banned.contains(&c) || model.effects.iter().any(|e| e.kind == c) {
+                continue;
+            }
+            let mut without = model.effects.clone();
+            without.remove(at);
+            let Some(base) = select::fit_stage(prep, &without) else {
+                continue;
+            };
+            let Some(cand) = select::search(prep, &base, c) else {
+                continue;
+            };
+            let tuned = select::retune(prep, &cand.stage);
+            let stage = if tuned.fit.sse <= cand.stage.fit.sse {
+                tuned
+            } else {
+                cand.stage
+            };
+            let better = stage.fit.sse < model.fit.sse
+                && stage.rmse_heldout < model.rmse_heldout
+                && stage.n_params() <= model.n_params()
+                && select::unphysical(&stage, &prep.scales).is_none()
+                && best
+                    .as_ref()
+                    .is_none_or(|b| stage.rmse_heldout < b.stage.rmse_heldout);
+            if better {
+                best = Some(Swap {
+                    out: step.kind,
+                    at,
+                    stage,
+                });
+            }
+        }
+    }
+    best
+}
+
+/// Puts a swap's model in place: the look-alike where the replaced effect was, then any effect
+/// the swap left without a use dropped (its leave-one-out test no longer passes, the weakest
+/// first), and the steps rebuilt from the baseline in the model's order, each from the model
+/// with the effects before it (their parameters as tuned in the whole model).
+fn apply_swap(
+    prep: &effects::Prepared,
+    cfg: &Config,
+    baseline: &Stage,
+    sel: &mut Selection,
+    swap: Swap,
+) {
+    let before = sel.model.rmse_heldout;
+    let mut effects = swap.stage.effects.clone();
+    let Some(new) = effects.pop() else {
+        return;
+    };
+    let by = new.kind;
+    effects.insert(swap.at, new);
+    let Some(mut model) = select::fit_stage(prep, &effects) else {
+        return;
+    };
+    sel.swaps.push(SwapReport {
+        replaced: swap.out.name(),
+        by: by.name(),
+        rmse_heldout_before: before,
+        rmse_heldout_after: model.rmse_heldout,
+    });
+    // Leave-one-out: the effect whose removal costs least, while that fails the loop's test.
+    loop {
+        let weakest = (0..model.effects.len())
+            .filter_map(|j| {
+                let mut rest = model.effects.clone();
+                rest.remove(j);
+                let small = select::fit_stage(prep, &rest)?;
+                let test = select::nested_test(prep, &small, &model);
+                let gain = small.rmse_heldout - model.rmse_heldout;
+                let passes = test.p_value < cfg.alpha && gain >= cfg.min_gain * small.rmse_heldout;
+                (!passes).then_some((j, gain, small))
+            })
+            .min_by(|a, b| a.1.total_cmp(&b.1));
+        match weakest {
+            Some((_, _, small)) => model = small,
+            None => break,
+        }
+    }
+    let old: Vec<KeptStep> = std::mem::take(&mut sel.kept);
+    let mut prev = baseline.clone();
+    for j in 0..model.effects.len() {
+        let Some(after) = select::fit_stage(prep, &model.effects[..=j]) else {
+            continue;
+        };
+        let kind = model.effects[j].kind;
+        let was = old.iter().find(|k| k.kind == kind);
+        let runner_up = if kind == by {
+            Some(Rejected {
+                name: swap.out.name(),
+                rmse_heldout: before,
+                p_value: f64::NAN,
+                reason: format!(
+                    "swapped out: {} in its place lowers held-out RMSE {before:.4} → {:.4} kPa",
+                    by.name(),
+                    swap.stage.rmse_heldout
+                ),
+            })
+        } else {
+            was.and_then(|k| k.runner_up.clone())
+        };
+        sel.kept.push(KeptStep {
+            kind,
+            model: validate::FittedModel::of(&after),
+            heldout_before: prev.rmse_heldout,
+            heldout_after: after.rmse_heldout,
+            train_before: prev.rmse_train,
+            train_after: after.rmse_train,
+            test: select::nested_test(prep, &prev, &after),
+            runner_up,
+            rivals: was.map(|k| k.rivals.clone()).unwrap_or_default(),
+        });
+        prev = after;
+    }
+    sel.model = model;
 }
 
 /// Searches and tests every candidate not yet in `cur`, ranked by held-out RMSE.
@@ -510,12 +717,13 @@ fn rank_round(
     cur: &Stage,
     cfg: &Config,
     costs: &mut std::collections::HashMap<EffectKind, f64>,
+    banned: &[EffectKind],
 ) -> Vec<Ranked> {
     let todo: Vec<EffectKind> = cfg
         .candidates
         .iter()
         .copied()
-        .filter(|k| !cur.effects.iter().any(|e| e.kind == *k))
+        .filter(|k| !cur.effects.iter().any(|e| e.kind == *k) && !banned.contains(k))
         .collect();
     let what = format!(
         "round {}: searching {} candidates",
@@ -557,7 +765,13 @@ fn rank_round(
 /// and keeps the step's gain on the held-out rows (its error there below the model's before
 /// the step): re-tuning follows the training rows only, and a drift's time polynomial tuned
 /// there can run far off over a held-out stretch.
-fn keep(prep: &effects::Prepared, sel: &mut Selection, r: Ranked, runner_up: Option<Rejected>) {
+fn keep(
+    prep: &effects::Prepared,
+    sel: &mut Selection,
+    r: Ranked,
+    runner_up: Option<Rejected>,
+    rivals: Vec<EffectKind>,
+) {
     let tuned = select::retune(prep, &r.cand.stage);
     let model = if tuned.fit.sse <= r.cand.stage.fit.sse
         && tuned.rmse_heldout < sel.model.rmse_heldout
@@ -576,6 +790,7 @@ fn keep(prep: &effects::Prepared, sel: &mut Selection, r: Ranked, runner_up: Opt
         train_after: model.rmse_train,
         test: r.test,
         runner_up,
+        rivals,
     });
     sel.model = model;
 }
@@ -583,6 +798,8 @@ fn keep(prep: &effects::Prepared, sel: &mut Selection, r: Ranked, runner_up: Opt
 /// Records the last round's candidates as rejected; what an inadmissible candidate would have
 /// absorbed is structure the model lacks, reported with the fit it would have needed.
 fn reject_round(sel: &mut Selection, round: &[Ranked]) {
+    sel.unphysical.clear();
+    sel.rejected.clear();
     let cur = &sel.model;
     for r in round {
         let name = r.cand.kind.name();
@@ -695,6 +912,7 @@ fn report(prep: &effects::Prepared, cfg: &Config, baseline: &Stage, sel: Selecti
         },
         remaining,
         rejected_last_round: sel.rejected,
+        swaps: sel.swaps,
         before: (&analysis_before).into(),
         after: (&analysis_after).into(),
         analysis_before,
