@@ -468,7 +468,8 @@ const RETUNED: [&str; 3] = ["sensor_lag", "delivery_lag", "air_compliance"];
 /// range), minimising the training SSE with the polynomial refitted at each trial; a trial is
 /// kept only if it lowers that SSE, so the device-form refit never fits worse than at the loop's
 /// θ. The air pocket's damping schedule is taken from the device-form refit, at the chamber's
-/// volume, as the board takes it from its own polynomial (`model_core::chain`), before and after
+/// volume and the flow midway between the pump's and the chamber's ([`device_damping`]), as the
+/// board takes it from its own polynomial (`model_core::chain`), before and after
 /// the search. Every θ is finally rounded to the `f32` the board stores.
 fn device_form(prep: &Prepared, effects: &mut [Effect], first: usize) {
     for e in &mut effects[first..] {
