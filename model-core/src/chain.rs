@@ -25,7 +25,7 @@
 //! | `backlash` | b mm³ (≥ 0) | play operator `z ← clamp(z, x_j − b/2, x_j + b/2)` on the nut's motion inside the frame rebuilt from the frame alone, `x_j = v_k + v̇_k Δt((j + ½)/8 − ½)`, j = 0…7 (the frame's mean volume is a mean over its interval, and the dead band after a reversal lasts a fraction of it); `v′` = the mean of z over the eight, `v̇′ = g·v̇` with g the fraction of them at which the nut pushes the plunger (the clamp moves z in the direction of v̇) | z at the last sub-sample |
 //! | `inertance` | L kPa·s²/mm³ | `P_in += L·v̈_k`, `v̈_k = (−6(v_k − v_{k−1}) + 2Δt v̇_{k−1} + 4Δt v̇_k)/Δt²` (the end slope of the last interval's cubic Hermite; 0 on the first frame) | v_{k−1}, v̇_{k−1} |
 //! | `pump_ripple` | Λ mm³ (> 0), a mm³, b mm³ | volume error `δ = a sin φ + b cos φ`, `φ = 2π (v mod Λ)/Λ`, `δ̇ = (2π/Λ) v̇ (a cos φ − b sin φ)`; `P_in += k_poly δ + c_poly δ̇` | none |
-//! | `air_compliance` | V_a mm³ (≥ 0) | static: `v′ −= V_a·p̃/(P_atm + p̃)`, `p̃ = max(p, −0.9 P_atm)` (Boyle); dynamic: `τ_k P_air' + P_air = P_in` with `τ_k = max(c_poly, 0)·V_a·P_atm/(P_atm + p̃)²`, over each frame the mean of its ends' τ, over the cubic with backward-difference slopes as `sensor_lag` (its weights computed per frame in f32) | P_air, P_in, P_in before, its slope, τ of the last frame |
+//! | `air_compliance` | V_a mm³ (≥ 0) | static: `v′ −= V_a·p̃/(P_atm + p̃)`, `p̃ = max(p, −0.9 P_atm)` (Boyle); dynamic: `τ_k P_air' + P_air = P_in` with `τ_k = max(c_mid, 0)·x′(p̃)`, the gas spring `x′(p̃) = V_a·P_atm/(P_atm + p̃)²` and the damping at the flow midway between the pump's and the chamber's, `c_mid = ∂P_poly/∂v̇ (v′, v̇′ − ẋ/2)`, `ẋ = x′(p̃_k)·(p̃_k − p̃_{k−1})/Δt` the flow the pocket takes (the backward difference: 0 on the first frame; exact for a law g quadratic in flow, `g(v̇′ − ẋ) = g(v̇′) − g′(v̇′ − ẋ/2)·ẋ`, as the host's loop); over each frame the mean of its ends' τ, over the cubic with backward-difference slopes as `sensor_lag` (its weights computed per frame in f32) | P_air, P_in, P_in before, its slope, τ and p̃ of the last frame |
 //! | `leak` | λ mm³/(kPa·s) (≥ 0) | `I_k = I_{k−1} + ½(p_k + p_{k−1})Δt` (trapezoid, `I_0 = 0`, summed with Kahan's compensation); `v′ −= λ I_k`, `v̇′ −= λ p_k` (the lost volume λI is the state) | I (and its compensation), p_{k−1} |
 //!
 //! `delivery_lag`'s cubic weights are the exact response of the lag over one frame to a cubic
@@ -590,20 +590,39 @@ impl Chain {
         let mut slot = state.slot;
         let primed = state.primed;
         let (v_in, f_in, gain) = self.inputs(state, &mut slot, inp)?;
-        let e = if model.shape().p == 0 {
-            model.eval(v_in, f_in)?
-        } else {
-            model.eval_ar(v_in, f_in, hist)?
+        // The air pocket (its pressure checked finite by `inputs`): the gas spring
+        // x'(p̃) = V_a·P_atm/(P_atm + p̃)² and the flow it takes, ẋ = x'(p̃)·Ṗ, Ṗ the backward
+        // difference of p̃ over the frame (0 on the first frame).
+        let air = self.position(EffectKind::AirCompliance).map(|i| {
+            let pt = inp.p.max(-0.9 * P_ATM_KPA);
+            let spring =
+                self.effects[i].params[0] * P_ATM_KPA / ((P_ATM_KPA + pt) * (P_ATM_KPA + pt));
+            let pdot = if primed {
+                (pt - slot[i][6]) / inp.dt
+            } else {
+                0.0
+            };
+            (i, pt, spring, spring * pdot)
+        });
+        // The polynomial at the chamber's inputs and, for the air lag, its damping at the flow
+        // midway between the pump's and the chamber's, `v̇′ − ẋ/2`.
+        let (e, c_air) = match air {
+            Some((.., xdot)) => {
+                let (mut e, c_mid) = model.eval_damping_at(v_in, f_in, 0.5 * xdot)?;
+                if model.shape().p != 0 {
+                    e.p = finite(e.p + model.ar_sum(hist)?)?;
+                }
+                (e, c_mid)
+            }
+            None if model.shape().p == 0 => (model.eval(v_in, f_in)?, 0.0),
+            None => (model.eval_ar(v_in, f_in, hist)?, 0.0),
         };
         let (mut p, mut k, c) = self.added(&mut slot, primed, inp, model, e, (v_in, f_in, gain));
         let mut k_air = 0.0f32;
         // The output filters, after every added term: air's lag, then the sensor's.
-        if let Some(i) = self.position(EffectKind::AirCompliance) {
-            let pt = inp.p.max(-0.9 * P_ATM_KPA);
-            let spring =
-                self.effects[i].params[0] * P_ATM_KPA / ((P_ATM_KPA + pt) * (P_ATM_KPA + pt));
+        if let Some((i, pt, spring, _)) = air {
             k_air = spring;
-            p = self.air_lag(&mut slot[i], primed, inp.dt, e.c.max(0.0) * spring, p);
+            p = self.air_lag(&mut slot[i], primed, inp.dt, c_air.max(0.0) * spring, p, pt);
         }
         if let Some(i) = self.position(EffectKind::SensorLag) {
             p = sensor_lag(&state.derived[i].w, &mut slot[i], primed, inp.dt, p);
@@ -813,10 +832,11 @@ impl Chain {
     /// Air compliance's output lag, time constant τ(p) averaged over the frame's ends, over the
     /// cubic with backward-difference slopes (as `sensor_lag`), its weights computed per frame
     /// ([`lag_weights_f32`]). Slots: 0 output, 1 input, 2 τ of the last frame, 3 the input
-    /// before, 4 its slope, 5 inputs seen (1, 2).
-    fn air_lag(&self, s: &mut [f32; 8], primed: bool, dt: f32, tau: f32, x: f32) -> f32 {
+    /// before, 4 its slope, 5 inputs seen (1, 2), 6 the frame's clamped measured pressure `pt`
+    /// (the next frame's backward difference Ṗ), 7 unused.
+    fn air_lag(&self, s: &mut [f32; 8], primed: bool, dt: f32, tau: f32, x: f32, pt: f32) -> f32 {
         if !primed {
-            *s = [x, x, tau, x, 0.0, 1.0, 0.0, 0.0];
+            *s = [x, x, tau, x, 0.0, 1.0, pt, 0.0];
             return x;
         }
         let d = (x - s[1]) / dt;
@@ -827,7 +847,7 @@ impl Chain {
         };
         let [a, w0, w1, m0, m1] = lag_weights_f32(dt, 0.5 * (tau + s[2]));
         let y = a * s[0] + w0 * s[1] + w1 * x + dt * (m0 * s[4] + m1 * m);
-        *s = [y, x, tau, s[1], m, 2.0, 0.0, 0.0];
+        *s = [y, x, tau, s[1], m, 2.0, pt, 0.0];
         y
     }
 }

@@ -514,6 +514,44 @@ impl PolyModel {
         })
     }
 
+    /// [`eval`](Self::eval) at `(v, v̇)` and, from the same columns `q_j(x)`, the damping
+    /// `∂P/∂v̇` at a second flow `(v, v̇ − δ)`: one more Horner pass in y (2m multiply-adds),
+    /// `∂P/∂y (y − δ/f_scale) / f_scale`. The second flow is not range-checked (the law's slope
+    /// there is the polynomial's continuation) and its damping is returned as computed (non-finite
+    /// only when it overflows); the first is checked as in `eval`.
+    ///
+    /// The chain's air lag takes its time constant from the damping at the flow midway between
+    /// the pump's and the chamber's ([`crate::chain`]).
+    #[inline]
+    pub fn eval_damping_at(
+        &self,
+        v: f32,
+        vdot: f32,
+        delta: f32,
+    ) -> Result<(Eval, f32), ModelError> {
+        let (x, y) = self.scaling.to_scaled(v, vdot)?;
+        let y2 = y - delta / self.scaling.f_scale;
+        let (q, dq) = self.columns(x);
+        let m = self.shape.m as usize;
+        let (mut p, mut px, mut py) = (q[m], dq[m], 0.0f32);
+        let (mut p2, mut py2) = (q[m], 0.0f32);
+        for j in (0..m).rev() {
+            py = py * y + p;
+            p = p * y + q[j];
+            px = px * y + dq[j];
+            py2 = py2 * y2 + p2;
+            p2 = p2 * y2 + q[j];
+        }
+        Ok((
+            Eval {
+                p: finite(p)?,
+                k: finite(px / self.scaling.v_scale)?,
+                c: finite(py / self.scaling.f_scale)?,
+            },
+            py2 / self.scaling.f_scale,
+        ))
+    }
+
     /// Full poly-AR prediction: the static part plus Σ_k (b_k1 x(t−k) + b_k2 y(t−k)), with the past
     /// samples taken from `hist` (which must not yet contain the current sample). The AR terms do
     /// not depend on the current v, v̇, so k and c equal those of [`eval`](Self::eval).
@@ -525,7 +563,7 @@ impl PolyModel {
         Ok(e)
     }
 
-    fn ar_sum(&self, hist: &ArHistory) -> Result<f32, ModelError> {
+    pub(crate) fn ar_sum(&self, hist: &ArHistory) -> Result<f32, ModelError> {
         let p = self.shape.p as usize;
         if hist.len() < p {
             return Err(ModelError::ShortHistory);

@@ -283,8 +283,19 @@ mod reference {
             }
         }
         if let Some(p) = &air {
+            // The damping at the flow midway between the pump's and the chamber's: v̇′ − ẋ/2,
+            // ẋ = x′(p̃_k)·(p̃_k − p̃_{k−1})/Δt (0 on the first frame), x′ the gas spring.
             let tau: Vec<f64> = (0..n)
-                .map(|k| c_poly[k].max(0.0) * p[0] * atm / (atm + pt[k]).powi(2))
+                .map(|k| {
+                    let spring = p[0] * atm / (atm + pt[k]).powi(2);
+                    let pdot = if k == 0 {
+                        0.0
+                    } else {
+                        (pt[k] - pt[k - 1]) / dt
+                    };
+                    let c_mid = c_raw(sh, &SBA1_RAW, v[k], f[k] - 0.5 * spring * pdot);
+                    c_mid.max(0.0) * spring
+                })
                 .collect();
             let m = backward_slopes(dt, &out);
             out = lag_varying(dt, &tau, &out, &m);
@@ -802,6 +813,52 @@ proptest! {
         let fr = frames(400, a1 * shrink, w1, a2 * shrink, w2);
         let w = worst(&effects, &fr);
         prop_assert!(w < REL_TOL, "{effects:?}: {w:e}");
+    }
+
+    /// The air lag's time constant on the second frame is `x′(p̃₁)·(P(v′₁, v̇₁) − P(v′₁, v̇₁ − ẋ))/ẋ`:
+    /// the secant of SBA1's law (quadratic in flow) over the flow the pocket takes,
+    /// `ẋ = x′(p̃₁)·(p̃₁ − p̃₀)/Δt`, which is the damping at the midway flow `v̇₁ − ẋ/2` the chain
+    /// evaluates; here P term by term in f64, no derivative taken (on the first frame Ṗ = 0:
+    /// the damping at v̇₀ itself). The two frames' output is the reference lag with those τ.
+    #[test]
+    fn the_air_lag_runs_on_the_secant_over_the_pockets_flow(
+        v0 in 150.0..400.0f64, f0 in -80.0..80.0f64, f1 in -80.0..80.0f64,
+        p0 in -5.0..40.0f64, dp in 0.3..3.0f64, up in any::<bool>(), va in 20.0..200.0f64,
+    ) {
+        let dt = DT as f64;
+        let p1 = if up { p0 + dp } else { p0 - dp };
+        let v1 = v0 + 0.5 * (f0 + f1) * dt;
+        let fr: Vec<ChainInput> = [(v0, f0, p0), (v1, f1, p1)]
+            .iter()
+            .map(|&(v, f, p)| ChainInput { v: v as f32, vdot: f as f32, p: p as f32, dt: DT })
+            .collect();
+        let c = chain(&[(EffectKind::AirCompliance, &[va as f32])]);
+        let got = run(&c, &sba1(), &fr);
+        // The reference in f64 from the f32 inputs the chain saw.
+        let atm = P_ATM_KPA as f64;
+        let sh = Shape::PAPER;
+        let va = va as f32 as f64;
+        let (v, f, p): (Vec<f64>, Vec<f64>, Vec<f64>) = (
+            fr.iter().map(|x| x.v as f64).collect(),
+            fr.iter().map(|x| x.vdot as f64).collect(),
+            fr.iter().map(|x| x.p as f64).collect(),
+        );
+        let spring = |p: f64| va * atm / (atm + p).powi(2);
+        let vc: Vec<f64> = (0..2).map(|k| v[k] - va * p[k] / (atm + p[k])).collect();
+        let x: Vec<f64> = (0..2).map(|k| p_raw(sh, &SBA1_RAW, vc[k], f[k])).collect();
+        let xdot = spring(p[1]) * (p[1] - p[0]) / dt;
+        let secant = (p_raw(sh, &SBA1_RAW, vc[1], f[1])
+            - p_raw(sh, &SBA1_RAW, vc[1], f[1] - xdot))
+            / xdot;
+        let tau = [
+            c_raw(sh, &SBA1_RAW, vc[0], f[0]).max(0.0) * spring(p[0]),
+            secant.max(0.0) * spring(p[1]),
+        ];
+        let want = reference::lag_varying(dt, &tau, &x, &reference::backward_slopes(dt, &x));
+        let tol = REL_TOL * sba1_range();
+        for k in 0..2 {
+            prop_assert!((got[k] as f64 - want[k]).abs() < tol, "frame {k}: {} vs {}", got[k], want[k]);
+        }
     }
 
     /// Any finite inputs: an answer or an error, never a panic or a silent NaN.

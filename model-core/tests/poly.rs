@@ -327,6 +327,51 @@ proptest! {
     }
 
     #[test]
+    fn damping_at_a_second_flow_agrees_with_f64_reference(
+        (shape, s, a, ve, fe) in model_strategy(),
+        tx in 0.0f32..=1.0, ty in 0.0f32..=1.0, tz in 0.0f32..=1.0,
+    ) {
+        // `eval_damping_at(v, v̇, δ)`: `eval(v, v̇)` bit for bit, and ∂P/∂v̇ at (v, v̇ − δ) within
+        // the stated f32 accuracy of the term-by-term f64 derivative.
+        let m = PolyModel::from_raw(shape, &a, &[], s).unwrap();
+        let (v0, v1, f0, f1) = range(s);
+        let (v, f) = (v0 + tx * (v1 - v0), f0 + ty * (f1 - f0));
+        let delta = f - (f0 + tz * (f1 - f0));
+        let (e, c2) = m.eval_damping_at(v, f, delta).unwrap();
+        prop_assert_eq!(e, m.eval(v, f).unwrap());
+        let (_, _, sc) = full_scale(shape, &a, ve, fe);
+        let want = c_raw(shape, &a, v as f64, f as f64 - delta as f64);
+        prop_assert!((c2 as f64 - want).abs() <= F32_REL_TOL * sc + 1e-30, "{} vs {}", c2, want);
+    }
+
+    #[test]
+    fn damping_at_the_midpoint_is_the_secant_of_a_law_quadratic_in_flow(
+        (shape, s, mut a, ve, fe) in model_strategy(),
+        tx in 0.0f32..=1.0, ty in 0.0f32..=1.0, tz in 0.0f32..=1.0,
+    ) {
+        // A law quadratic in flow (every α_ij with j > 2 zeroed): g(v̇) − g(v̇ − ẋ) = g′(v̇ − ẋ/2)·ẋ
+        // exactly, so the damping at the midpoint (δ = ẋ/2) is the secant of P itself, evaluated
+        // term by term in f64 (no derivative taken).
+        let w = shape.m as usize + 1;
+        for (ix, x) in a.iter_mut().enumerate() {
+            if ix % w > 2 {
+                *x = 0.0;
+            }
+        }
+        let m = PolyModel::from_raw(shape, &a, &[], s).unwrap();
+        let (v0, v1, f0, f1) = range(s);
+        let (v, f) = (v0 + tx * (v1 - v0), f0 + ty * (f1 - f0));
+        let xdot = f - (f0 + tz * (f1 - f0));
+        prop_assume!(xdot.abs() as f64 > 1e-3 * fe);
+        let (_, c_mid) = m.eval_damping_at(v, f, 0.5 * xdot).unwrap();
+        let (vd, fd, xd) = (v as f64, f as f64, xdot as f64);
+        let secant = (p_raw(shape, &a, vd, fd) - p_raw(shape, &a, vd, fd - xd)) / xd;
+        let (_, _, sc) = full_scale(shape, &a, ve, fe);
+        prop_assert!((c_mid as f64 - secant).abs() <= F32_REL_TOL * sc + 1e-30,
+            "{} vs {}", c_mid, secant);
+    }
+
+    #[test]
     fn raw_scaled_round_trips(
         (shape, s, a, ve, fe) in model_strategy(),
     ) {

@@ -468,7 +468,8 @@ const RETUNED: [&str; 3] = ["sensor_lag", "delivery_lag", "air_compliance"];
 /// range), minimising the training SSE with the polynomial refitted at each trial; a trial is
 /// kept only if it lowers that SSE, so the device-form refit never fits worse than at the loop's
 /// θ. The air pocket's damping schedule is taken from the device-form refit, at the chamber's
-/// volume, as the board takes it from its own polynomial (`model_core::chain`), before and after
+/// volume and the flow midway between the pump's and the chamber's ([`device_damping`]), as the
+/// board takes it from its own polynomial (`model_core::chain`), before and after
 /// the search. Every θ is finally rounded to the `f32` the board stores.
 fn device_form(prep: &Prepared, effects: &mut [Effect], first: usize) {
     for e in &mut effects[first..] {
@@ -536,8 +537,12 @@ fn set_damping(prep: &Prepared, effects: &mut [Effect], i: usize) {
 }
 
 /// The damping `c = ∂P/∂v̇` per sample of the polynomial refitted with `effects`, at the
-/// chamber's volume `v − V_a·p/(P_atm + p)` of the air pocket `effects[i]` (the board's
-/// schedule of its air lag, from its own polynomial).
+/// chamber's volume `v − V_a·p̃/(P_atm + p̃)` of the air pocket `effects[i]` and the flow midway
+/// between the pump's and the chamber's, `v̇ − ẋ/2`, `ẋ = x′(p̃)·Ṗ`, `x′(p̃) = V_a·P_atm/(P_atm + p̃)²`
+/// (the board's schedule of its air lag, from its own polynomial, `model_core::chain`). The board
+/// has only the past: Ṗ is the backward difference `(p̃_k − p̃_{k−1})/(t_k − t_{k−1})` (0 at
+/// k = 0), p̃ the scheduled pressure floored at −0.9 P_atm; the loop's form
+/// (`AirCompliance::refine`) takes Akima's slopes.
 fn device_damping(
     prep: &Prepared,
     effects: &[Effect],
@@ -547,12 +552,19 @@ fn device_damping(
     let beta = &stage.fit.beta[..prep.basis.len()];
     let (se, va) = (&prep.series, effects[i].theta);
     let p_atm = super::effects::P_ATM_KPA;
+    let pt = |k: usize| prep.p_sched[k].max(-0.9 * p_atm);
     Some(std::sync::Arc::new(
         (0..se.len())
             .map(|k| {
-                let p = prep.p_sched[k].max(-0.9 * p_atm);
+                let p = pt(k);
                 let v = se.v[k] - va * p / (p_atm + p);
-                prep.basis.damping(beta, v, se.vdot[k])
+                let pdot = if k == 0 {
+                    0.0
+                } else {
+                    (p - pt(k - 1)) / (se.t[k] - se.t[k - 1])
+                };
+                let xdot = va * p_atm / (p_atm + p).powi(2) * pdot;
+                prep.basis.damping(beta, v, se.vdot[k] - 0.5 * xdot)
             })
             .collect(),
     ))
