@@ -576,9 +576,10 @@ struct Swap {
 }
 
 /// The best swap of one kept effect for one of its look-alikes ([`KeptStep::rivals`], not
-/// in the model or `banned`): the look-alike searched on the model without the effect, then
-/// every searched parameter re-tuned ([`select::retune`]), so that two lags that trade against
-/// each other find their joint optimum. A swap must be physical, add no parameter, and lower
+/// in the model or `banned`): the look-alike searched on the model without the effect and,
+/// where that already fits the training rows better, every searched parameter re-tuned
+/// ([`select::retune`]), so that two lags that trade against each other find their joint
+/// optimum. A swap must be physical, add no parameter, and lower
 /// both the training SSE and the held-out RMSE; the best by held-out RMSE is returned.
 fn swap_look_alike(
     prep: &effects::Prepared,
@@ -588,9 +589,14 @@ fn swap_look_alike(
     let model = &sel.model;
     let mut best: Option<Swap> = None;
     for step in &sel.kept {
+        // The last effect's look-alikes lost to it in its round, against the same company (up
+        // to the re-tune): only an effect kept before others can have taken their share.
         let Some(at) = model.effects.iter().position(|e| e.kind == step.kind) else {
             continue;
         };
+        if at + 1 >= model.effects.len() {
+            continue;
+        }
         for &c in &step.rivals {
             if banned.contains(&c) || model.effects.iter().any(|e| e.kind == c) {
                 continue;
@@ -603,6 +609,12 @@ fn swap_look_alike(
             let Some(cand) = select::search(prep, &base, c) else {
                 continue;
             };
+            // Only a look-alike that already fits the training rows better, searched alone in
+            // the model's company, is re-tuned with the rest (a re-tune runs every searched
+            // parameter; on a 51,561-frame log one takes 6–10 s).
+            if cand.stage.fit.sse >= model.fit.sse {
+                continue;
+            }
             let tuned = select::retune(prep, &cand.stage);
             let stage = if tuned.fit.sse <= cand.stage.fit.sse {
                 tuned
