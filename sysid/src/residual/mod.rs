@@ -676,8 +676,7 @@ fn apply_swap(
                 let small = select::fit_stage(prep, &rest)?;
                 let test = select::nested_test(prep, &small, &model);
                 let gain = small.rmse_heldout - model.rmse_heldout;
-                let passes = test.p_value < cfg.alpha && gain >= cfg.min_gain * small.rmse_heldout;
-                (!passes).then_some((j, gain, small))
+                (!passes(cfg, &small, &model, &test)).then_some((j, gain, small))
             })
             .min_by(|a, b| a.1.total_cmp(&b.1));
         match weakest {
@@ -753,9 +752,8 @@ fn rank_round(
         .into_iter()
         .map(|cand| {
             let test = select::nested_test(prep, cur, &cand.stage);
-            let gain = cur.rmse_heldout - cand.stage.rmse_heldout;
             Ranked {
-                passes: test.p_value < cfg.alpha && gain >= cfg.min_gain * cur.rmse_heldout,
+                passes: passes(cfg, cur, &cand.stage, &test),
                 unphysical: select::unphysical(&cand.stage, &prep.scales).map(|(_, why)| why),
                 cand,
                 test,
@@ -769,6 +767,13 @@ fn rank_round(
             .total_cmp(&b.cand.stage.rmse_heldout)
     });
     ranked
+}
+
+/// The loop's test of a model `big` against the model `small` it extends: the nested F-test
+/// (`test`) rejects at `alpha` and the held-out RMSE falls by at least `min_gain` of `small`'s.
+fn passes(cfg: &Config, small: &Stage, big: &Stage, test: &NestedTest) -> bool {
+    test.p_value < cfg.alpha
+        && small.rmse_heldout - big.rmse_heldout >= cfg.min_gain * small.rmse_heldout
 }
 
 /// Keeps a candidate: re-tunes the model's searched parameters and records the step, its

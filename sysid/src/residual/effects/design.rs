@@ -93,10 +93,7 @@ impl Effect {
 /// twentieth of a millimetre of a 20 mm³ pocket's compression but ten times the noise once the
 /// stiffness multiplies it.
 pub fn pressure_schedule(prep: &Prepared, effects: &[Effect]) -> Option<Vec<f64>> {
-    if !effects
-        .iter()
-        .any(|e| e.kind.uses_measured_pressure() && !e.board_form)
-    {
+    if !effects.iter().any(on_chamber_pressure) {
         return None;
     }
     let mut lags = effects
@@ -115,6 +112,12 @@ pub fn pressure_schedule(prep: &Prepared, effects: &[Effect]) -> Option<Vec<f64>
     Some(p)
 }
 
+/// Whether `e` is scheduled on the chamber's pressure: an effect that reads the pressure, in the
+/// loop's form (the board's chain applies its effects to what it reads).
+fn on_chamber_pressure(e: &Effect) -> bool {
+    e.kind.uses_measured_pressure() && !e.board_form
+}
+
 /// `effects` with the chamber's pressure ([`pressure_schedule`]) set on those scheduled on it;
 /// borrowed unchanged when there is none. The board's form keeps the measured pressure (the
 /// board's chain applies its effects to what it reads).
@@ -128,7 +131,7 @@ fn scheduled<'a>(prep: &Prepared, effects: &'a [Effect]) -> std::borrow::Cow<'a,
             .iter()
             .map(|e| {
                 let mut e = e.clone();
-                if e.kind.uses_measured_pressure() && !e.board_form {
+                if on_chamber_pressure(&e) {
                     e.pressure = Some(p.clone());
                 }
                 e
