@@ -321,8 +321,8 @@ pub struct Rejected {
 pub struct SwapReport {
     /// The effect taken out.
     pub replaced: &'static str,
-    /// The look-alike put in its place.
-    pub by: &'static str,
+    /// The look-alikes put in its place: one, or two that together explain what it did.
+    pub by: Vec<&'static str>,
     /// Held-out RMSE of the model with the replaced effect (kPa).
     pub rmse_heldout_before: f64,
     /// Held-out RMSE with the look-alike in its place, the other effects re-tuned (kPa).
@@ -518,7 +518,7 @@ fn select_effects(prep: &effects::Prepared, baseline: &Stage, cfg: &Config) -> S
         forward(prep, cfg, &mut sel, &mut costs, &banned);
         let what = "comparing look-alikes";
         tell(cfg.progress, Progress::Stage { what, total: 0 });
-        let Some(swap) = swap_look_alike(prep, &sel, &banned) else {
+        let Some(swap) = swap_look_alike(prep, cfg, &sel, &banned) else {
             break;
         };
         banned.push(swap.out);
@@ -572,7 +572,10 @@ struct Swap {
     out: EffectKind,
     /// Where the replaced effect was in the model.
     at: usize,
+    /// The model with the look-alikes in, last in its effects.
     stage: Stage,
+    /// How many look-alikes came in (1 or 2).
+    added: usize,
 }
 
 /// The best swap of one kept effect for one of its look-alikes ([`KeptStep::rivals`], not
@@ -583,6 +586,7 @@ struct Swap {
 /// both the training SSE and the held-out RMSE; the best by held-out RMSE is returned.
 fn swap_look_alike(
     prep: &effects::Prepared,
+    cfg: &Config,
     sel: &Selection,
     banned: &[EffectKind],
 ) -> Option<Swap> {
@@ -633,8 +637,88 @@ fn swap_look_alike(
                     out: step.kind,
                     at,
                     stage,
+                    added: 1,
                 });
             }
+        }
+    }
+    if best.is_none() {
+        best = swap_for_pair(prep, cfg, sel, banned);
+    }
+    best
+}
+
+/// The best swap of one kept effect for its two best look-alikes together: one effect can hold
+/// what two others share (a delivery lag for an air pocket's lag and a sensor lag in series),
+/// and then each of the two alone loses to it, in its round and in its place. The pair is
+/// searched in turn on the model without the effect and every parameter re-tuned; it is kept
+/// only where it lowers both the training SSE and the held-out RMSE, is physical, and each of the
+/// two passes the loop's test in the other's company (leave-one-out), which pays for the
+/// parameter it adds.
+fn swap_for_pair(
+    prep: &effects::Prepared,
+    cfg: &Config,
+    sel: &Selection,
+    banned: &[EffectKind],
+) -> Option<Swap> {
+    let model = &sel.model;
+    let mut best: Option<Swap> = None;
+    for step in &sel.kept {
+        let Some(at) = model.effects.iter().position(|e| e.kind == step.kind) else {
+            continue;
+        };
+        let pair: Vec<EffectKind> = step
+            .rivals
+            .iter()
+            .copied()
+            .filter(|c| !banned.contains(c) && !model.effects.iter().any(|e| e.kind == *c))
+            .take(2)
+            .collect();
+        let [a, b] = pair[..] else {
+            continue;
+        };
+        let mut without = model.effects.clone();
+        without.remove(at);
+        let Some(base) = select::fit_stage(prep, &without) else {
+            continue;
+        };
+        let Some(first) = select::search(prep, &base, a) else {
+            continue;
+        };
+        let Some(second) = select::search(prep, &first.stage, b) else {
+            continue;
+        };
+        let tuned = select::retune(prep, &second.stage);
+        let stage = if tuned.fit.sse <= second.stage.fit.sse {
+            tuned
+        } else {
+            second.stage
+        };
+        if !(stage.fit.sse < model.fit.sse && stage.rmse_heldout < model.rmse_heldout)
+            || select::unphysical(&stage, &prep.scales).is_some()
+            || best
+                .as_ref()
+                .is_some_and(|b| stage.rmse_heldout >= b.stage.rmse_heldout)
+        {
+            continue;
+        }
+        let n = stage.effects.len();
+        let both_pass = (n - 2..n).all(|j| {
+            let mut rest = stage.effects.clone();
+            rest.remove(j);
+            select::fit_stage(prep, &rest).is_some_and(|small| {
+                let test = select::nested_test(prep, &small, &stage);
+                test.p_value < cfg.alpha
+                    && small.rmse_heldout - stage.rmse_heldout >= cfg.min_gain * small.rmse_heldout
+            })
+        });
+        if both_pass {
+            best = Some(Swap {
+                out: step.kind,
+                at,
+                stage,
+                added: 2,
+            });
         }
     }
     best
@@ -653,17 +737,17 @@ fn apply_swap(
 ) {
     let before = sel.model.rmse_heldout;
     let mut effects = swap.stage.effects.clone();
-    let Some(new) = effects.pop() else {
-        return;
-    };
-    let by = new.kind;
-    effects.insert(swap.at, new);
+    let new = effects.split_off(effects.len().saturating_sub(swap.added));
+    let by: Vec<EffectKind> = new.iter().map(|e| e.kind).collect();
+    for (o, e) in new.into_iter().enumerate() {
+        effects.insert(swap.at + o, e);
+    }
     let Some(mut model) = select::fit_stage(prep, &effects) else {
         return;
     };
     sel.swaps.push(SwapReport {
         replaced: swap.out.name(),
-        by: by.name(),
+        by: by.iter().map(|k| k.name()).collect(),
         rmse_heldout_before: before,
         rmse_heldout_after: model.rmse_heldout,
     });
@@ -692,14 +776,15 @@ fn apply_swap(
         };
         let kind = model.effects[j].kind;
         let was = old.iter().find(|k| k.kind == kind);
-        let runner_up = if kind == by {
+        let runner_up = if by.contains(&kind) {
+            let names: Vec<&str> = by.iter().map(|k| k.name()).collect();
             Some(Rejected {
                 name: swap.out.name(),
                 rmse_heldout: before,
                 p_value: f64::NAN,
                 reason: format!(
                     "swapped out: {} in its place lowers held-out RMSE {before:.4} → {:.4} kPa",
-                    by.name(),
+                    names.join(" + "),
                     swap.stage.rmse_heldout
                 ),
             })
