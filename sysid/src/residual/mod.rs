@@ -642,10 +642,13 @@ fn swap_look_alike(
             }
         }
     }
-    if best.is_none() {
-        best = swap_for_pair(prep, cfg, sel, banned);
+    // A pair is tried even where one look-alike wins: the one can leave the other's share to an
+    // effect the plant does not have, taken in a later round.
+    match (best, swap_for_pair(prep, cfg, sel, banned)) {
+        (Some(one), Some(two)) if two.stage.rmse_heldout < one.stage.rmse_heldout => Some(two),
+        (Some(one), _) => Some(one),
+        (None, two) => two,
     }
-    best
 }
 
 /// The best swap of one kept effect for its two best look-alikes together: one effect can hold
@@ -707,9 +710,12 @@ fn swap_for_pair(
             let mut rest = stage.effects.clone();
             rest.remove(j);
             select::fit_stage(prep, &rest).is_some_and(|small| {
-                let test = select::nested_test(prep, &small, &stage);
-                test.p_value < cfg.alpha
-                    && small.rmse_heldout - stage.rmse_heldout >= cfg.min_gain * small.rmse_heldout
+                passes(
+                    cfg,
+                    &small,
+                    &stage,
+                    &select::nested_test(prep, &small, &stage),
+                )
             })
         });
         if both_pass {

@@ -78,32 +78,14 @@ impl EffectModel for AirCompliance {
     /// 1.105 → 1.040 σ). `ẋ` enters only through the damping's slope in flow, so the slopes' noise
     /// does not reach the fit.
     fn refine(&self, prep: &Prepared, base: &[Effect], mut stage: Stage) -> Stage {
-        let Some(last) = stage.effects.last() else {
+        let Some(fresh) = self.refresh(prep, &stage, stage.effects.len().saturating_sub(1)) else {
             return stage;
         };
-        let (kind, va) = (last.kind, last.theta);
-        let beta = &stage.fit.beta[..prep.basis.len()];
-        let se = &prep.series;
-        // The chamber's pressure behind the model's sensor lags, as the design will schedule it.
-        let sched = super::design::pressure_schedule(prep, &stage.effects);
-        let sched = sched.as_deref().unwrap_or(&prep.p_sched);
-        let dp = signal::akima_slopes(&se.t, sched);
-        let d2 = Arc::new(
-            (0..se.len())
-                .map(|k| {
-                    let p = sched[k].max(-0.9 * P_ATM_KPA);
-                    let v = se.v[k] - va * p / (P_ATM_KPA + p);
-                    let xdot = va * P_ATM_KPA / (P_ATM_KPA + p).powi(2) * dp[k];
-                    prep.basis.damping(beta, v, se.vdot[k] - 0.5 * xdot)
-                })
-                .collect::<Vec<f64>>(),
-        );
-        let point_sampled = last.point_sampled;
         let remake = |th: f64| Effect {
-            damping: Some(d2.clone()),
-            point_sampled,
-            ..Effect::new(kind, th)
+            theta: th,
+            ..fresh.clone()
         };
+        let va = fresh.theta;
         let (u, _) = brent(va.ln() - 0.7, va.ln() + 0.7, 10, |x| {
             sse_of(prep, &with(base, remake(x.exp())))
         });
@@ -113,6 +95,32 @@ impl EffectModel for AirCompliance {
             }
         }
         stage
+    }
+
+    /// The damping at the chamber's volume and the midway flow ([`Self::refine`]) from `stage`'s
+    /// polynomial and pressure schedule, with the pocket `stage` has.
+    fn refresh(&self, prep: &Prepared, stage: &Stage, idx: usize) -> Option<Effect> {
+        let e = stage.effects.get(idx)?;
+        let va = e.theta;
+        let beta = &stage.fit.beta[..prep.basis.len()];
+        let se = &prep.series;
+        // The chamber's pressure behind the model's sensor lags, as the design will schedule it.
+        let sched = super::design::pressure_schedule(prep, &stage.effects);
+        let sched = sched.as_deref().unwrap_or(&prep.p_sched);
+        let dp = signal::akima_slopes(&se.t, sched);
+        let damping = (0..se.len())
+            .map(|k| {
+                let p = sched[k].max(-0.9 * P_ATM_KPA);
+                let v = se.v[k] - va * p / (P_ATM_KPA + p);
+                let xdot = va * P_ATM_KPA / (P_ATM_KPA + p).powi(2) * dp[k];
+                prep.basis.damping(beta, v, se.vdot[k] - 0.5 * xdot)
+            })
+            .collect::<Vec<f64>>();
+        Some(Effect {
+            damping: Some(Arc::new(damping)),
+            point_sampled: e.point_sampled,
+            ..Effect::new(e.kind, va)
+        })
     }
 
     fn input_stage(&self) -> Option<u32> {

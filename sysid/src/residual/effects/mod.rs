@@ -327,6 +327,13 @@ pub trait EffectModel: Send + Sync {
         stage
     }
 
+    /// Effect `idx` of `stage` with the data it took from the model it was added to
+    /// ([`Self::needs`]) taken again from `stage` itself, once re-tuning has moved that model;
+    /// `None` where the effect keeps nothing of the model (default).
+    fn refresh(&self, _prep: &Prepared, _stage: &Stage, _idx: usize) -> Option<Effect> {
+        None
+    }
+
     /// Place along the input chain (lower first: delivery lag 0, transport delay 10, backlash
     /// 20, pump ripple 30, volume drift 40, leak 50, air compliance 60); `None` for no input
     /// transform (default).
