@@ -133,28 +133,36 @@ fn full_size_air_pocket_on_irregular_strokes() {
     check(&o, &["air_compliance"]);
 }
 
-/// An air pocket and a sensor lag at once (both at their preset sizes, seed 33). A delivery lag
-/// (a two-stage lag, like the two lags in series) alone explains most of both and took the first
-/// round, then the pocket and an inertance, 1.53 σ; a sensor lag searched on top only made it
-/// worse. The look-alike swap (`swap_look_alike`) tries the first round's look-alikes in the
-/// delivery lag's place with the rest re-tuned: the sensor lag takes it.
+/// An air pocket and a sensor lag at once (both at their preset sizes), on three seeds. A delivery
+/// lag (a two-stage lag, like the two lags in series) alone explains most of both and takes the
+/// first round; a sensor lag searched on top only makes it worse (1.53 σ on seed 33, 3.88 σ on
+/// seed 35 with the delivery lag alone). The look-alike swap (`swap_look_alike`) tries the first
+/// round's look-alikes in the delivery lag's place with the rest re-tuned: the sensor lag takes it
+/// (seeds 33, 34), or the air pocket and the sensor lag together (seed 35, where each alone lost
+/// to the delivery lag). The re-tune takes the pocket's damping again from the re-tuned model and
+/// puts both lags in one form: without that seed 34 ended at 1.14–1.19 σ with the sensor lag
+/// 6 % long.
 #[test]
 fn air_pocket_and_sensor_lag_are_not_taken_by_a_look_alike() {
     let mut both = preset("air");
     both.sensor_lag_s = preset("sensor-lag").sensor_lag_s;
-    let o = run(&strokes("air + sensor lag", both, gaussian(), 33));
-    let found = names(&o.d);
-    assert!(!found.contains(&"delivery_lag"), "{found:?}");
-    assert!(
-        o.d.swaps
-            .iter()
-            .any(|s| s.replaced == "delivery_lag" && s.by.contains(&"sensor_lag")),
-        "{:?}",
-        o.d.swaps
-    );
-    assert!((param(&o, "sensor_lag", "time_constant") - 0.02).abs() < 0.003);
-    assert!((param(&o, "air_compliance", "air_volume_at_atmospheric_pressure") - 20.0).abs() < 1.5);
-    check(&o, &["sensor_lag", "air_compliance"]);
+    for seed in 33..=35 {
+        let o = run(&strokes("air + sensor lag", both.clone(), gaussian(), seed));
+        let found = names(&o.d);
+        assert!(!found.contains(&"delivery_lag"), "seed {seed}: {found:?}");
+        assert!(
+            o.d.swaps
+                .iter()
+                .any(|s| s.replaced == "delivery_lag" && s.by.contains(&"sensor_lag")),
+            "seed {seed}: {:?}",
+            o.d.swaps
+        );
+        let tau = param(&o, "sensor_lag", "time_constant");
+        assert!((tau - 0.02).abs() < 0.0015, "seed {seed}: τ {tau}");
+        let air = param(&o, "air_compliance", "air_volume_at_atmospheric_pressure");
+        assert!((air - 20.0).abs() < 0.6, "seed {seed}: air {air}");
+        check(&o, &["sensor_lag", "air_compliance"]);
+    }
 }
 
 /// A sensor lag at a third of its preset size (6.7 ms, a sixth of a frame) is told from its
@@ -171,24 +179,34 @@ fn third_size_sensor_lag_on_irregular_strokes() {
     check(&o, &["sensor_lag"]);
 }
 
-/// Open (issue #17): the three effects at once (hysteresis, sensor lag, air pocket, all at their
-/// preset sizes) on host-sim's irregular strokes. `cargo test --release -p sysid --test
-/// residual_hostsim_shapes -- --ignored --nocapture` shows it: all three are named and sized
-/// (hysteresis width 20.1 mm³ for 20, sensor lag 21.6 ms for 20, air pocket 18.7 mm³ for 20), and
-/// the error ends at 1.102 σ, 0.2 % over the bound. It was 1.340 σ before the air pocket's lag took
-/// the damping at the flow midway between the pump's and the chamber's, and its schedule the
-/// chamber's pressure behind the sensor lag (`design::pressure_schedule`); on seeds 34 and 35 the
-/// same case went 1.298 → 1.063 σ and 1.277 → 1.082 σ (not committed as tests: a seed that passes
-/// is not evidence this one does not fail). With the hysteron on the logged volume rather than the
-/// chamber's it was 1.565 σ.
+/// The three effects at once (hysteresis, sensor lag, air pocket, all at their preset sizes) on
+/// host-sim's irregular strokes, three seeds: all three named and sized, nothing else. On seed 33
+/// this was 1.340 σ before the air pocket's lag took the damping at the flow midway between the
+/// pump's and the chamber's and its schedule the chamber's pressure behind the sensor lag
+/// (`design::pressure_schedule`), 1.102 σ after (sensor lag 8 % long, pocket 6 % small), and
+/// 1.031 σ once the re-tune took the pocket's damping again from the re-tuned model.
 #[test]
-#[ignore = "open: three effects at once on host-sim (issue #17)"]
-fn open_three_at_once() {
+fn three_effects_at_once() {
     let mut three = preset("hysteresis");
     three.sensor_lag_s = preset("sensor-lag").sensor_lag_s;
     three.air_pocket_mm3 = preset("air").air_pocket_mm3;
-    let all = run(&strokes("three at once", three, gaussian(), 33));
-    check(&all, &["hysteresis", "sensor_lag", "air_compliance"]);
+    for seed in 33..=35 {
+        let o = run(&strokes("three at once", three.clone(), gaussian(), seed));
+        let mut found = names(&o.d);
+        found.sort_unstable();
+        assert_eq!(
+            found,
+            ["air_compliance", "hysteresis", "sensor_lag"],
+            "seed {seed}"
+        );
+        let width = param(&o, "hysteresis", "width");
+        assert!((width - 20.0).abs() < 0.6, "seed {seed}: width {width}");
+        let tau = param(&o, "sensor_lag", "time_constant");
+        assert!((tau - 0.02).abs() < 0.0015, "seed {seed}: τ {tau}");
+        let air = param(&o, "air_compliance", "air_volume_at_atmospheric_pressure");
+        assert!((air - 20.0).abs() < 0.6, "seed {seed}: air {air}");
+        check(&o, &["hysteresis", "sensor_lag", "air_compliance"]);
+    }
 }
 
 /// Heavy-tailed sensor noise (Student's t with 3 degrees of freedom; 0.5 % of the conversions
