@@ -562,12 +562,17 @@ fn refine(coord: Coord, grid: &[f64], i: usize, at_i: f64, objective: &impl Fn(f
 /// against each other (an air pocket's lag and a sensor lag) walk together towards their joint
 /// optimum, a bracket's width at a time.
 pub fn retune(prep: &Prepared, stage: &Stage) -> Stage {
-    retune_to_beat(prep, stage, f64::NEG_INFINITY)
+    retune_inner(prep, stage, None)
 }
 
 /// [`retune`], given up once the training SSE cannot come below `target` ([`descend`]): a trial
 /// that only counts if it beats a model of that SSE (a swap) need not be re-tuned to the end.
 pub fn retune_to_beat(prep: &Prepared, stage: &Stage, target: f64) -> Stage {
+    retune_inner(prep, stage, Some(target))
+}
+
+/// [`retune`], given up above `target` where there is one.
+fn retune_inner(prep: &Prepared, stage: &Stage, target: Option<f64>) -> Stage {
     // When the only re-tunable parameter is the one just searched (the last effect's), descent
     // would search the same one-dimensional objective again (and on a lag inside the frames each
     // trial rebuilds the design at the frames' instants).
@@ -580,7 +585,7 @@ pub fn retune_to_beat(prep: &Prepared, stage: &Stage, target: f64) -> Stage {
     let (mut effects, sse) = one_form(prep, stage.effects.clone(), stage.fit.sse);
     let mut sse = descend(prep, &mut effects, sse, target);
     let mut tuned = fit_stage(prep, &effects).unwrap_or_else(|| stage.clone());
-    if sse > target {
+    if target.is_some_and(|t| sse > t) {
         return tuned;
     }
     // What the effects took from the model they were added to (an air pocket's damping) is taken
@@ -650,7 +655,7 @@ fn one_form(prep: &Prepared, effects: Vec<Effect>, sse: f64) -> (Vec<Effect>, f6
 /// 35: 91 → 47 → 17 → 14 → 6.9 …, the model to beat at 57); on the 3-hour log an air pocket and a
 /// sensor lag in a delivery lag's place went 106 → 92.4 → 91.7 and settled at 91.0 against the
 /// 89.8 to beat, ten sweeps of 15 s for nothing.
-fn descend(prep: &Prepared, effects: &mut Vec<Effect>, mut sse: f64, target: f64) -> f64 {
+fn descend(prep: &Prepared, effects: &mut Vec<Effect>, mut sse: f64, target: Option<f64>) -> f64 {
     let mut last_gain = f64::INFINITY;
     for _ in 0..RETUNE_SWEEPS {
         let (start, before) = (effects.clone(), sse);
@@ -661,7 +666,7 @@ fn descend(prep: &Prepared, effects: &mut Vec<Effect>, mut sse: f64, target: f64
         sse = pattern_move(prep, &start, effects, sse);
         let gain = before - sse;
         let ratio = (gain / last_gain).clamp(0.5, 0.9);
-        if sse > target && gain * ratio / (1.0 - ratio) < sse - target {
+        if target.is_some_and(|t| sse > t && gain * ratio / (1.0 - ratio) < sse - t) {
             break;
         }
         last_gain = gain;
