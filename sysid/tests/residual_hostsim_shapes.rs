@@ -142,27 +142,40 @@ fn full_size_air_pocket_on_irregular_strokes() {
 /// to the delivery lag). The re-tune takes the pocket's damping again from the re-tuned model and
 /// puts both lags in one form: without that seed 34 ended at 1.14–1.19 σ with the sensor lag
 /// 6 % long.
-#[test]
-fn air_pocket_and_sensor_lag_are_not_taken_by_a_look_alike() {
+fn air_pocket_and_sensor_lag_are_not_taken_by_a_look_alike(seed: u64) {
     let mut both = preset("air");
     both.sensor_lag_s = preset("sensor-lag").sensor_lag_s;
-    for seed in 33..=35 {
-        let o = run(&strokes("air + sensor lag", both.clone(), gaussian(), seed));
-        let found = names(&o.d);
-        assert!(!found.contains(&"delivery_lag"), "seed {seed}: {found:?}");
-        assert!(
-            o.d.swaps
-                .iter()
-                .any(|s| s.replaced == "delivery_lag" && s.by.contains(&"sensor_lag")),
-            "seed {seed}: {:?}",
-            o.d.swaps
-        );
-        let tau = param(&o, "sensor_lag", "time_constant");
-        assert!((tau - 0.02).abs() < 0.0015, "seed {seed}: τ {tau}");
-        let air = param(&o, "air_compliance", "air_volume_at_atmospheric_pressure");
-        assert!((air - 20.0).abs() < 0.6, "seed {seed}: air {air}");
-        check(&o, &["sensor_lag", "air_compliance"]);
-    }
+    let o = run(&strokes("air + sensor lag", both, gaussian(), seed));
+    let found = names(&o.d);
+    assert!(!found.contains(&"delivery_lag"), "seed {seed}: {found:?}");
+    assert!(
+        o.d.swaps
+            .iter()
+            .any(|s| s.replaced == "delivery_lag" && s.by.contains(&"sensor_lag")),
+        "seed {seed}: {:?}",
+        o.d.swaps
+    );
+    let tau = param(&o, "sensor_lag", "time_constant");
+    assert!((tau - 0.02).abs() < 0.0015, "seed {seed}: τ {tau}");
+    let air = param(&o, "air_compliance", "air_volume_at_atmospheric_pressure");
+    assert!((air - 20.0).abs() < 0.6, "seed {seed}: air {air}");
+    check(&o, &["sensor_lag", "air_compliance"]);
+}
+
+// One test per seed, so that the test threads share them.
+#[test]
+fn air_pocket_and_sensor_lag_seed_33() {
+    air_pocket_and_sensor_lag_are_not_taken_by_a_look_alike(33);
+}
+
+#[test]
+fn air_pocket_and_sensor_lag_seed_34() {
+    air_pocket_and_sensor_lag_are_not_taken_by_a_look_alike(34);
+}
+
+#[test]
+fn air_pocket_and_sensor_lag_seed_35() {
+    air_pocket_and_sensor_lag_are_not_taken_by_a_look_alike(35);
 }
 
 /// A sensor lag at a third of its preset size (6.7 ms, a sixth of a frame) is told from its
@@ -185,28 +198,40 @@ fn third_size_sensor_lag_on_irregular_strokes() {
 /// pump's and the chamber's and its schedule the chamber's pressure behind the sensor lag
 /// (`design::pressure_schedule`), 1.102 σ after (sensor lag 8 % long, pocket 6 % small), and
 /// 1.031 σ once the re-tune took the pocket's damping again from the re-tuned model.
-#[test]
-fn three_effects_at_once() {
+fn three_effects_at_once(seed: u64) {
     let mut three = preset("hysteresis");
     three.sensor_lag_s = preset("sensor-lag").sensor_lag_s;
     three.air_pocket_mm3 = preset("air").air_pocket_mm3;
-    for seed in 33..=35 {
-        let o = run(&strokes("three at once", three.clone(), gaussian(), seed));
-        let mut found = names(&o.d);
-        found.sort_unstable();
-        assert_eq!(
-            found,
-            ["air_compliance", "hysteresis", "sensor_lag"],
-            "seed {seed}"
-        );
-        let width = param(&o, "hysteresis", "width");
-        assert!((width - 20.0).abs() < 0.6, "seed {seed}: width {width}");
-        let tau = param(&o, "sensor_lag", "time_constant");
-        assert!((tau - 0.02).abs() < 0.0015, "seed {seed}: τ {tau}");
-        let air = param(&o, "air_compliance", "air_volume_at_atmospheric_pressure");
-        assert!((air - 20.0).abs() < 0.6, "seed {seed}: air {air}");
-        check(&o, &["hysteresis", "sensor_lag", "air_compliance"]);
-    }
+    let o = run(&strokes("three at once", three, gaussian(), seed));
+    let mut found = names(&o.d);
+    found.sort_unstable();
+    assert_eq!(
+        found,
+        ["air_compliance", "hysteresis", "sensor_lag"],
+        "seed {seed}"
+    );
+    let width = param(&o, "hysteresis", "width");
+    assert!((width - 20.0).abs() < 0.6, "seed {seed}: width {width}");
+    let tau = param(&o, "sensor_lag", "time_constant");
+    assert!((tau - 0.02).abs() < 0.0015, "seed {seed}: τ {tau}");
+    let air = param(&o, "air_compliance", "air_volume_at_atmospheric_pressure");
+    assert!((air - 20.0).abs() < 0.6, "seed {seed}: air {air}");
+    check(&o, &["hysteresis", "sensor_lag", "air_compliance"]);
+}
+
+#[test]
+fn three_effects_at_once_seed_33() {
+    three_effects_at_once(33);
+}
+
+#[test]
+fn three_effects_at_once_seed_34() {
+    three_effects_at_once(34);
+}
+
+#[test]
+fn three_effects_at_once_seed_35() {
+    three_effects_at_once(35);
 }
 
 /// Heavy-tailed sensor noise (Student's t with 3 degrees of freedom; 0.5 % of the conversions

@@ -598,16 +598,13 @@ fn swap_look_alike(
     for step in &sel.kept {
         // The last effect's look-alikes lost to it in its round, against the same company (up
         // to the re-tune): only an effect kept before others can have taken their share.
-        let Some(at) = model.effects.iter().position(|e| e.kind == step.kind) else {
+        let Some((at, rivals)) = open_rivals(step, model, banned) else {
             continue;
         };
         if at + 1 >= model.effects.len() {
             continue;
         }
-        for c in step.rivals.iter().map(|r| r.kind) {
-            if banned.contains(&c) || model.effects.iter().any(|e| e.kind == c) {
-                continue;
-            }
+        for c in rivals.iter().map(|r| r.kind) {
             let mut without = model.effects.clone();
             without.remove(at);
             let Some(base) = select::fit_stage(prep, &without) else {
@@ -654,6 +651,22 @@ fn swap_look_alike(
     }
 }
 
+/// Where the kept effect `step` is in `model`, and its look-alikes that may take its place (best
+/// first): those neither in `banned` nor in the model.
+fn open_rivals<'a>(
+    step: &'a KeptStep,
+    model: &Stage,
+    banned: &[EffectKind],
+) -> Option<(usize, Vec<&'a Effect>)> {
+    let at = model.effects.iter().position(|e| e.kind == step.kind)?;
+    let rivals = step
+        .rivals
+        .iter()
+        .filter(|c| !banned.contains(&c.kind) && !model.effects.iter().any(|e| e.kind == c.kind))
+        .collect();
+    Some((at, rivals))
+}
+
 /// The best swap of one kept effect for its two best look-alikes together: one effect can hold
 /// what two others share (a delivery lag for an air pocket's lag and a sensor lag in series),
 /// and then each of the two alone loses to it, in its round and in its place. The pair starts
@@ -671,18 +684,10 @@ fn swap_for_pair(
     let model = &sel.model;
     let mut best: Option<Swap> = None;
     for step in &sel.kept {
-        let Some(at) = model.effects.iter().position(|e| e.kind == step.kind) else {
+        let Some((at, rivals)) = open_rivals(step, model, banned) else {
             continue;
         };
-        let pair: Vec<&Effect> = step
-            .rivals
-            .iter()
-            .filter(|c| {
-                !banned.contains(&c.kind) && !model.effects.iter().any(|e| e.kind == c.kind)
-            })
-            .take(2)
-            .collect();
-        let [a, b] = pair[..] else {
+        let [a, b, ..] = rivals[..] else {
             continue;
         };
         // Each as its round fitted it, alone: two that share a structure each took more of it
