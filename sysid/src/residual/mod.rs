@@ -604,12 +604,13 @@ fn swap_look_alike(
         if at + 1 >= model.effects.len() {
             continue;
         }
+        // The model without the effect, once for all its look-alikes.
+        let mut without = model.effects.clone();
+        without.remove(at);
+        let Some(base) = select::fit_stage(prep, &without) else {
+            continue;
+        };
         for c in rivals.iter().map(|r| r.kind) {
-            let mut without = model.effects.clone();
-            without.remove(at);
-            let Some(base) = select::fit_stage(prep, &without) else {
-                continue;
-            };
             let Some(cand) = select::search(prep, &base, c) else {
                 continue;
             };
@@ -708,18 +709,8 @@ fn swap_for_pair(
             continue;
         }
         let n = stage.effects.len();
-        let both_pass = (n - 2..n).all(|j| {
-            let mut rest = stage.effects.clone();
-            rest.remove(j);
-            select::fit_stage(prep, &rest).is_some_and(|small| {
-                passes(
-                    cfg,
-                    &small,
-                    &stage,
-                    &select::nested_test(prep, &small, &stage),
-                )
-            })
-        });
+        let both_pass =
+            (n - 2..n).all(|j| leave_one_out(prep, cfg, &stage, j).is_some_and(|(_, ok)| ok));
         if both_pass {
             best = Some(Swap {
                 out: step.kind,
@@ -763,12 +754,9 @@ fn apply_swap(
     loop {
         let weakest = (0..model.effects.len())
             .filter_map(|j| {
-                let mut rest = model.effects.clone();
-                rest.remove(j);
-                let small = select::fit_stage(prep, &rest)?;
-                let test = select::nested_test(prep, &small, &model);
+                let (small, ok) = leave_one_out(prep, cfg, &model, j)?;
                 let gain = small.rmse_heldout - model.rmse_heldout;
-                (!passes(cfg, &small, &model, &test)).then_some((j, gain, small))
+                (!ok).then_some((j, gain, small))
             })
             .min_by(|a, b| a.1.total_cmp(&b.1));
         match weakest {
@@ -867,6 +855,26 @@ fn rank_round(
 fn passes(cfg: &Config, small: &Stage, big: &Stage, test: &NestedTest) -> bool {
     test.p_value < cfg.alpha
         && small.rmse_heldout - big.rmse_heldout >= cfg.min_gain * small.rmse_heldout
+}
+
+/// `model` without its effect `j`, and whether `model` passes the loop's test against it
+/// ([`passes`]); `None` when the smaller model cannot be fitted.
+fn leave_one_out(
+    prep: &effects::Prepared,
+    cfg: &Config,
+    model: &Stage,
+    j: usize,
+) -> Option<(Stage, bool)> {
+    let mut rest = model.effects.clone();
+    rest.remove(j);
+    let small = select::fit_stage(prep, &rest)?;
+    let ok = passes(
+        cfg,
+        &small,
+        model,
+        &select::nested_test(prep, &small, model),
+    );
+    Some((small, ok))
 }
 
 /// Keeps a candidate: re-tunes the model's searched parameters and records the step, its
