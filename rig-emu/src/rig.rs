@@ -1,0 +1,479 @@
+//! The virtual rig: the firmware ELF running on the emulated board, its STEP/DIR/EN pins driving
+//! host-sim's plant, the plant's sensors on its ADC pins, and a host on its command port.
+//!
+//! The emulator runs on a thread of its own. Its driver ([`RigDriver`]) sees every peripheral
+//! access the firmware makes: after each write to GPIOA or GPIOB it reads the STEP, DIR and EN
+//! pins' electrical levels off the port models, and each rising STEP edge while the drivers are
+//! enabled (EN low) is one motor step of the plant at the edge's virtual instant
+//! ([`host_sim::plant::Plant::step`], the same physics as the simulated board's). Every
+//! millisecond of virtual time the driver converts the plant's sensors ([`Plant::adc_counts`]:
+//! pressure, sensor lag, noise, the firmware's own transfer function) and puts the voltages on
+//! ADC1's pins. Between two such instants the test thread can act on the session: queue bytes on
+//! the host's wire, read what the firmware sent, look at the pins and the plant.
+
+use std::path::{Path, PathBuf};
+use std::sync::mpsc::{channel, Receiver, Sender};
+use std::thread::JoinHandle;
+use std::time::Duration;
+
+use host_sim::plant::Plant;
+use host_sim::PlantConfig;
+use rigless::device::Level;
+use rigless::emulator::{self, AccessKind, Driver, Host, Settled, Start, Stop};
+use rigless::image::Image;
+use rigless::session::Session;
+use rigless::time::VirtualNanos;
+
+use crate::board::{Nucleo, PinId, DIR, ENABLE, STEP};
+use crate::wire::{Received, Stream};
+
+/// GPIOA and GPIOB's register blocks (RM0390 table 1): the ports the step, direction and enable
+/// pins are on.
+const GPIO_AB: std::ops::Range<u64> = 0x4002_0000..0x4002_0800;
+/// How often the plant's sensors are converted onto the ADC pins.
+const ADC_PERIOD_NS: u64 = 1_000_000;
+
+/// One motor step the plant took.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct StepEvent {
+    /// Virtual instant of the rising STEP edge, ns.
+    pub at_ns: u64,
+    /// Axis 0..3.
+    pub axis: usize,
+    /// DIR high (inflate) at the edge.
+    pub inflate: bool,
+}
+
+/// What the driver keeps: the plant and everything it saw of the pins.
+#[derive(Debug)]
+pub struct Bench {
+    /// host-sim's plant, driven by the pins.
+    pub plant: Plant,
+    /// Every step the plant took, in order.
+    pub steps: Vec<StepEvent>,
+    /// STEP edges seen while the drivers were disabled (EN high or floating high): not steps.
+    pub steps_while_disabled: u64,
+    /// Every change of the drivers' enable (true = enabled, EN low), with its instant, ns.
+    pub enable_changes: Vec<(u64, bool)>,
+    /// Whether the drivers are enabled now.
+    pub enabled: bool,
+    step_level: [Level; 3],
+    /// The host-side reader of the command port (replies and telemetry packets).
+    pub stream: Stream,
+    /// Bytes of the host's record already fed to `stream`.
+    fed: usize,
+}
+
+impl Bench {
+    fn new(plant: Plant) -> Self {
+        Self {
+            plant,
+            steps: Vec::new(),
+            steps_while_disabled: 0,
+            enable_changes: Vec::new(),
+            enabled: false,
+            step_level: [Level::Low; 3],
+            stream: Stream::default(),
+            fed: 0,
+        }
+    }
+
+    /// Net steps by axis.
+    pub fn net_steps(&self) -> [i64; 3] {
+        core::array::from_fn(|i| self.plant.steps(i))
+    }
+
+    fn pins(&mut self, board: &mut Nucleo, at_ns: u64) {
+        let enabled = board.level(ENABLE) == Level::Low;
+        if enabled != self.enabled {
+            self.enabled = enabled;
+            self.enable_changes.push((at_ns, enabled));
+        }
+        for axis in 0..3 {
+            let level = board.level(STEP[axis]);
+            if level == Level::High && self.step_level[axis] == Level::Low {
+                if self.enabled {
+                    let inflate = board.level(DIR[axis]) == Level::High;
+                    self.plant.step(axis, at_ns / 1000, inflate);
+                    self.steps.push(StepEvent {
+                        at_ns,
+                        axis,
+                        inflate,
+                    });
+                } else {
+                    self.steps_while_disabled += 1;
+                }
+            }
+            self.step_level[axis] = level;
+        }
+    }
+
+    fn feed_host(&mut self, board: &mut Nucleo) {
+        let bytes = board.host().received_bytes();
+        for &(at, b) in &bytes[self.fed..] {
+            self.stream.push(at.0, b);
+        }
+        self.fed = bytes.len();
+    }
+}
+
+type Action = Box<dyn FnOnce(&mut Session<Nucleo>, &mut Bench) + Send>;
+
+enum Request {
+    RunUntil(u64),
+    With(Action),
+    Finish,
+}
+
+/// The emulator's driver: the pins to the plant, the plant to the ADC, the test's requests.
+struct RigDriver {
+    bench: Bench,
+    requests: Receiver<Request>,
+    reached: Sender<u64>,
+    target_ns: u64,
+    next_adc_ns: u64,
+}
+
+impl RigDriver {
+    fn convert(&mut self, session: &mut Session<Nucleo>, now_ns: u64) {
+        let counts = self.bench.plant.adc_counts(now_ns / 1000);
+        session.board_mut().set_sensor_counts(counts);
+    }
+}
+
+impl Driver<Nucleo> for RigDriver {
+    fn on_settled(
+        &mut self,
+        session: &mut Session<Nucleo>,
+        _host: &mut dyn Host,
+        settled: Settled,
+    ) {
+        if let Settled::Access { access, .. } = settled {
+            if access.kind == AccessKind::Write && GPIO_AB.contains(&access.address) {
+                self.bench.pins(session.board_mut(), access.virtual_time.0);
+            }
+        }
+    }
+
+    fn on_stop(
+        &mut self,
+        session: &mut Session<Nucleo>,
+        stop: Stop,
+        _host: &mut dyn Host,
+    ) -> Option<VirtualNanos> {
+        let now = stop.at.0;
+        if now >= self.next_adc_ns {
+            self.convert(session, now);
+            self.next_adc_ns = (now / ADC_PERIOD_NS + 1) * ADC_PERIOD_NS;
+        }
+        self.bench.feed_host(session.board_mut());
+        if now >= self.target_ns {
+            if self.reached.send(now).is_err() {
+                return None;
+            }
+            loop {
+                match self.requests.recv() {
+                    Ok(Request::With(action)) => {
+                        action(session, &mut self.bench);
+                        self.bench.feed_host(session.board_mut());
+                    }
+                    Ok(Request::RunUntil(t)) => {
+                        self.target_ns = t.max(now + 1);
+                        break;
+                    }
+                    Ok(Request::Finish) | Err(_) => return None,
+                }
+            }
+        }
+        Some(VirtualNanos(
+            self.target_ns.min(self.next_adc_ns).max(now + 1),
+        ))
+    }
+}
+
+/// How to build a virtual rig.
+#[derive(Clone, Debug)]
+pub struct RigConfig {
+    /// The firmware ELF (the `firmware` profile's `vfp-fw`).
+    pub elf: PathBuf,
+    /// The plant (host-sim's), its effects and its sensors.
+    pub plant: PlantConfig,
+    /// Seed of the plant's noise streams.
+    pub seed: u64,
+}
+
+impl RigConfig {
+    /// The default plant (host-sim's SBA1 rig with its 3 ms delivery lag and sensor noise).
+    pub fn new(elf: impl Into<PathBuf>) -> Self {
+        Self {
+            elf: elf.into(),
+            plant: PlantConfig::default(),
+            seed: 1,
+        }
+    }
+}
+
+/// Why a rig could not start or went away.
+#[derive(Debug, thiserror::Error)]
+pub enum RigError {
+    /// The ELF could not be read or placed.
+    #[error("firmware image {path}: {message}")]
+    Image {
+        /// The ELF's path.
+        path: PathBuf,
+        /// rigless's reason.
+        message: String,
+    },
+    /// The board or the session could not be built.
+    #[error("virtual board: {0}")]
+    Board(String),
+    /// The plant's configuration is invalid.
+    #[error("plant: {0}")]
+    Plant(String),
+    /// The emulator stopped on its own (its error, or a panic on its thread).
+    #[error("the emulator stopped: {0}")]
+    Stopped(String),
+}
+
+/// What the emulator thread returns.
+pub struct Outcome {
+    /// Resets the session saw, as `(instant ns, cause)`.
+    pub resets: Vec<(u64, String)>,
+    /// Registers the part carries and no model implements that the firmware touched.
+    pub unimplemented: Vec<String>,
+    /// Addresses no register covers that the firmware touched.
+    pub unmapped: Vec<String>,
+}
+
+/// A running virtual rig. Time stands still between calls.
+pub struct Rig {
+    requests: Sender<Request>,
+    reached: Receiver<u64>,
+    thread: Option<JoinHandle<Result<Outcome, RigError>>>,
+    now_ns: u64,
+}
+
+impl Rig {
+    /// Boot the ELF on a fresh board (power-on reset) and stop at the first millisecond.
+    pub fn start(config: &RigConfig) -> Result<Self, RigError> {
+        Self::start_with(config, |_| {})
+    }
+
+    /// Like [`Rig::start`], with `prepare` run on the board before the first instruction (bytes
+    /// already on the host's wire, sensors not at rest).
+    pub fn start_with(
+        config: &RigConfig,
+        prepare: impl FnOnce(&mut Nucleo) + Send + 'static,
+    ) -> Result<Self, RigError> {
+        let image = Image::read(&config.elf, None).map_err(|e| RigError::Image {
+            path: config.elf.clone(),
+            message: e.to_string(),
+        })?;
+        let plant = Plant::new(&config.plant, &[], config.seed)
+            .map_err(|e| RigError::Plant(e.to_string()))?;
+        let mut board = Nucleo::new().map_err(|e| RigError::Board(e.to_string()))?;
+        prepare(&mut board);
+        let (req_tx, req_rx) = channel();
+        let (reached_tx, reached_rx) = channel();
+        let thread = std::thread::Builder::new()
+            .name("virtual-rig".into())
+            .spawn(move || {
+                let session = Session::new(Box::new(board), 0, VirtualNanos(ADC_PERIOD_NS))
+                    .map_err(|e| RigError::Board(e.to_string()))?;
+                let driver = RigDriver {
+                    bench: Bench::new(plant),
+                    requests: req_rx,
+                    reached: reached_tx,
+                    target_ns: ADC_PERIOD_NS,
+                    next_adc_ns: ADC_PERIOD_NS,
+                };
+                let images = [image];
+                let start = Start::new(&images);
+                let finished = emulator::run(session, &start, driver)
+                    .map_err(|e| RigError::Stopped(e.to_string()))?;
+                let session = finished.session;
+                Ok(Outcome {
+                    resets: session
+                        .resets()
+                        .iter()
+                        .map(|r| (r.at.0, format!("{:?}", r.cause)))
+                        .collect(),
+                    unimplemented: session
+                        .unimplemented()
+                        .values()
+                        .map(|u| format!("{u:?}"))
+                        .collect(),
+                    unmapped: session.unmapped().iter().map(|u| u.to_string()).collect(),
+                })
+            })
+            .map_err(|e| RigError::Board(e.to_string()))?;
+        let mut rig = Self {
+            requests: req_tx,
+            reached: reached_rx,
+            thread: Some(thread),
+            now_ns: 0,
+        };
+        rig.wait()?;
+        Ok(rig)
+    }
+
+    fn wait(&mut self) -> Result<(), RigError> {
+        match self.reached.recv() {
+            Ok(t) => {
+                self.now_ns = t;
+                Ok(())
+            }
+            Err(_) => Err(self.stopped()),
+        }
+    }
+
+    /// The emulator thread's end, as an error.
+    fn stopped(&mut self) -> RigError {
+        match self.thread.take().map(JoinHandle::join) {
+            Some(Ok(Err(e))) => e,
+            Some(Ok(Ok(_))) => RigError::Stopped("the run ended".into()),
+            Some(Err(panic)) => RigError::Stopped(
+                panic
+                    .downcast_ref::<String>()
+                    .cloned()
+                    .or_else(|| panic.downcast_ref::<&str>().map(|s| (*s).to_string()))
+                    .unwrap_or_else(|| "a panic on the emulator's thread".into()),
+            ),
+            None => RigError::Stopped("already stopped".into()),
+        }
+    }
+
+    /// Virtual time now, ns.
+    pub fn now_ns(&self) -> u64 {
+        self.now_ns
+    }
+
+    /// Run to the virtual instant `t_ns`.
+    pub fn run_until(&mut self, t_ns: u64) -> Result<(), RigError> {
+        if self.requests.send(Request::RunUntil(t_ns)).is_err() {
+            return Err(self.stopped());
+        }
+        self.wait()
+    }
+
+    /// Run for `d` of virtual time.
+    pub fn run_for(&mut self, d: Duration) -> Result<(), RigError> {
+        self.run_until(self.now_ns + d.as_nanos() as u64)
+    }
+
+    /// Act on the session and the bench at the current instant.
+    pub fn with<R: Send + 'static>(
+        &mut self,
+        f: impl FnOnce(&mut Session<Nucleo>, &mut Bench) -> R + Send + 'static,
+    ) -> Result<R, RigError> {
+        let (tx, rx) = channel();
+        let action: Action = Box::new(move |s, b| {
+            let _ = tx.send(f(s, b));
+        });
+        if self.requests.send(Request::With(action)).is_err() {
+            return Err(self.stopped());
+        }
+        match rx.recv() {
+            Ok(r) => Ok(r),
+            Err(_) => Err(self.stopped()),
+        }
+    }
+
+    /// Put `bytes` on the host's wire from now on.
+    pub fn send(&mut self, bytes: &[u8]) -> Result<(), RigError> {
+        let bytes = bytes.to_vec();
+        let at = VirtualNanos(self.now_ns);
+        self.with(move |s, _| s.board_mut().host().send_at(at, &bytes))
+    }
+
+    /// Send `command` as a line, unchecked.
+    pub fn send_line(&mut self, command: &str) -> Result<(), RigError> {
+        self.send(format!("{command}\n").as_bytes())
+    }
+
+    /// Send `command` as a checksummed line (`*LLCC command`).
+    pub fn send_checked(&mut self, command: &str) -> Result<(), RigError> {
+        let mut line = String::new();
+        firmware::command::write_checksummed(command, &mut line)
+            .map_err(|_| RigError::Board(format!("cannot checksum {command:?}")))?;
+        line.push('\n');
+        self.send(line.as_bytes())
+    }
+
+    /// Everything the host has read so far.
+    pub fn received(&mut self) -> Result<Vec<Received>, RigError> {
+        self.with(|_, b| b.stream.items().to_vec())
+    }
+
+    /// Text lines received so far.
+    pub fn lines(&mut self) -> Result<Vec<String>, RigError> {
+        self.with(|_, b| b.stream.lines())
+    }
+
+    /// Run in 5 ms slices until a text line received after `since` lines satisfies `pred`, for at
+    /// most `limit` of virtual time; the line, or `None` when none came.
+    pub fn wait_line(
+        &mut self,
+        since: usize,
+        limit: Duration,
+        pred: impl Fn(&str) -> bool,
+    ) -> Result<Option<String>, RigError> {
+        let end = self.now_ns + limit.as_nanos() as u64;
+        loop {
+            let lines = self.lines()?;
+            if let Some(l) = lines.iter().skip(since).find(|l| pred(l)) {
+                return Ok(Some(l.clone()));
+            }
+            if self.now_ns >= end {
+                return Ok(None);
+            }
+            self.run_until((self.now_ns + 5_000_000).min(end))?;
+        }
+    }
+
+    /// Send `command` (checksummed) and return the first reply line after it (`ok…` or `err…`),
+    /// waiting at most a virtual second.
+    pub fn command(&mut self, command: &str) -> Result<Option<String>, RigError> {
+        let since = self.lines()?.len();
+        self.send_checked(command)?;
+        self.wait_line(since, Duration::from_secs(1), is_reply)
+    }
+
+    /// End the run and return what the session saw.
+    pub fn finish(mut self) -> Result<Outcome, RigError> {
+        let _ = self.requests.send(Request::Finish);
+        match self.thread.take().map(JoinHandle::join) {
+            Some(Ok(r)) => r,
+            Some(Err(_)) => Err(RigError::Stopped("a panic on the emulator's thread".into())),
+            None => Err(RigError::Stopped("already stopped".into())),
+        }
+    }
+}
+
+impl Drop for Rig {
+    fn drop(&mut self) {
+        let _ = self.requests.send(Request::Finish);
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+/// Whether a text line is a command's reply.
+pub fn is_reply(line: &str) -> bool {
+    line.starts_with("ok") || line.starts_with("err")
+}
+
+/// The ELF the rig runs by default: `VFP_FW_ELF`, or the `firmware` profile's build in the main
+/// workspace's target directory.
+pub fn default_elf() -> PathBuf {
+    if let Some(p) = std::env::var_os("VFP_FW_ELF") {
+        return PathBuf::from(p);
+    }
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../target/thumbv7em-none-eabihf/firmware/vfp-fw")
+}
+
+/// Pin levels for a quick look (tests and diagnostics).
+pub fn pin_level(board: &mut Nucleo, pin: PinId) -> Level {
+    board.level(pin)
+}
