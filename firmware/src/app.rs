@@ -1441,8 +1441,9 @@ pub struct Shared {
     serial_tlm: SerialTelemetry,
 }
 
-/// Longest reply line (the longest is `status` with every field at its widest, ≈ 230 bytes).
-pub const REPLY_LEN: usize = 256;
+/// Longest reply line: the longest is `status` with every field at its widest, ≈ 230 bytes, and a
+/// HardFault's reset cause (`reset hardfault` and seven registers, 93 bytes); a test checks it.
+pub const REPLY_LEN: usize = 352;
 
 /// Longest the stepper task sleeps with nothing to do (its heartbeat for the watchdog), µs.
 const STEPPER_IDLE_US: u64 = 50_000;
@@ -1720,6 +1721,10 @@ impl Shared {
                 for v in s.saved {
                     let _ = write!(out, " {}", v.name());
                 }
+                // Why the board last started, last: a fault's detail (its file and line, or
+                // its registers) runs to the end of the line.
+                let _ = out.write_str(" reset ");
+                let _ = self.cfg.reset_cause.encode(out);
             }
             Command::Limit {
                 axes,
@@ -1898,6 +1903,37 @@ pub async fn command_task<U: SerialPort>(shared: &Shared, mut port: U) -> ! {
     let mut asm = LineAssembler::new();
     let mut buf = [0u8; 32];
     let mut reply: heapless::String<{ REPLY_LEN + 8 }> = heapless::String::new();
+    // Start-up: take what reached the port before the board announces itself, without waiting.
+    // Whole lines that arrived intact are executed as usual. A receive error with no line in
+    // progress is the port's own start (a frame cut by the receiver switching on mid-word, an
+    // overrun before reception ran): what it lost was sent before the board listened, so it
+    // does not condemn the host's next line.
+    loop {
+        match embassy_futures::poll_once(port.read(&mut buf)) {
+            core::task::Poll::Ready(Ok(n)) => {
+                let n = n.min(buf.len());
+                lines(shared, &mut port, &mut asm, &buf[..n], &mut reply).await;
+            }
+            core::task::Poll::Ready(Err(_)) => {
+                if asm.in_progress() {
+                    asm.error();
+                }
+            }
+            core::task::Poll::Pending => break,
+        }
+    }
+    // The boot event on the command port, whether or not the binary telemetry is on: the host
+    // learns the board restarted, why, and that it listens from here on.
+    reply.clear();
+    let boot = Event {
+        t_us: Instant::now().as_micros(),
+        kind: EventKind::Boot {
+            cause: shared.cfg.reset_cause,
+        },
+    };
+    let _ = boot.encode(&mut reply);
+    let _ = reply.push_str("\r\n");
+    port.write_all(reply.as_bytes()).await;
     loop {
         let read = match select(port.read(&mut buf), shared.serial_tlm.next()).await {
             Either::First(r) => r,
@@ -1913,17 +1949,28 @@ pub async fn command_task<U: SerialPort>(shared: &Shared, mut port: U) -> ! {
                 0
             }
         };
-        for &b in &buf[..n] {
-            let Some(line) = asm.push(b) else { continue };
-            reply.clear();
-            let now = Instant::now().as_micros();
-            {
-                let mut est = shared.est.lock().await;
-                shared.command_raw(&mut est, line, now, &mut reply);
-            }
-            let _ = reply.push_str("\r\n");
-            port.write_all(reply.as_bytes()).await;
+        lines(shared, &mut port, &mut asm, &buf[..n], &mut reply).await;
+    }
+}
+
+/// Feed received bytes to the line assembler; execute each finished line and write its reply.
+async fn lines<U: SerialPort>(
+    shared: &Shared,
+    port: &mut U,
+    asm: &mut LineAssembler,
+    bytes: &[u8],
+    reply: &mut heapless::String<{ REPLY_LEN + 8 }>,
+) {
+    for &b in bytes {
+        let Some(line) = asm.push(b) else { continue };
+        reply.clear();
+        let now = Instant::now().as_micros();
+        {
+            let mut est = shared.est.lock().await;
+            shared.command_raw(&mut est, line, now, reply);
         }
+        let _ = reply.push_str("\r\n");
+        port.write_all(reply.as_bytes()).await;
     }
 }
 

@@ -902,3 +902,35 @@ fn the_estimator_runs_the_chain_bit_for_bit_and_resets_it_at_origin() {
     assert_eq!(c.v, 200.0);
     assert_eq!(c.p_hat, model.eval(200.0, 0.0).unwrap().p);
 }
+
+#[test]
+fn status_ends_with_the_whole_reset_cause() {
+    use crate::reset::FaultFrame;
+    let frame = FaultFrame {
+        pc: 0x0800_1234,
+        lr: 0xFFFF_FFF9,
+        xpsr: 0x6100_0000,
+        cfsr: 0x0000_0400,
+        hfsr: 0x4000_0000,
+        mmfar: 0xE000_EDF8,
+        bfar: 0xE000_EDF8,
+    };
+    for (cause, tail) in [
+        (ResetCause::PowerOn, " reset power-on".to_string()),
+        (
+            ResetCause::HardFault(frame),
+            " reset hardfault 0x08001234 0xfffffff9 0x61000000 0x00000400 0x40000000 0xe000edf8 \
+             0xe000edf8"
+                .to_string(),
+        ),
+    ] {
+        let shared = Shared::new(Config {
+            reset_cause: cause,
+            ..Config::default()
+        });
+        let mut out = String::new();
+        shared.command_line(b"status", 0, &mut out);
+        assert!(out.starts_with("ok flags "), "{out}");
+        assert!(out.ends_with(&tail), "{out}");
+    }
+}

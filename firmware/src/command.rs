@@ -712,6 +712,11 @@ impl LineAssembler {
         self.corrupt = true;
     }
 
+    /// Whether part of a line has been received (bytes, or an error, since the last line ended).
+    pub fn in_progress(&self) -> bool {
+        !self.done && (!self.buf.is_empty() || self.overflow || self.corrupt)
+    }
+
     fn start(&mut self) {
         if core::mem::take(&mut self.done) {
             self.buf.clear();

@@ -439,6 +439,26 @@ impl Rig {
         self.wait_line(since, Duration::from_secs(1), is_reply)
     }
 
+    /// Run until the board has taken its start-up pressure zero (`status` without
+    /// `NOT_ZEROED`), polling every 100 ms for at most 5 virtual seconds; the last status.
+    pub fn until_zeroed(&mut self) -> Result<String, RigError> {
+        let not_zeroed = firmware::telemetry::Flags::NOT_ZEROED;
+        let end = self.now_ns + 5_000_000_000;
+        loop {
+            let status = self.command("status")?.unwrap_or_default();
+            let flags: u32 = status
+                .split_whitespace()
+                .skip_while(|w| *w != "flags")
+                .nth(1)
+                .and_then(|f| f.parse().ok())
+                .unwrap_or(u32::MAX);
+            if flags & not_zeroed == 0 || self.now_ns >= end {
+                return Ok(status);
+            }
+            self.run_for(Duration::from_millis(100))?;
+        }
+    }
+
     /// End the run and return what the session saw.
     pub fn finish(mut self) -> Result<Outcome, RigError> {
         let _ = self.requests.send(Request::Finish);

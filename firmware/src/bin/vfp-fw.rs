@@ -352,16 +352,9 @@ mod device {
         freeze_watchdog_when_halted();
         let (steppers, adc, rest) = board::split(p);
 
-        // The committed models, before the watchdog runs: a store left half-erased by a power
-        // cut is repaired here, which can take an erase (seconds).
-        let region = embassy_stm32::flash::Flash::new_blocking(rest.flash)
-            .into_blocking_regions()
-            .bank1_region3;
-        use firmware::board::{REGION3_START, STORE_END, STORE_START};
-        let range = STORE_START - REGION3_START..STORE_END - REGION3_START;
-        let mut store = defmt::unwrap!(ModelStore::new(BlockingAsync::new(region), range).ok());
-        let models = store.load_all().await;
-
+        // The command port next, before anything slow (the store's repair can take an erase):
+        // from here on what the host sends lands in the DMA ring, and the command task, once it
+        // runs, announces the boot on this port (`$E … boot …`) so the host knows it listens.
         let mut uart_cfg = usart::Config::default();
         uart_cfg.baudrate = 115_200;
         let uart = defmt::unwrap!(Uart::new(
@@ -374,10 +367,21 @@ mod device {
             uart_cfg,
         ));
         let (tx, rx) = uart.split();
-        let serial = Serial {
+        let mut serial = Serial {
             tx,
             rx: rx.into_ring_buffered(RX_BUF.init([0; 256])),
         };
+        serial.rx.start_uart();
+
+        // The committed models, before the watchdog runs: a store left half-erased by a power
+        // cut is repaired here, which can take an erase (seconds).
+        let region = embassy_stm32::flash::Flash::new_blocking(rest.flash)
+            .into_blocking_regions()
+            .bank1_region3;
+        use firmware::board::{REGION3_START, STORE_END, STORE_START};
+        let range = STORE_START - REGION3_START..STORE_END - REGION3_START;
+        let mut store = defmt::unwrap!(ModelStore::new(BlockingAsync::new(region), range).ok());
+        let models = store.load_all().await;
 
         let mut iwdg = IndependentWatchdog::new(rest.iwdg, WATCHDOG_TIMEOUT_US);
         iwdg.unleash();
