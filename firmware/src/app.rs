@@ -698,6 +698,11 @@ impl Control {
         });
     }
 
+    /// Whether the stepper drivers may be enabled: not while a fault reset is latched.
+    pub fn drivers_allowed(&self) -> bool {
+        self.latched & Flags::FAULT_RESET == 0
+    }
+
     fn status_snapshot(&self) -> StatusSnapshot {
         StatusSnapshot {
             flags: self.flag_bits(),
@@ -1847,9 +1852,19 @@ impl Shared {
 ///
 /// A fault latched by the sampler (or a `stop`) is seen at the next step instant at the
 /// latest, before the pulse; the wake signal makes the task re-plan at once.
+///
+/// The drivers stay disabled while a fault reset is latched ([`Flags::FAULT_RESET`]: the last
+/// run ended in a panic, a HardFault or the watchdog, whose handlers disabled them): the host
+/// decides, with `clear`, when the motors may hold and move again.
 pub async fn stepper_task<S: Steppers>(shared: &Shared, mut steppers: S) -> ! {
-    steppers.set_enabled(true);
+    let mut enabled = false;
+    steppers.set_enabled(false);
     loop {
+        let allowed = shared.with_control(|c| c.drivers_allowed());
+        if allowed != enabled {
+            steppers.set_enabled(allowed);
+            enabled = allowed;
+        }
         let now = Instant::now().as_micros();
         let deadline = shared.stepper_tick(now, &mut steppers);
         select(

@@ -22,6 +22,7 @@ use rigless::soc::stm32f427::peripherals::adc::Channel;
 use rigless::soc::stm32f427::peripherals::gpio::Pin;
 use rigless::soc::stm32f427::Stm32f427;
 use rigless::soc::Error;
+use rigless::time::VirtualNanos;
 
 use crate::host::HostPort;
 
@@ -100,6 +101,14 @@ impl Nucleo {
         }
         board.set_sensor_counts([counts_at_zero(); 3]);
         board.mcu.usart[USART2].attach(HostPort::default());
+        // The stepper drivers' enable input has a pull-down (DRV8825 nENBL, A4988 ENABLE): while
+        // the MCU does not drive EN, it reads low, drivers enabled. The MCU's output overrides it.
+        let en = Pin::new(ENABLE.pin).expect("a port has sixteen pins");
+        board
+            .mcu
+            .drive_port(VirtualNanos(0), ENABLE.port, |gpio, registers, context| {
+                gpio.drive(en, Some(Level::Low), registers, context);
+            });
         Ok(board)
     }
 

@@ -19,9 +19,10 @@ use std::time::Duration;
 use host_sim::plant::Plant;
 use host_sim::PlantConfig;
 use rigless::device::Level;
-use rigless::emulator::{self, AccessKind, Driver, Host, Settled, Start, Stop};
+use rigless::emulator::{self, Access, AccessKind, Driver, Host, Settled, Start, Stop};
 use rigless::image::Image;
 use rigless::session::Session;
+use rigless::soc::Width;
 use rigless::time::VirtualNanos;
 
 use crate::board::{Nucleo, PinId, DIR, ENABLE, STEP};
@@ -117,7 +118,7 @@ impl Bench {
     }
 }
 
-type Action = Box<dyn FnOnce(&mut Session<Nucleo>, &mut Bench) + Send>;
+type Action = Box<dyn FnOnce(&mut Session<Nucleo>, &mut Bench, &mut dyn Host) + Send>;
 
 enum Request {
     RunUntil(u64),
@@ -159,9 +160,10 @@ impl Driver<Nucleo> for RigDriver {
         &mut self,
         session: &mut Session<Nucleo>,
         stop: Stop,
-        _host: &mut dyn Host,
+        host: &mut dyn Host,
     ) -> Option<VirtualNanos> {
         let now = stop.at.0;
+        self.bench.pins(session.board_mut(), now);
         if now >= self.next_adc_ns {
             self.convert(session, now);
             self.next_adc_ns = (now / ADC_PERIOD_NS + 1) * ADC_PERIOD_NS;
@@ -174,7 +176,7 @@ impl Driver<Nucleo> for RigDriver {
             loop {
                 match self.requests.recv() {
                     Ok(Request::With(action)) => {
-                        action(session, &mut self.bench);
+                        action(session, &mut self.bench, host);
                         self.bench.feed_host(session.board_mut());
                     }
                     Ok(Request::RunUntil(t)) => {
@@ -273,6 +275,8 @@ impl Rig {
             .map_err(|e| RigError::Plant(e.to_string()))?;
         let mut board = Nucleo::new().map_err(|e| RigError::Board(e.to_string()))?;
         prepare(&mut board);
+        let mut bench = Bench::new(plant);
+        bench.pins(&mut board, 0);
         let (req_tx, req_rx) = channel();
         let (reached_tx, reached_rx) = channel();
         let thread = std::thread::Builder::new()
@@ -281,7 +285,7 @@ impl Rig {
                 let session = Session::new(Box::new(board), 0, VirtualNanos(ADC_PERIOD_NS))
                     .map_err(|e| RigError::Board(e.to_string()))?;
                 let driver = RigDriver {
-                    bench: Bench::new(plant),
+                    bench,
                     requests: req_rx,
                     reached: reached_tx,
                     target_ns: ADC_PERIOD_NS,
@@ -366,9 +370,18 @@ impl Rig {
         &mut self,
         f: impl FnOnce(&mut Session<Nucleo>, &mut Bench) -> R + Send + 'static,
     ) -> Result<R, RigError> {
+        self.with_host(move |s, b, _| f(s, b))
+    }
+
+    /// Act on the session, the bench and the emulator's host (memory, core) at the current
+    /// instant.
+    pub fn with_host<R: Send + 'static>(
+        &mut self,
+        f: impl FnOnce(&mut Session<Nucleo>, &mut Bench, &mut dyn Host) -> R + Send + 'static,
+    ) -> Result<R, RigError> {
         let (tx, rx) = channel();
-        let action: Action = Box::new(move |s, b| {
-            let _ = tx.send(f(s, b));
+        let action: Action = Box::new(move |s, b, h| {
+            let _ = tx.send(f(s, b, h));
         });
         if self.requests.send(Request::With(action)).is_err() {
             return Err(self.stopped());
@@ -377,6 +390,22 @@ impl Rig {
             Ok(r) => Ok(r),
             Err(_) => Err(self.stopped()),
         }
+    }
+
+    /// Write `value` to the 32-bit register at `address` from outside the core, as a debugger
+    /// does (the models see the write; no instruction made it): fault injection.
+    pub fn poke(&mut self, address: u64, value: u32) -> Result<(), RigError> {
+        let at = VirtualNanos(self.now_ns);
+        self.with_host(move |s, _, h| {
+            let access =
+                Access::new(AccessKind::Write, address, Width::W32, u64::from(value)).at(0, at);
+            let _ = s.access(access, h);
+        })
+    }
+
+    /// Fail the core's next access to `from..to` (it takes it as a bus error; no model sees it).
+    pub fn fail_next(&mut self, from: u64, to: u64) -> Result<(), RigError> {
+        self.with(move |s, _| s.fail_next(from, to))
     }
 
     /// Put `bytes` on the host's wire from now on.

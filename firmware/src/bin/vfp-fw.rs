@@ -325,6 +325,37 @@ mod device {
         c
     }
 
+    // The drivers' EN (PA9, active low) driven high, as an output, first thing after reset
+    // (cortex-m-rt's `__pre_init`, before the RAM's initialisation, so in assembly: no Rust may
+    // run before it). From reset the pin is a floating input, and a DRV8825's or A4988's enable
+    // input has a pull-down: the drivers would hold and step from reset until `board::split`.
+    // RCC_AHB1ENR |= GPIOAEN (read back so the clock reaches the port, RM0390 6.3.10);
+    // GPIOA_BSRR = BS9; GPIOA_MODER's MODER9 = 01 (output). embassy's start-up only enables the
+    // GPIO clocks and leaves the port as set here; `board::split` takes the pin as an output,
+    // high. A pull-up on EN covers the few cycles before this on the board.
+    core::arch::global_asm!(
+        ".section .text.__pre_init,\"ax\"",
+        ".global __pre_init",
+        ".type __pre_init,%function",
+        ".thumb_func",
+        "__pre_init:",
+        "ldr r0, =0x40023830",
+        "ldr r1, [r0]",
+        "orr r1, r1, #1",
+        "str r1, [r0]",
+        "ldr r1, [r0]",
+        "ldr r0, =0x40020018",
+        "mov r1, #0x200",
+        "str r1, [r0]",
+        "ldr r0, =0x40020000",
+        "ldr r1, [r0]",
+        "bic r1, r1, #0xC0000",
+        "orr r1, r1, #0x40000",
+        "str r1, [r0]",
+        "bx lr",
+        ".ltorg",
+    );
+
     #[embassy_executor::main]
     async fn main(spawner: Spawner) {
         // RTT first, so `probe-rs run` finds the control block at once.

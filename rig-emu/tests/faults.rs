@@ -1,0 +1,105 @@
+//! Faults on the real firmware: the stepper drivers are disabled from the first instructions,
+//! by every fault handler, and after a fault reset until the host clears it; the cause is
+//! readable on the command port.
+
+use std::time::Duration;
+
+use rig_emu::{default_elf, Rig, RigConfig};
+
+/// ADC1's data register (RM0390 13.13.14), which the sampler reads.
+const ADC1_DR: u64 = 0x4001_204C;
+/// TIM5's CR1 (RM0390 16.4.1): the counter of embassy's time driver.
+const TIM5_CR1: u64 = 0x4000_0C00;
+
+fn rig() -> Rig {
+    Rig::start(&RigConfig::new(default_elf())).expect("the virtual rig starts")
+}
+
+fn enabled(rig: &mut Rig) -> bool {
+    rig.with(|_, b| b.enabled).unwrap()
+}
+
+fn flags(status: &str) -> u32 {
+    status.split_whitespace().nth(2).unwrap().parse().unwrap()
+}
+
+#[test]
+fn the_drivers_are_disabled_from_the_first_instructions_until_the_board_runs() {
+    let mut rig = rig();
+    rig.run_for(Duration::from_millis(20)).unwrap();
+    let changes = rig.with(|_, b| b.enable_changes.clone()).unwrap();
+    // From reset the enable input floats and the driver's pull-down enables it; the firmware's
+    // first instructions drive it high.
+    assert_eq!(changes.first(), Some(&(0, true)), "{changes:?}");
+    let (off_at, off) = changes[1];
+    assert!(
+        !off && off_at < 100_000,
+        "EN driven high at {off_at} ns: {changes:?}"
+    );
+    // Disabled through the clock start-up and the boot, until the stepper task runs.
+    let status = rig.until_zeroed().unwrap();
+    assert!(status.ends_with("reset power-on"), "{status}");
+    assert!(enabled(&mut rig), "enabled after a clean boot");
+    let changes = rig.with(|_, b| b.enable_changes.clone()).unwrap();
+    assert_eq!(changes.len(), 3, "{changes:?}");
+    assert!(changes[2].0 > 1_000_000, "{changes:?}");
+}
+
+#[test]
+fn a_hardfault_disables_the_drivers_and_they_stay_disabled_until_clear() {
+    let mut rig = rig();
+    rig.until_zeroed().unwrap();
+    assert!(enabled(&mut rig));
+    // The sampler's next read of ADC1's data register fails on the bus: a precise BusFault,
+    // escalated to HardFault (no BusFault handler is enabled).
+    rig.fail_next(ADC1_DR, ADC1_DR + 4).unwrap();
+    let since = rig.lines().unwrap().len();
+    let boot = rig
+        .wait_line(since, Duration::from_secs(2), |l| l.contains(" boot "))
+        .unwrap()
+        .expect("the board restarts and says why");
+    assert!(boot.contains(" boot 0 hardfault 0x"), "{boot}");
+    let (resets, changes) = rig
+        .with(|s, b| (s.resets().len(), b.enable_changes.clone()))
+        .unwrap();
+    assert_eq!(resets, 1, "one reset");
+    assert!(
+        !changes.last().unwrap().1,
+        "the drivers are disabled: {changes:?}"
+    );
+    let status = rig.command("status").unwrap().expect("a reply");
+    assert!(status.contains(" reset hardfault 0x"), "{status}");
+    assert!(
+        flags(&status) & firmware::telemetry::Flags::FAULT_RESET != 0,
+        "{status}"
+    );
+    // A second later the drivers are still disabled and a move is refused.
+    rig.run_for(Duration::from_secs(1)).unwrap();
+    assert!(!enabled(&mut rig), "drivers re-enabled without clear");
+    let refused = rig.command("move 0 10 50").unwrap().expect("a reply");
+    assert!(refused.starts_with("err"), "{refused}");
+    assert_eq!(rig.with(|_, b| b.steps.len()).unwrap(), 0);
+    // The host clears the fault: the drivers come back.
+    assert_eq!(rig.command("clear").unwrap().as_deref(), Some("ok"));
+    rig.run_for(Duration::from_millis(10)).unwrap();
+    assert!(enabled(&mut rig), "clear re-enables the drivers");
+}
+
+#[test]
+fn stuck_tasks_are_reset_by_the_watchdog_and_the_drivers_stay_disabled() {
+    let mut rig = rig();
+    rig.until_zeroed().unwrap();
+    // The time driver's counter stopped under the firmware (TIM5's CEN cleared): no timer ever
+    // fires again, the sampler stops and with it the watchdog's feed.
+    rig.poke(TIM5_CR1, 0).unwrap();
+    let since = rig.lines().unwrap().len();
+    let boot = rig
+        .wait_line(since, Duration::from_secs(2), |l| l.contains(" boot "))
+        .unwrap()
+        .expect("the watchdog resets the board");
+    assert!(boot.contains(" boot 1 watchdog"), "{boot}");
+    let status = rig.command("status").unwrap().expect("a reply");
+    assert!(status.ends_with(" reset watchdog"), "{status}");
+    rig.run_for(Duration::from_millis(500)).unwrap();
+    assert!(!enabled(&mut rig), "drivers enabled after a watchdog reset");
+}
