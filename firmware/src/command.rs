@@ -46,6 +46,9 @@
 //!   and the line after a failed check must itself carry a checksum (`err checksum-required`),
 //!   so the second part is refused too; a byte turned into `\r` is dropped (`\r` is ignored).
 //!
+//! `stop` is obeyed in any form: a plain `stop` in `checksum require` mode or after a failed
+//! check, and a `stop` behind a damaged prefix (stopping is safe whatever the line was).
+//!
 //! `checksum require` makes the checksum mandatory (`err checksum-required` otherwise);
 //! `checksum optional` (the default at boot) accepts plain lines too. A receive error on the
 //! serial port (framing, overrun, noise, parity) rejects the line being received with
@@ -623,6 +626,9 @@ pub fn write_checksummed(command: &str, out: &mut impl fmt::Write) -> fmt::Resul
     out.write_str(command)
 }
 
+/// The one command obeyed whatever its framing ([`LinkState::check`]).
+const STOP: &[u8] = b"stop";
+
 /// Checksum policy and state of one command stream.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct LinkState {
@@ -637,6 +643,13 @@ impl LinkState {
     /// checksum rules and return the command text to parse.
     pub fn check<'a>(&mut self, line: &'a [u8]) -> Result<&'a [u8], ParseError> {
         let line = line.strip_suffix(b"\r").unwrap_or(line);
+        // `stop` is always obeyed: plain in `checksum require` mode, after a failed check, or
+        // behind a damaged prefix. Stopping is safe whatever the line was meant to be, and a
+        // host (or a person at a terminal) that needs it must not be refused.
+        if line == STOP || line.get(CHECKSUM_PREFIX..) == Some(STOP) && line[0] == b'*' {
+            self.after_bad = false;
+            return Ok(STOP);
+        }
         let after_bad = core::mem::take(&mut self.after_bad);
         if !line.contains(&b'*') {
             if self.require || after_bad {
@@ -1070,11 +1083,19 @@ mod tests {
         assert_eq!(link.check(s.as_bytes()), Ok(&b"stop"[..]));
         assert_eq!(link.check(b"*04ZZ stop"), Err(ParseError::BadChecksum));
         // After a failed check the next line needs a checksum; then plain lines pass again.
-        assert_eq!(link.check(b"stop"), Err(ParseError::ChecksumRequired));
-        assert_eq!(link.check(b"stop"), Ok(&b"stop"[..]));
+        assert_eq!(link.check(b"*04ZZ zero"), Err(ParseError::BadChecksum));
+        assert_eq!(link.check(b"zero"), Err(ParseError::ChecksumRequired));
+        assert_eq!(link.check(b"zero"), Ok(&b"zero"[..]));
         link.require = true;
-        assert_eq!(link.check(b"stop"), Err(ParseError::ChecksumRequired));
+        assert_eq!(link.check(b"zero"), Err(ParseError::ChecksumRequired));
         assert_eq!(link.check(s.as_bytes()), Ok(&b"stop"[..]));
+        // `stop` is obeyed in any form: plain while checksums are required, after a failed
+        // check, and behind a damaged prefix.
+        assert_eq!(link.check(b"stop"), Ok(&b"stop"[..]));
+        assert_eq!(link.check(b"*04ZZ zero"), Err(ParseError::BadChecksum));
+        assert_eq!(link.check(b"stop\r"), Ok(&b"stop"[..]));
+        assert_eq!(link.check(b"*04ZZ stop"), Ok(&b"stop"[..]));
+        assert_eq!(link.check(b"*05AB stopp"), Err(ParseError::BadChecksum));
         // Lower-case hex is not the checksum's form.
         assert_eq!(
             link.check(b"*0be1 move 0 12.5"),
@@ -1396,7 +1417,9 @@ mod tests {
                 bad.push(b'\n');
                 let mut link = fresh;
                 for r in lines(&bad, &mut link) {
-                    prop_assert!(r.is_err(), "{:?} accepted as {:?}", String::from_utf8_lossy(&bad), r);
+                    // `stop` is obeyed behind a damaged prefix (stopping is always safe).
+                    let safe = c == Command::Stop && r == Ok(Command::Stop);
+                    prop_assert!(r.is_err() || safe, "{:?} accepted as {:?}", String::from_utf8_lossy(&bad), r);
                 }
             }
         }

@@ -105,3 +105,47 @@ fn words_arriving_with_noise_reject_their_line_and_nothing_else() {
     );
     assert_eq!(volumes(&status)[0], last_ok, "{status}");
 }
+
+#[test]
+fn stop_is_obeyed_plain_while_checksums_are_required() {
+    let mut rig = Rig::start(&RigConfig::new(default_elf())).expect("the virtual rig starts");
+    rig.until_zeroed().unwrap();
+    assert_eq!(
+        rig.command("checksum require").unwrap().as_deref(),
+        Some("ok")
+    );
+    // A plain line is refused now.
+    let since = rig.lines().unwrap().len();
+    rig.send_line("status").unwrap();
+    let refused = rig
+        .wait_line(since, Duration::from_secs(1), rig_emu::rig::is_reply)
+        .unwrap();
+    assert_eq!(refused.as_deref(), Some("err checksum-required"));
+    // A slow move (100 mm³ at 20 mm³/s: 5 s), stopped by a plain `stop` after 300 ms.
+    assert_eq!(rig.command("move 0 100 20").unwrap().as_deref(), Some("ok"));
+    rig.run_for(Duration::from_millis(300)).unwrap();
+    let moved = rig.with(|_, b| b.steps.len()).unwrap();
+    assert!(moved > 50, "{moved} steps in 300 ms");
+    let since = rig.lines().unwrap().len();
+    rig.send_line("stop").unwrap();
+    let stopped = rig
+        .wait_line(since, Duration::from_secs(1), rig_emu::rig::is_reply)
+        .unwrap();
+    assert_eq!(stopped.as_deref(), Some("ok"));
+    let at_stop = rig.with(|_, b| b.steps.len()).unwrap();
+    rig.run_for(Duration::from_millis(500)).unwrap();
+    let after = rig.with(|_, b| b.steps.len()).unwrap();
+    assert_eq!(after, at_stop, "steps after the stop's reply");
+    // A stop behind a damaged prefix is obeyed too.
+    assert_eq!(rig.command("move 0 50 20").unwrap().as_deref(), Some("ok"));
+    rig.run_for(Duration::from_millis(200)).unwrap();
+    let since = rig.lines().unwrap().len();
+    rig.send(b"*04ZZ stop\n").unwrap();
+    let stopped = rig
+        .wait_line(since, Duration::from_secs(1), rig_emu::rig::is_reply)
+        .unwrap();
+    assert_eq!(stopped.as_deref(), Some("ok"));
+    let at_stop = rig.with(|_, b| b.steps.len()).unwrap();
+    rig.run_for(Duration::from_millis(300)).unwrap();
+    assert_eq!(rig.with(|_, b| b.steps.len()).unwrap(), at_stop);
+}
