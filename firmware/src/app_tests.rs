@@ -415,7 +415,10 @@ fn status_reports_state() {
         "{out}"
     );
     assert!(out.contains(" pmax 80 80 80 cap 550 550 550 crc "), "{out}");
-    assert!(out.ends_with(" store default default default"), "{out}");
+    assert!(
+        out.ends_with(" store default default default reset power-on"),
+        "{out}"
+    );
 }
 
 #[test]
@@ -745,13 +748,15 @@ fn checksum_mode_is_set_by_command_and_applies_to_every_line() {
     assert_eq!(reply("checksum"), "ok optional");
     assert_eq!(reply(&checked("stop")), "ok");
     assert_eq!(reply("checksum require"), "ok");
-    assert_eq!(reply("stop"), "err checksum-required");
+    assert_eq!(reply("zero"), "err checksum-required");
+    // `stop` is obeyed in any form.
+    assert_eq!(reply("stop"), "ok");
     assert_eq!(reply(&checked("checksum")), "ok require");
-    let mut bad = checked("stop");
+    let mut bad = checked("clear");
     bad.remove(7); // a byte of the command lost
     assert_eq!(reply(&bad), "err bad-checksum");
     assert_eq!(reply(&checked("checksum optional")), "ok");
-    assert_eq!(reply("stop"), "ok");
+    assert_eq!(reply("clear"), "ok");
 }
 
 /// SBA1 with an effect chain on chamber `ch`, as upload lines.
