@@ -119,9 +119,10 @@ fn tasks_step_on_plan_report_every_frame_and_stop_on_fault() {
     run_until_ms(1_100, &rig, None);
     rig.rx.borrow_mut().extend(b"move 0 10 20 500\r\n");
     run_until_ms(3_000, &rig, None);
+    // The boot event on the command port when the task started, then the move's reply.
     assert_eq!(
         String::from_utf8(rig.tx.borrow().clone()).unwrap(),
-        "ok\r\n"
+        "$E 0 boot 0 power-on\r\nok\r\n"
     );
 
     // Exactly 250 steps (10 mm³ / 0.04), each at its analytic instant: command at 1.1 s plus

@@ -1,0 +1,129 @@
+//! The loop closed on the binary: a log recorded from the virtual rig over its serial wire
+//! (`vfp record --binary`), identified and diagnosed, names the plant's planted effect as
+//! host-sim's log of the same protocol and plant does.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::time::Duration;
+
+use host_sim::{Effects, PlantConfig};
+use rig_emu::{default_elf, Rig, RigConfig};
+
+/// The `vfp` binary of the main workspace: `VFP_BIN`, or its dev or release build.
+fn vfp() -> Command {
+    let path = std::env::var_os("VFP_BIN").map(PathBuf::from).unwrap_or_else(|| {
+        let target = Path::new(env!("CARGO_MANIFEST_DIR")).join("../target");
+        ["debug", "release"]
+            .iter()
+            .map(|p| target.join(p).join("vfp"))
+            .find(|p| p.exists())
+            .unwrap_or_else(|| {
+                panic!("no vfp binary: build it first (`cargo build -p vfp` in the main workspace) or set VFP_BIN")
+            })
+    });
+    Command::new(path)
+}
+
+fn run(cmd: &mut Command) -> Vec<u8> {
+    let out = cmd.output().expect("vfp runs");
+    assert!(
+        out.status.success(),
+        "{cmd:?}: {}\n{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    out.stdout
+}
+
+/// The named effects of `vfp diagnose LOG --json`: (name, JSON of the effect).
+fn diagnose(log: &Path) -> Vec<(String, serde_json::Value)> {
+    let out = run(vfp().arg("diagnose").arg(log).args(["--json", "-q"]));
+    let d: serde_json::Value = serde_json::from_slice(&out).expect("JSON");
+    d["effects"]
+        .as_array()
+        .expect("effects")
+        .iter()
+        .map(|e| (e["name"].as_str().unwrap().to_string(), e.clone()))
+        .collect()
+}
+
+const FLOWS: &str = "20,60,100";
+const SEED: u64 = 7;
+
+#[test]
+fn a_log_recorded_from_the_binary_names_the_planted_hysteresis_as_host_sim_does() {
+    let dir = std::env::temp_dir().join(format!("rig-emu-closed-loop-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let plant = PlantConfig {
+        effects: Effects::preset("hysteresis").unwrap(),
+        ..PlantConfig::default()
+    };
+    let mut rig = Rig::start(&RigConfig {
+        elf: default_elf(),
+        plant,
+        seed: SEED,
+    })
+    .expect("the virtual rig starts");
+    rig.until_zeroed().unwrap();
+    let from = rig
+        .with(|s, _| s.board_mut().host().received_bytes().len())
+        .unwrap();
+    assert_eq!(rig.command("telemetry on").unwrap().as_deref(), Some("ok"));
+    // The paper's protocol, one cycle at each of three flows (host-sim's `--cycles 1 --flows`).
+    let run_cmd = format!("run all 0 550 1 200 {}", FLOWS.replace(',', " "));
+    assert_eq!(rig.command(&run_cmd).unwrap().as_deref(), Some("ok"));
+    let mut done = false;
+    for _ in 0..200 {
+        rig.run_for(Duration::from_secs(1)).unwrap();
+        let status = rig.command("status").unwrap().unwrap_or_default();
+        if status.contains(" moving 0 run 0 ") {
+            done = true;
+            break;
+        }
+    }
+    assert!(done, "the protocol ended within 200 virtual seconds");
+    rig.run_for(Duration::from_secs(1)).unwrap();
+    let capture: Vec<u8> = rig
+        .with(move |s, _| {
+            s.board_mut().host().received_bytes()[from..]
+                .iter()
+                .map(|&(_, b)| b)
+                .collect()
+        })
+        .unwrap();
+    drop(rig);
+    let cap = dir.join("rig.capture.bin");
+    std::fs::write(&cap, capture).unwrap();
+    let rig_log = dir.join("rig.csv");
+    // --strict: any missing frame or bad packet fails the recording.
+    run(vfp()
+        .arg("record")
+        .arg(&cap)
+        .args(["--binary", "--strict", "-o"])
+        .arg(&rig_log));
+    let sim_log = dir.join("sim.csv");
+    run(vfp()
+        .args([
+            "simulate",
+            "--preset",
+            "effect:hysteresis",
+            "--cycles",
+            "1",
+            "--flows",
+            FLOWS,
+        ])
+        .args(["--seed", &SEED.to_string(), "-q", "-o"])
+        .arg(&sim_log));
+    let on_rig = diagnose(&rig_log);
+    let on_sim = diagnose(&sim_log);
+    eprintln!("rig: {on_rig:?}\nsim: {on_sim:?}");
+    let names =
+        |v: &[(String, serde_json::Value)]| v.iter().map(|(n, _)| n.clone()).collect::<Vec<_>>();
+    assert_eq!(
+        names(&on_rig).first().map(String::as_str),
+        Some("hysteresis"),
+        "{on_rig:?}"
+    );
+    assert_eq!(names(&on_rig), names(&on_sim));
+    let _ = std::fs::remove_dir_all(&dir);
+}
