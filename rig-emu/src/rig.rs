@@ -420,15 +420,6 @@ impl Rig {
         self.send(format!("{command}\n").as_bytes())
     }
 
-    /// Send `command` as a checksummed line (`*LLCC command`).
-    pub fn send_checked(&mut self, command: &str) -> Result<(), RigError> {
-        let mut line = String::new();
-        firmware::command::write_checksummed(command, &mut line)
-            .map_err(|_| RigError::Board(format!("cannot checksum {command:?}")))?;
-        line.push('\n');
-        self.send(line.as_bytes())
-    }
-
     /// Everything the host has read so far.
     pub fn received(&mut self) -> Result<Vec<Received>, RigError> {
         self.with(|_, b| b.stream.items().to_vec())
@@ -463,9 +454,27 @@ impl Rig {
     /// Send `command` (checksummed) and return the first reply line after it (`ok…` or `err…`),
     /// waiting at most a virtual second.
     pub fn command(&mut self, command: &str) -> Result<Option<String>, RigError> {
+        let mut line = String::new();
+        firmware::command::write_checksummed(command, &mut line)
+            .map_err(|_| RigError::Board(format!("cannot checksum {command:?}")))?;
+        line.push('\n');
+        self.exchange(line.as_bytes())
+    }
+
+    /// Send `bytes` as they are and return the first reply line after them, waiting at most a
+    /// virtual second.
+    pub fn exchange(&mut self, bytes: &[u8]) -> Result<Option<String>, RigError> {
         let since = self.lines()?.len();
-        self.send_checked(command)?;
+        self.send(bytes)?;
         self.wait_line(since, Duration::from_secs(1), is_reply)
+    }
+
+    /// Wait at most `limit` for the board's next boot event on the command port (`$E … boot …`).
+    pub fn next_boot(&mut self, limit: Duration) -> Result<Option<String>, RigError> {
+        let since = self.lines()?.len();
+        self.wait_line(since, limit, |l| {
+            l.starts_with("$E ") && l.contains(" boot ")
+        })
     }
 
     /// Run until the board has taken its start-up pressure zero (`status` without

@@ -46,10 +46,8 @@ fn a_checksummed_line_with_a_flipped_bit_never_executes() {
                 continue; // a split line: covered by the firmware's library tests
             }
             bytes.push(b'\n');
-            let since = rig.lines().unwrap().len();
-            rig.send(&bytes).unwrap();
             let reply = rig
-                .wait_line(since, Duration::from_secs(1), rig_emu::rig::is_reply)
+                .exchange(&bytes)
                 .unwrap()
                 .expect("a reply to every line");
             assert!(reply.starts_with("err"), "byte {byte} bit {bit}: {reply}");
@@ -115,22 +113,14 @@ fn stop_is_obeyed_plain_while_checksums_are_required() {
         Some("ok")
     );
     // A plain line is refused now.
-    let since = rig.lines().unwrap().len();
-    rig.send_line("status").unwrap();
-    let refused = rig
-        .wait_line(since, Duration::from_secs(1), rig_emu::rig::is_reply)
-        .unwrap();
+    let refused = rig.exchange(b"status\n").unwrap();
     assert_eq!(refused.as_deref(), Some("err checksum-required"));
     // A slow move (100 mm³ at 20 mm³/s: 5 s), stopped by a plain `stop` after 300 ms.
     assert_eq!(rig.command("move 0 100 20").unwrap().as_deref(), Some("ok"));
     rig.run_for(Duration::from_millis(300)).unwrap();
     let moved = rig.with(|_, b| b.steps.len()).unwrap();
     assert!(moved > 50, "{moved} steps in 300 ms");
-    let since = rig.lines().unwrap().len();
-    rig.send_line("stop").unwrap();
-    let stopped = rig
-        .wait_line(since, Duration::from_secs(1), rig_emu::rig::is_reply)
-        .unwrap();
+    let stopped = rig.exchange(b"stop\n").unwrap();
     assert_eq!(stopped.as_deref(), Some("ok"));
     let at_stop = rig.with(|_, b| b.steps.len()).unwrap();
     rig.run_for(Duration::from_millis(500)).unwrap();
@@ -139,10 +129,11 @@ fn stop_is_obeyed_plain_while_checksums_are_required() {
     // A stop behind a damaged prefix is obeyed too.
     assert_eq!(rig.command("move 0 50 20").unwrap().as_deref(), Some("ok"));
     rig.run_for(Duration::from_millis(200)).unwrap();
-    let since = rig.lines().unwrap().len();
-    rig.send(b"*04ZZ stop\n").unwrap();
     let stopped = rig
-        .wait_line(since, Duration::from_secs(1), rig_emu::rig::is_reply)
+        .exchange(
+            b"*04ZZ stop
+",
+        )
         .unwrap();
     assert_eq!(stopped.as_deref(), Some("ok"));
     let at_stop = rig.with(|_, b| b.steps.len()).unwrap();

@@ -53,9 +53,8 @@ fn a_hardfault_disables_the_drivers_and_they_stay_disabled_until_clear() {
     // The sampler's next read of ADC1's data register fails on the bus: a precise BusFault,
     // escalated to HardFault (no BusFault handler is enabled).
     rig.fail_next(ADC1_DR, ADC1_DR + 4).unwrap();
-    let since = rig.lines().unwrap().len();
     let boot = rig
-        .wait_line(since, Duration::from_secs(2), |l| l.contains(" boot "))
+        .next_boot(Duration::from_secs(2))
         .unwrap()
         .expect("the board restarts and says why");
     assert!(boot.contains(" boot 0 hardfault 0x"), "{boot}");
@@ -92,9 +91,8 @@ fn stuck_tasks_are_reset_by_the_watchdog_and_the_drivers_stay_disabled() {
     // The time driver's counter stopped under the firmware (TIM5's CEN cleared): no timer ever
     // fires again, the sampler stops and with it the watchdog's feed.
     rig.poke(TIM5_CR1, 0).unwrap();
-    let since = rig.lines().unwrap().len();
     let boot = rig
-        .wait_line(since, Duration::from_secs(2), |l| l.contains(" boot "))
+        .next_boot(Duration::from_secs(2))
         .unwrap()
         .expect("the watchdog resets the board");
     assert!(boot.contains(" boot 1 watchdog"), "{boot}");
