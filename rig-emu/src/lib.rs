@@ -5,7 +5,7 @@
 //!
 //! ```text
 //! vfp-fw ELF ──► rigless core + STM32 models ──► GPIOA/B writes ──► RigDriver ──► host_sim Plant
-//!      ▲                  ▲ ADC1 IN0/1/4 (each virtual ms) ◄──────────────────────────┘
+//!      ▲                  ▲ ADC1 IN0/1/4 (sampled at each SWSTART) ◄──────────────────┘
 //!      └── USART2 ◄──► HostPort (the host: commands, replies, telemetry packets)
 //! ```
 //!

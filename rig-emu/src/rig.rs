@@ -5,10 +5,11 @@
 //! access the firmware makes: after each write to GPIOA or GPIOB it reads the STEP, DIR and EN
 //! pins' electrical levels off the port models, and each rising STEP edge while the drivers are
 //! enabled (EN low) is one motor step of the plant at the edge's virtual instant
-//! ([`host_sim::plant::Plant::step`], the same physics as the simulated board's). Every
-//! millisecond of virtual time the driver converts the plant's sensors ([`Plant::adc_counts`]:
-//! pressure, sensor lag, noise, the firmware's own transfer function) and puts the voltages on
-//! ADC1's pins. Between two such instants the test thread can act on the session: queue bytes on
+//! ([`host_sim::plant::Plant::step`], the same physics as the simulated board's). When the
+//! firmware starts a conversion (ADC1's SWSTART) the driver converts the plant's sensors at that
+//! instant ([`Plant::adc_counts`]: pressure, sensor lag, noise, the firmware's own transfer
+//! function) and puts the voltages on ADC1's pins, which the converter samples. Every virtual
+//! millisecond the run stops, and there the test thread can act on the session: queue bytes on
 //! the host's wire, read what the firmware sent, look at the pins and the plant.
 
 use std::path::{Path, PathBuf};
@@ -31,8 +32,12 @@ use crate::wire::{Received, Stream};
 /// GPIOA and GPIOB's register blocks (RM0390 table 1): the ports the step, direction and enable
 /// pins are on.
 const GPIO_AB: std::ops::Range<u64> = 0x4002_0000..0x4002_0800;
-/// How often the plant's sensors are converted onto the ADC pins.
-const ADC_PERIOD_NS: u64 = 1_000_000;
+/// ADC1's CR2 (RM0390 13.13.3) and its SWSTART bit: a regular conversion starts.
+const ADC1_CR2: u64 = 0x4001_2008;
+const SWSTART: u64 = 1 << 30;
+/// How often the driver hands the test thread a stop (and reads the pins and the host's wire
+/// there) while it runs.
+const STOP_PERIOD_NS: u64 = 1_000_000;
 
 /// One motor step the plant took.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -132,7 +137,7 @@ struct RigDriver {
     requests: Receiver<Request>,
     reached: Sender<u64>,
     target_ns: u64,
-    next_adc_ns: u64,
+    next_stop_ns: u64,
 }
 
 impl RigDriver {
@@ -149,10 +154,18 @@ impl Driver<Nucleo> for RigDriver {
         _host: &mut dyn Host,
         settled: Settled,
     ) {
-        if let Settled::Access { access, .. } = settled {
-            if access.kind == AccessKind::Write && GPIO_AB.contains(&access.address) {
-                self.bench.pins(session.board_mut(), access.virtual_time.0);
-            }
+        let Settled::Access { access, .. } = settled else {
+            return;
+        };
+        if access.kind != AccessKind::Write {
+            return;
+        }
+        if GPIO_AB.contains(&access.address) {
+            self.bench.pins(session.board_mut(), access.virtual_time.0);
+        } else if access.address == ADC1_CR2 && access.value & SWSTART != 0 {
+            // The converter samples its pin when the conversion starts (the model computes the
+            // word at its end, from the input then): the plant's sensors at this instant.
+            self.convert(session, access.virtual_time.0);
         }
     }
 
@@ -164,9 +177,8 @@ impl Driver<Nucleo> for RigDriver {
     ) -> Option<VirtualNanos> {
         let now = stop.at.0;
         self.bench.pins(session.board_mut(), now);
-        if now >= self.next_adc_ns {
-            self.convert(session, now);
-            self.next_adc_ns = (now / ADC_PERIOD_NS + 1) * ADC_PERIOD_NS;
+        if now >= self.next_stop_ns {
+            self.next_stop_ns = (now / STOP_PERIOD_NS + 1) * STOP_PERIOD_NS;
         }
         self.bench.feed_host(session.board_mut());
         if now >= self.target_ns {
@@ -188,7 +200,7 @@ impl Driver<Nucleo> for RigDriver {
             }
         }
         Some(VirtualNanos(
-            self.target_ns.min(self.next_adc_ns).max(now + 1),
+            self.target_ns.min(self.next_stop_ns).max(now + 1),
         ))
     }
 }
@@ -282,14 +294,14 @@ impl Rig {
         let thread = std::thread::Builder::new()
             .name("virtual-rig".into())
             .spawn(move || {
-                let session = Session::new(Box::new(board), 0, VirtualNanos(ADC_PERIOD_NS))
+                let session = Session::new(Box::new(board), 0, VirtualNanos(STOP_PERIOD_NS))
                     .map_err(|e| RigError::Board(e.to_string()))?;
                 let driver = RigDriver {
                     bench,
                     requests: req_rx,
                     reached: reached_tx,
-                    target_ns: ADC_PERIOD_NS,
-                    next_adc_ns: ADC_PERIOD_NS,
+                    target_ns: STOP_PERIOD_NS,
+                    next_stop_ns: STOP_PERIOD_NS,
                 };
                 let images = [image];
                 let start = Start::new(&images);

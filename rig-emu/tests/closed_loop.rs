@@ -1,6 +1,6 @@
 //! The loop closed on the binary: a log recorded from the virtual rig over its serial wire
 //! (`vfp record --binary`), identified and diagnosed, names the plant's planted effect as
-//! host-sim's log of the same protocol and plant does.
+//! host-sim's log of the same protocol and plant does, with the same parameters.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -83,6 +83,8 @@ fn a_log_recorded_from_the_binary_names_the_planted_hysteresis_as_host_sim_does(
     }
     assert!(done, "the protocol ended within 200 virtual seconds");
     rig.run_for(Duration::from_secs(1)).unwrap();
+    // Off again before the capture ends, as `vfp record --port` does: no packet cut in two.
+    assert_eq!(rig.command("telemetry off").unwrap().as_deref(), Some("ok"));
     let capture: Vec<u8> = rig
         .with(move |s, _| {
             s.board_mut().host().received_bytes()[from..]
@@ -117,13 +119,39 @@ fn a_log_recorded_from_the_binary_names_the_planted_hysteresis_as_host_sim_does(
     let on_rig = diagnose(&rig_log);
     let on_sim = diagnose(&sim_log);
     eprintln!("rig: {on_rig:?}\nsim: {on_sim:?}");
-    let names =
-        |v: &[(String, serde_json::Value)]| v.iter().map(|(n, _)| n.clone()).collect::<Vec<_>>();
-    assert_eq!(
-        names(&on_rig).first().map(String::as_str),
-        Some("hysteresis"),
-        "{on_rig:?}"
-    );
-    assert_eq!(names(&on_rig), names(&on_sim));
+    // The planted effect is named first on both logs, with the same parameters: within three
+    // combined standard errors of each other and 5 % of the plant's (host-sim's `hysteresis`
+    // preset: a 2 kPa gap, 20 mm³ wide). What the loop adds after it may differ between the two
+    // logs where look-alikes are close (the rig's 3 ms delivery lag named as a sensor lag, say):
+    // that is the loop's question, printed above, not the board's.
+    let planted = |v: &[(String, serde_json::Value)], which: &str| -> Vec<(f64, f64)> {
+        let (name, e) = v
+            .first()
+            .unwrap_or_else(|| panic!("{which}: nothing named"));
+        assert_eq!(name, "hysteresis", "{which}: {v:?}");
+        ["width", "gap_at_mid_volume"]
+            .iter()
+            .map(|p| {
+                let p = e["params"]
+                    .as_array()
+                    .unwrap()
+                    .iter()
+                    .find(|q| q["name"] == *p)
+                    .unwrap_or_else(|| panic!("{which}: no {p}"));
+                (p["value"].as_f64().unwrap(), p["std_err"].as_f64().unwrap())
+            })
+            .collect()
+    };
+    let (rig_p, sim_p) = (planted(&on_rig, "rig"), planted(&on_sim, "host-sim"));
+    for ((r, s), truth) in rig_p.iter().zip(&sim_p).zip([20.0, 2.0]) {
+        assert!(
+            (r.0 - s.0).abs() <= 3.0 * (r.1 * r.1 + s.1 * s.1).sqrt(),
+            "rig {r:?} against host-sim {s:?}"
+        );
+        assert!(
+            (r.0 - truth).abs() <= 0.05 * truth,
+            "rig {r:?}, plant {truth}"
+        );
+    }
     let _ = std::fs::remove_dir_all(&dir);
 }
