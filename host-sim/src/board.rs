@@ -305,7 +305,11 @@ impl SerialPort for SimSerial {
         while let Some(end) = rig.reply_buf.find('\n') {
             let line: String = rig.reply_buf.drain(..=end).collect();
             let line = line.trim_end_matches(['\r', '\n']).to_string();
-            rig.replies.push((t, line));
+            // The boot event the command task writes when it starts is an event line, not a
+            // reply (the log has it from the telemetry).
+            if !line.starts_with(firmware::telemetry::EVENT_TAG) {
+                rig.replies.push((t, line));
+            }
         }
     }
 }

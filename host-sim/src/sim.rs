@@ -90,8 +90,8 @@ pub struct SimRun {
     pub events: Vec<Event>,
     /// Command replies with their time, µs.
     pub replies: Vec<(u64, String)>,
-    /// Every byte written to the command port: the replies and, after `telemetry on`, the
-    /// binary telemetry packets (`firmware::wire`) between them.
+    /// Every byte written to the command port: the boot event line, the replies and, after
+    /// `telemetry on`, the binary telemetry packets (`firmware::wire`) between them.
     pub serial_out: Vec<u8>,
     /// Step pulses applied per axis.
     pub step_count: [u64; CHAMBERS],
