@@ -89,6 +89,12 @@ pub struct Config {
     pub oversample: u32,
     /// Frames averaged for the pressure zero.
     pub zero_frames: u32,
+    /// Largest plausible zero, kPa: the sensor's offset tolerance. A channel whose mean at the
+    /// zero reads further from 0 kPa than this is not at rest (a syringe pressurised when the
+    /// board reset) or not a working sensor: its zero is not taken (it keeps the one it had, the
+    /// nominal transfer function's at boot), so the over-pressure limit is not moved by it, and
+    /// `NOT_ZEROED` stays set until a `zero` succeeds.
+    pub zero_max_kpa: f32,
     /// The zero's drift corrected at rest at the zero's volume ([`crate::rest_zero`]); `None`:
     /// the zero moves only at boot and on `zero`.
     pub rest_zero: Option<RestZeroConfig>,
@@ -126,6 +132,7 @@ impl Default for Config {
             frame_hz: 25,
             oversample: 8,
             zero_frames: 25,
+            zero_max_kpa: 5.0,
             rest_zero: Some(RestZeroConfig::default()),
             limits: [ChannelLimits::default(); AXES],
             sensor_jump_kpa: 15.0,
@@ -981,12 +988,28 @@ impl Estimator {
             return None;
         }
         let n = self.cfg.zero_frames.max(1) as f32;
-        let offset = sum.map(|s| s / n);
-        self.zero_kpa = offset;
+        let mean = sum.map(|s| s / n);
+        let mut refused = false;
+        for ch in 0..AXES {
+            // `!(… <= …)` refuses a NaN too.
+            if !(libm::fabsf(mean[ch]) <= self.cfg.zero_max_kpa) {
+                refused = true;
+            } else {
+                self.zero_kpa[ch] = mean[ch];
+            }
+        }
         self.zeroing = None;
-        self.warnings &= !Flags::NOT_ZEROED;
-        push_event(events, t_us, EventKind::Zeroed { offset_kpa: offset });
-        Some(offset)
+        if !refused {
+            self.warnings &= !Flags::NOT_ZEROED;
+        }
+        push_event(
+            events,
+            t_us,
+            EventKind::Zeroed {
+                offset_kpa: self.zero_kpa,
+            },
+        );
+        Some(self.zero_kpa)
     }
 
     /// P̂, residual, k, c for one chamber from its effect chain (`model_core::chain`; the bare

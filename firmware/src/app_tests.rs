@@ -131,6 +131,39 @@ fn step_until(s: &mut S, until: u64) -> usize {
 }
 
 #[test]
+fn an_implausible_zero_is_not_taken_and_does_not_move_the_pressure_limit() {
+    // Channel 1 reads 30 kPa at boot (its syringe pressurised when the board reset), the others
+    // 1 kPa (the sensors' offsets).
+    let mut s = S::new(Config::default());
+    let mut t = 0;
+    let raw = [code(1.0), code(30.0), code(1.0)];
+    for _ in 0..25 * K {
+        t += DT;
+        s.on_oversample(raw, t);
+    }
+    let z = s.zero_kpa();
+    let one = counts_to_kpa(code(1.0) as f32);
+    assert!(
+        (z[0] - one).abs() < 1e-5 && (z[2] - one).abs() < 1e-5,
+        "{z:?}"
+    );
+    assert_eq!(z[1], 0.0, "the nominal zero kept");
+    assert!(
+        s.flags().has(Flags::NOT_ZEROED),
+        "the refused zero is reported"
+    );
+    // The over-pressure limit (80 kPa) counts from the nominal zero on channel 1: 81 kPa trips
+    // it, where a zero taken at 30 kPa would have let it pass up to 110 kPa.
+    let mut f = None;
+    for i in 1..=K {
+        f = s.on_oversample([code(1.0), code(81.0), code(1.0)], t + i * DT);
+    }
+    assert!(f.is_some());
+    assert!(s.flags().has(Flags::channel(Flags::OVER_PRESSURE, 1)));
+    assert!(!s.flags().has(Flags::channel(Flags::OVER_PRESSURE, 0)));
+}
+
+#[test]
 fn boot_zero_is_the_mean_reading_and_is_subtracted() {
     let (mut s, t) = zeroed(2.0);
     let expect = counts_to_kpa(code(2.0) as f32);
