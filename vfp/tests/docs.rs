@@ -10,6 +10,9 @@
 //! - every `vfp` command line shown in a `sh` or `console` block, or in inline code, names a
 //!   subcommand of the built tool, and each long option it passes appears in that subcommand's
 //!   `--help`;
+//! - every `cargo test|bench|run -p PACKAGE [--test|--bench|--example NAME]` shown (the commands
+//!   that reproduce a figure) names a workspace package and a target it has, and every
+//!   `cargo fw…`/`cargo vfp` is an alias of `.cargo/config.toml`;
 //! - the README stays within 250 lines.
 //!
 //! Options are checked, not values or whole runs: a renamed or removed flag, command or file
@@ -386,6 +389,132 @@ fn the_command_reference_holds_every_subcommands_help() {
     assert!(
         bad.is_empty(),
         "docs/guide/src/commands.md:\n{}\n(VFP_DOCS_RECORD=1 cargo test -p vfp --test docs rewrites the help blocks)",
+        bad.join("\n")
+    );
+}
+
+/// The workspace's packages: name → directory (from the root manifest's `members`).
+fn packages() -> BTreeMap<String, PathBuf> {
+    let root = root();
+    let manifest = fs::read_to_string(root.join("Cargo.toml")).unwrap();
+    let members = manifest
+        .lines()
+        .find(|l| l.trim_start().starts_with("members"))
+        .expect("the root Cargo.toml lists its members on one line");
+    let mut out = BTreeMap::new();
+    for dir in members.split('"').skip(1).step_by(2) {
+        let text = fs::read_to_string(root.join(dir).join("Cargo.toml")).unwrap();
+        let name = text
+            .lines()
+            .find_map(|l| l.trim().strip_prefix("name = \""))
+            .and_then(|rest| rest.split('"').next())
+            .unwrap_or_else(|| panic!("{dir}/Cargo.toml has no name"));
+        out.insert(name.to_string(), PathBuf::from(dir));
+    }
+    out
+}
+
+/// Problems with one `cargo …` segment of a shown command, if it is one this test checks.
+fn cargo_problems(
+    segment: &str,
+    packages: &BTreeMap<String, PathBuf>,
+    aliases: &str,
+) -> Vec<String> {
+    let words: Vec<&str> = segment.split_whitespace().collect();
+    let Some(k) = words.iter().position(|w| *w == "cargo") else {
+        return vec![];
+    };
+    let Some(&verb) = words.get(k + 1) else {
+        return vec![];
+    };
+    if verb.starts_with("fw") || verb == "vfp" {
+        let defined = aliases
+            .lines()
+            .any(|l| l.starts_with(&format!("{verb} = ")));
+        return match defined {
+            true => vec![],
+            false => vec![format!(
+                "`cargo {verb}` is not an alias of .cargo/config.toml"
+            )],
+        };
+    }
+    if !matches!(verb, "test" | "bench" | "run") {
+        return vec![];
+    }
+    // cargo's own arguments end at `--`; what follows goes to the program.
+    let args: Vec<&str> = words[k + 2..]
+        .iter()
+        .copied()
+        .take_while(|w| *w != "--")
+        .collect();
+    let value = |flag: &str| {
+        args.windows(2)
+            .filter(|w| w[0] == flag)
+            .map(|w| w[1])
+            .collect::<Vec<_>>()
+    };
+    let Some(package) = value("-p").first().copied() else {
+        return vec![];
+    };
+    let Some(dir) = packages.get(package) else {
+        return vec![format!("no workspace package `{package}`")];
+    };
+    let manifest = fs::read_to_string(root().join(dir).join("Cargo.toml")).unwrap();
+    let mut out = vec![];
+    for (flag, sub) in [
+        ("--test", "tests"),
+        ("--bench", "benches"),
+        ("--example", "examples"),
+    ] {
+        for name in value(flag) {
+            let base = root().join(dir).join(sub);
+            let exists = base.join(format!("{name}.rs")).exists()
+                || base.join(name).join("main.rs").exists()
+                || manifest.contains(&format!("name = \"{name}\""));
+            if !exists {
+                out.push(format!("`{package}` has no {} target `{name}`", &flag[2..]));
+            }
+        }
+    }
+    out
+}
+
+#[test]
+fn shown_cargo_commands_name_real_packages_and_targets() {
+    let packages = packages();
+    let config = fs::read_to_string(root().join(".cargo/config.toml")).unwrap();
+    let aliases = config
+        .split("[alias]")
+        .nth(1)
+        .expect(".cargo/config.toml has an [alias] table");
+    let aliases = aliases.split("\n[").next().unwrap();
+    let mut bad = vec![];
+    let mut checked = 0;
+    for rel in pages() {
+        let page = read_page(&rel);
+        for (n, line) in page.shell.iter().chain(page.spans.iter()) {
+            let line = line.split(" #").next().unwrap();
+            for segment in line
+                .split(" | ")
+                .flat_map(|s| s.split("&&"))
+                .flat_map(|s| s.split(';'))
+            {
+                if segment.contains("cargo ") {
+                    checked += 1;
+                }
+                for problem in cargo_problems(segment, &packages, aliases) {
+                    bad.push(format!("{}:{n}: {problem}", rel.display()));
+                }
+            }
+        }
+    }
+    assert!(
+        checked >= 40,
+        "only {checked} cargo command lines found; is the parser broken?"
+    );
+    assert!(
+        bad.is_empty(),
+        "cargo commands in the docs that do not resolve:\n{}",
         bad.join("\n")
     );
 }
