@@ -1,5 +1,5 @@
 //! The README and the user guide cannot rot silently. Over `README.md`, `CONTRIBUTING.md`,
-//! `CHANGELOG.md`, `python/README.md`, `docs/*.md` and every page under `docs/guide/src/`:
+//! `CHANGELOG.md`, the crates' READMEs, `docs/*.md` and every page under `docs/guide/src/`:
 //! - every relative link and image, and every mdBook `{{#include …}}`, points at a file that
 //!   exists inside the repository;
 //! - every page of the guide is listed in its `SUMMARY.md` (mdBook would create a missing one
@@ -35,6 +35,8 @@ fn pages() -> Vec<PathBuf> {
         "CONTRIBUTING.md",
         "CHANGELOG.md",
         "python/README.md",
+        "host-sim/README.md",
+        "data/real/README.md",
     ]
     .iter()
     .map(PathBuf::from)
