@@ -1,13 +1,13 @@
 #!/usr/bin/env bash
-# Regenerates the README's console examples of the paper's diagnostics (§IV) and their figures
-# from defaults, so what the README shows is what a fresh clone prints.
+# Regenerates the user guide's console examples of the paper's diagnostics (§IV) and their figures
+# from defaults, so what the guide shows is what a fresh clone prints.
 #
-#   bash docs/regen-examples.sh            # rewrite README.md's marked block and docs/img/diag-*
-#   bash docs/regen-examples.sh --check    # only print the block; exit 1 if README.md differs
+#   bash docs/regen-examples.sh            # rewrite docs/guide/src/diagnostics.md's marked block and docs/guide/src/img/diag-*
+#   bash docs/regen-examples.sh --check    # only print the block; exit 1 if docs/guide/src/diagnostics.md differs
 #
 # The simulated logs are the presets of `vfp simulate` with their default options (the paper's
 # protocol, 20 cycles at each of 20–100 mm³/s; seeds as written below), written to a scratch
-# directory. The block in README.md sits between the markers
+# directory. The block in docs/guide/src/diagnostics.md sits between the markers
 #   <!-- regen-examples:diagnostics:begin -->  and  <!-- regen-examples:diagnostics:end -->
 # and is replaced whole. Takes a few minutes (release build first, then eleven simulated runs).
 set -euo pipefail
@@ -22,7 +22,7 @@ case "$target_dir" in /*) ;; *) target_dir="$PWD/$target_dir" ;; esac
 vfp="$target_dir/release/vfp"
 work=$(mktemp -d)
 trap 'rm -rf "$work"' EXIT
-figs="$PWD/docs/img"
+figs="$PWD/docs/guide/src/img"
 [ "$check" = 1 ] && figs="$work/img"
 mkdir -p "$figs"
 
@@ -35,8 +35,8 @@ sim --preset force -o "$work/push.csv"
 
 block="$work/block.md"
 run() {
-  # The command as the README shows it (file names relative to the scratch directory).
-  printf '$ vfp %s --plots docs/img\n' "$*" >>"$block"
+  # The command as the guide shows it (file names relative to the scratch directory).
+  printf '$ vfp %s --plots docs/guide/src/img\n' "$*" >>"$block"
   (cd "$work" && "$vfp" --quiet "$@" --plots "$figs") >>"$block" 2>&1
   printf '\n' >>"$block"
 }
@@ -54,22 +54,22 @@ sed -i '$ { /^$/d }' "$block"
   echo '```'
   echo '<!-- regen-examples:diagnostics:end -->'
 } >>"$block"
-sed -i "s#$figs#docs/img#g; s#$work/##g" "$block"
+sed -i "s#$figs#docs/guide/src/img#g; s#$work/##g" "$block"
 
-new="$work/README.md"
+new="$work/diagnostics.md"
 awk -v block="$block" '
   /<!-- regen-examples:diagnostics:begin -->/ { while ((getline l < block) > 0) print l; skip = 1; next }
   /<!-- regen-examples:diagnostics:end -->/ { skip = 0; next }
   !skip { print }
-' README.md >"$new"
-if ! grep -q 'regen-examples:diagnostics:begin' README.md; then
-  echo "README.md has no regen-examples markers" >&2
+' docs/guide/src/diagnostics.md >"$new"
+if ! grep -q 'regen-examples:diagnostics:begin' docs/guide/src/diagnostics.md; then
+  echo "docs/guide/src/diagnostics.md has no regen-examples markers" >&2
   exit 2
 fi
 if [ "$check" = 1 ]; then
   cat "$block"
-  diff -u README.md "$new" && echo "README.md matches" || { echo "README.md differs" >&2; exit 1; }
+  diff -u docs/guide/src/diagnostics.md "$new" && echo "docs/guide/src/diagnostics.md matches" || { echo "docs/guide/src/diagnostics.md differs" >&2; exit 1; }
 else
-  cp "$new" README.md
-  echo "README.md block and docs/img/diag-*.svg regenerated"
+  cp "$new" docs/guide/src/diagnostics.md
+  echo "docs/guide/src/diagnostics.md block and docs/guide/src/img/diag-*.svg regenerated"
 fi

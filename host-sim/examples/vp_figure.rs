@@ -4,7 +4,7 @@
 //!
 //! ```sh
 //! cargo run --release -p host-sim --example vp_figure -- [--cycles 20] [--flows 20,40,60,80,100] \
-//!     [--out docs/img/sim-vp-protocol.png] [--font /usr/share/fonts/truetype/dejavu/DejaVuSans.ttf]
+//!     [--out docs/guide/src/img/sim-vp-protocol.png] [--font /usr/share/fonts/truetype/dejavu/DejaVuSans.ttf]
 //! ```
 use std::collections::BTreeMap;
 use std::error::Error;
@@ -33,7 +33,8 @@ fn main() -> Result<(), Box<dyn Error>> {
         None => vec![20.0, 40.0, 60.0, 80.0, 100.0],
     };
     let root = concat!(env!("CARGO_MANIFEST_DIR"), "/..");
-    let out = arg(&args, "--out").unwrap_or_else(|| format!("{root}/docs/img/sim-vp-protocol.png"));
+    let out = arg(&args, "--out")
+        .unwrap_or_else(|| format!("{root}/docs/guide/src/img/sim-vp-protocol.png"));
     let font = arg(&args, "--font")
         .unwrap_or_else(|| "/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf".into());
     let bytes =

@@ -27,6 +27,7 @@ interpreter lock is released while the library works, and no progress is printed
 
 from __future__ import annotations
 
+import importlib
 import json
 import os
 from collections.abc import Mapping
@@ -108,12 +109,23 @@ def _column(name: str, numbers: Optional[bytes], text: Optional[List[str]]) -> n
     return np.array(text, dtype=object)
 
 
+def _optional(module: str, extra: str, what: str) -> Any:
+    """Imports an optional dependency, or raises an ImportError that says how to install it."""
+    try:
+        return importlib.import_module(module)
+    except ImportError as err:
+        raise ImportError(
+            f"{what} needs {module}, which is not installed: pip install 'vfp[{extra}]' "
+            f"(from a clone of the repository: pip install './python[{extra}]')"
+        ) from err
+
+
 def _table(out: Tuple[list, List[str]], as_frame: bool) -> Any:
     columns, comments = out
     table = {name: _column(name, nums, text) for name, nums, text in columns}
     if not as_frame:
         return table
-    import pandas as pd
+    pd = _optional("pandas", "pandas", "as_frame=True")
 
     frame = pd.DataFrame(table)
     frame.attrs["comments"] = comments

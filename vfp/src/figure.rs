@@ -167,30 +167,48 @@ impl DrawingBackend for Backend<'_> {
     }
 }
 
-/// A tick label: at most 4 significant digits, no trailing zeros, no "-0", scientific outside
-/// [10⁻³, 10⁴).
+/// A tick label, the one formatter of every figure: at most 4 significant digits, no trailing
+/// zeros, no "-0"; in engineering notation (a mantissa in [1, 1000) and an exponent that is a
+/// multiple of 3, "-900e3", "250e-6") outside [10⁻³, 10⁴), so a label never runs past a handful
+/// of characters whatever the data's scale.
 pub fn tick(x: f64) -> String {
     let a = x.abs();
     // Ticks are multiples of a round step; anything this small next to them is zero.
-    if a < 1e-12 {
-        return "0".into();
-    }
-    let s = if !(1e-3..1e4).contains(&a) {
-        format!("{x:.1e}")
-    } else {
-        let decimals = (3 - a.log10().floor() as i32).max(0) as usize;
-        let s = format!("{x:.decimals$}");
-        if s.contains('.') {
-            s.trim_end_matches('0').trim_end_matches('.').to_string()
+    if a < 1e-12 || !a.is_finite() {
+        return if a.is_finite() {
+            "0".into()
         } else {
-            s
+            format!("{x}")
+        };
+    }
+    let s = if (1e-3..1e4).contains(&a) {
+        short(x)
+    } else {
+        let mut exp = (a.log10() / 3.0).floor() as i32 * 3;
+        let mut m = x / 10f64.powi(exp);
+        // Rounding to 4 digits can carry the mantissa to 1000: move to the next exponent.
+        if short(m.abs()).parse::<f64>().is_ok_and(|r| r >= 1000.0) {
+            exp += 3;
+            m /= 1000.0;
         }
+        format!("{}e{exp}", short(m))
     };
     if s.trim_start_matches('-')
         .chars()
         .all(|c| c == '0' || c == '.')
     {
         "0".into()
+    } else {
+        s
+    }
+}
+
+/// `x` (0.001 ≤ |x| < 10⁴) with 4 significant digits, trailing zeros dropped.
+fn short(x: f64) -> String {
+    let decimals = (3 - x.abs().log10().floor() as i32).max(0) as usize;
+    let s = format!("{x:.decimals$}");
+    if s.contains('.') {
+        s.trim_end_matches('0').trim_end_matches('.').to_string()
     } else {
         s
     }
@@ -226,8 +244,13 @@ mod tests {
         assert_eq!(tick(1.25), "1.25");
         assert_eq!(tick(-12.5), "-12.5");
         assert_eq!(tick(2000.0), "2000");
-        assert_eq!(tick(12345.0), "1.2e4");
-        assert_eq!(tick(0.00012), "1.2e-4");
         assert_eq!(tick(0.123456), "0.1235");
+        // Engineering notation outside [1e-3, 1e4): exponents in steps of 3.
+        assert_eq!(tick(12345.0), "12.35e3");
+        assert_eq!(tick(0.00012), "120e-6");
+        assert_eq!(tick(-1_000_000.0), "-1e6");
+        assert_eq!(tick(-900_000.0), "-900e3");
+        assert_eq!(tick(999_999.0), "1e6");
+        assert_eq!(tick(2.5e-9), "2.5e-9");
     }
 }

@@ -179,7 +179,7 @@ fn force_pushes_are_estimated_near_the_noise_floor() {
     );
 }
 
-/// Regenerates the README's runs and figures (`docs/img/diag-*.svg`):
+/// Regenerates the user guide's runs and figures (`docs/guide/src/img/diag-*.svg`):
 /// `cargo test -p vfp --test diag_hostsim -- --ignored --nocapture readme_runs`.
 #[test]
 #[ignore]
@@ -190,7 +190,7 @@ fn readme_runs() {
     use vfp::opts::LogInput;
     let dir = std::env::temp_dir().join("vfp-readme");
     std::fs::create_dir_all(&dir).unwrap();
-    let img = Path::new(env!("CARGO_MANIFEST_DIR")).join("../docs/img");
+    let img = Path::new(env!("CARGO_MANIFEST_DIR")).join("../docs/guide/src/img");
     let plots = OutputOpts {
         json: false,
         plots: Some(img.clone()),
@@ -205,7 +205,7 @@ fn readme_runs() {
         "sba1",
         &Scenario::protocol("sba1", PlantConfig::default(), &proto),
     );
-    println!("$ vfp stiffness sba1.csv --plots docs/img");
+    println!("$ vfp stiffness sba1.csv --plots docs/guide/src/img");
     stiffness::run(&StiffnessArgs {
         input: LogInput::new(ident.clone()),
         shape: ShapeOpts::default(),
@@ -230,7 +230,7 @@ fn readme_runs() {
             )
         })
         .collect();
-    println!("\n$ vfp air-scan air-0.csv air-10.csv air-20.csv air-40.csv --x 0,10,20,40 --chamber 0 --plots docs/img");
+    println!("\n$ vfp air-scan air-0.csv air-10.csv air-20.csv air-40.csv --x 0,10,20,40 --chamber 0 --plots docs/guide/src/img");
     air_scan::run(&AirScanArgs {
         logs,
         x_key: "air_pocket_mm3".into(),
@@ -267,7 +267,7 @@ fn readme_runs() {
             &Scenario::protocol(d.name(), plant, &p),
         ));
     }
-    println!("\n$ vfp chow sba1.csv sba1-rerun.csv SBA2.csv SBA3.csv SBA4.csv --plots docs/img");
+    println!("\n$ vfp chow sba1.csv sba1-rerun.csv SBA2.csv SBA3.csv SBA4.csv --plots docs/guide/src/img");
     chow::run(&ChowArgs {
         logs,
         shape: ShapeOpts::default(),
@@ -282,7 +282,7 @@ fn readme_runs() {
     .unwrap();
 
     let push = run_to(&dir, "push", &Scenario::force_pushes(0.3, 10.0));
-    println!("\n$ vfp force --ident sba1.csv --test push.csv --plots docs/img");
+    println!("\n$ vfp force --ident sba1.csv --test push.csv --plots docs/guide/src/img");
     vfp::cmd::force::run(&ForceArgs {
         ident,
         test: push,

@@ -1007,6 +1007,8 @@ fn force_panel<DB: DrawingBackend>(
         .configure_mesh()
         .x_desc("time (s)")
         .y_desc("force (mN)")
+        .x_label_formatter(&|x| crate::figure::tick(*x))
+        .y_label_formatter(&|y| crate::figure::tick(*y))
         .draw()
         .map_err(|e| e.to_string())?;
     let black = RGBColor(20, 20, 20);
@@ -1047,7 +1049,52 @@ fn markdown(r: &DemoReport, figures: &[(String, String)]) -> String {
     md_deployment(&mut s, r);
     md_force(&mut s, r);
     md_figures(&mut s, figures);
+    md_glossary(&mut s, r);
     s
+}
+
+/// What the report's symbols mean, and each parameter name the residual loop reported.
+fn md_glossary(s: &mut String, r: &DemoReport) {
+    const SYMBOLS: [(&str, &str); 6] = [
+        ("ν", "the number of a model's parameters (coefficients, and an effect's searched ones)"),
+        ("RMSE", "root-mean-square error of the predicted pressure, kPa; *held-out*: on the cycles left out of the fit (one in five)"),
+        ("R²adj", "the coefficient of determination adjusted for ν"),
+        ("AICc", "Akaike's information criterion with the small-sample correction (lower is better)"),
+        ("p", "the probability of an improvement this large by chance, from the loop's F-test with the sample size corrected for residual autocorrelation; `0.0e0` is below what a double can hold"),
+        ("shape", "(n, m): the highest powers of v and v̇ in the polynomial; (p, n, m) with p autoregressive input terms"),
+    ];
+    const PARAMS: [(&str, &str); 14] = [
+        ("width", "hysteresis: the volume over which 63 % of the switch happens after a reversal"),
+        ("gap_at_mid_volume", "hysteresis: pressure on inflation minus on deflation, at mid volume"),
+        ("gap_change_to_range_ends", "hysteresis: how much that gap changes from mid volume to either end of the volume range"),
+        ("time_constant", "a lag's time constant τ"),
+        ("delay", "a pure delay"),
+        ("effective_delay", "the delay the lag amounts to (2τ for the delivery lag's two stages)"),
+        ("play", "backlash: the plunger's dead travel after each reversal"),
+        ("inertance", "the pressure per unit volume acceleration, P = L·v̈"),
+        ("conductance", "leak: flow out per kPa"),
+        ("volume_lost_over_log", "leak: the volume lost over the whole log"),
+        ("frequency", "a ripple's frequency"),
+        ("amplitude", "a ripple's amplitude"),
+        ("rate", "a drift's rate"),
+        ("change_over_log", "a drift's total change over the log"),
+    ];
+    let used: Vec<&str> = r
+        .diagnosis
+        .iter()
+        .flat_map(|d| {
+            d.effects
+                .iter()
+                .flat_map(|e| e.params.iter().map(|p| p.name.as_str()))
+        })
+        .collect();
+    let _ = writeln!(s, "\n## Glossary\n");
+    for (term, meaning) in SYMBOLS {
+        let _ = writeln!(s, "- **{term}**: {meaning}.");
+    }
+    for (name, meaning) in PARAMS.iter().filter(|(n, _)| used.contains(n)) {
+        let _ = writeln!(s, "- `{name}`: {meaning}.");
+    }
 }
 
 /// The title, the plan and the stages with their times.

@@ -53,7 +53,7 @@ pub fn write_all(
     Ok(written)
 }
 
-/// Each family's RMSE (bars) and AICc (points) over its models.
+/// Each family's RMSE (bars) and AICc (points) over its models, the family's choice marked.
 fn family_figures(
     file: &dyn Fn(String) -> PathBuf,
     format: PlotFormat,
@@ -66,14 +66,40 @@ fn family_figures(
             continue;
         }
         let path = file(format!("ch{}-{}-rmse-aicc", rep.chamber, fam.name()));
-        let labels: Vec<String> = rows.iter().map(|r| r.shape()).collect();
+        // Shapes without brackets or spaces ("1,7"), so each fits under its own bar upright.
+        let labels: Vec<String> = rows
+            .iter()
+            .map(|r| r.shape().replace(['(', ')', ' '], ""))
+            .collect();
         let rmse: Vec<f64> = rows.iter().map(|r| r.rmse).collect();
         let aicc: Vec<f64> = rows.iter().map(|r| r.aicc).collect();
+        let chosen = rep
+            .best
+            .iter()
+            .find(|b| b.family == fam)
+            .and_then(|b| rows.iter().position(|r| r.shape() == b.shape()));
+        let shape_name = match fam {
+            Family::Exp => "k, exponential terms",
+            Family::Nn => "p,d: AR inputs, depth",
+            Family::Poly => "n,m: highest powers of v and dv/dt",
+            Family::PolyAr => "p,n,m: AR order, powers of v and dv/dt",
+        };
+        let title = match chosen {
+            Some(i) => format!(
+                "{}: RMSE (bars) and AICc (red); the family's choice {} in orange",
+                fam.name(),
+                rows[i].shape()
+            ),
+            None => format!("{}: RMSE (bars) and AICc (red)", fam.name()),
+        };
+        // 30 px per model (a label of up to five characters), at least the former 1000 px.
+        let width = (120 + 30 * rows.len() as u32).max(1000);
         bars_and_points(
-            &canvas(&path, (1000, 640), format),
+            &canvas(&path, (width, 640), format),
             &path,
-            &format!("{}: RMSE (bars) and AICc (red)", fam.name()),
+            [&title, shape_name],
             &labels,
+            chosen,
             &rmse,
             &aicc,
         )?;
@@ -174,8 +200,9 @@ fn canvas(path: &Path, size: (u32, u32), format: PlotFormat) -> Canvas<'_> {
 fn bars_and_points(
     root: &Canvas<'_>,
     path: &Path,
-    title: &str,
+    [title, xdesc]: [&str; 2],
     labels: &[String],
+    chosen: Option<usize>,
     bars: &[f64],
     points: &[f64],
 ) -> Result<(), Error> {
@@ -190,25 +217,29 @@ fn bars_and_points(
             String::new()
         }
     };
+    let bar_colour = |i: usize| match Some(i) == chosen {
+        true => RGBColor(230, 140, 20),
+        false => RGBColor(120, 120, 200),
+    };
     {
         let mut c = ChartBuilder::on(&top)
             .caption(title, ("sans-serif", 18))
             .margin(8)
             .x_label_area_size(8)
-            .y_label_area_size(60)
+            .y_label_area_size(64)
             .build_cartesian_2d(-0.5f64..n as f64 - 0.5, 0.0..ymax)
             .map_err(|e| err(path, e))?;
         // The shapes are labelled once, under the AICc panel that shares this x axis.
         c.configure_mesh()
             .x_labels(0)
             .y_label_formatter(&|y| crate::figure::tick(*y))
-            .y_desc("RMSE (kPa)")
+            .y_desc("RMSE, training (kPa)")
             .draw()
             .map_err(|e| err(path, e))?;
         c.draw_series(bars.iter().enumerate().map(|(i, &b)| {
             Rectangle::new(
                 [(i as f64 - 0.35, 0.0), (i as f64 + 0.35, b)],
-                RGBColor(120, 120, 200).filled(),
+                bar_colour(i).filled(),
             )
         }))
         .map_err(|e| err(path, e))?;
@@ -216,22 +247,28 @@ fn bars_and_points(
     let (lo, hi) = bounds(points.iter().copied());
     let mut c = ChartBuilder::on(&bottom)
         .margin(8)
-        .x_label_area_size(90)
-        .y_label_area_size(60)
+        .x_label_area_size(48)
+        .y_label_area_size(64)
         .build_cartesian_2d(-0.5f64..n as f64 - 0.5, lo..hi)
         .map_err(|e| err(path, e))?;
-    // One label per model, turned upright so long shapes like "(7, 7, 5)" never overlap.
-    let label_font = ("sans-serif", 12)
-        .into_font()
-        .transform(FontTransform::Rotate90);
+    // One upright label per model under its own point: the canvas is 30 px per model wide.
     c.configure_mesh()
         .x_labels(n + 1)
         .x_label_formatter(&fmt_label)
-        .x_label_style(label_font)
+        .x_label_style(("sans-serif", 12))
+        .x_desc(xdesc)
         .y_desc("AICc")
         .y_label_formatter(&|y| crate::figure::tick(*y))
+        .light_line_style(WHITE)
         .draw()
         .map_err(|e| err(path, e))?;
+    if let Some(i) = chosen {
+        c.draw_series(LineSeries::new(
+            [(i as f64, lo), (i as f64, hi)],
+            RGBColor(230, 140, 20).stroke_width(2),
+        ))
+        .map_err(|e| err(path, e))?;
+    }
     c.draw_series(
         points
             .iter()
