@@ -991,11 +991,12 @@ impl Estimator {
         let mean = sum.map(|s| s / n);
         let mut refused = false;
         for ch in 0..AXES {
-            // `!(… <= …)` refuses a NaN too.
-            if !(libm::fabsf(mean[ch]) <= self.cfg.zero_max_kpa) {
-                refused = true;
-            } else {
+            // A NaN compares false: refused too.
+            let plausible = libm::fabsf(mean[ch]) <= self.cfg.zero_max_kpa;
+            if plausible {
                 self.zero_kpa[ch] = mean[ch];
+            } else {
+                refused = true;
             }
         }
         self.zeroing = None;
