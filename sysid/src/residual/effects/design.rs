@@ -370,6 +370,14 @@ impl Design {
 /// input transforms, baseline columns, added columns, output filters).
 pub fn build(prep: &Prepared, effects: &[Effect]) -> Design {
     let effects = &*scheduled(prep, effects);
+    let (mut design, inputs) = unfiltered(prep, effects);
+    output_filters(prep, effects, inputs.as_ref(), &mut design.cols);
+    design
+}
+
+/// [`build`] up to the output filters (of `effects` as [`scheduled`]), with the transformed
+/// inputs when a transform moved them.
+fn unfiltered(prep: &Prepared, effects: &[Effect]) -> (Design, Option<(Vec<f64>, Vec<f64>)>) {
     // The size before it is built: the baseline's columns plus (at most, for every effect here)
     // two added ones.
     let width = prep.basis.len() + 2 * effects.len();
@@ -389,13 +397,46 @@ pub fn build(prep: &Prepared, effects: &[Effect]) -> Design {
         &mut labels,
         &mut owner,
     );
-    output_filters(prep, effects, inputs.as_ref(), &mut cols);
-    Design {
+    let design = Design {
         cols,
         labels,
         owner,
         permit,
+    };
+    (design, inputs)
+}
+
+/// Training SSE (`lsq::sse_fast`'s) of the baseline augmented with `effects` when their only
+/// output filter is one cubic lag between samples ([`super::EffectModel::output_lag`]: a sensor
+/// lag or an air pocket taken on instants, or in the board's form): the unfiltered design is
+/// built and the lag streamed into the Gram sum a block of rows at a time
+/// (`lsq::sse_fast_streamed`), so the lagged design is never written back nor copied whole. The
+/// same lag on the same columns and the same Gram sum: the same SSE, to the bit, as
+/// `lsq::sse_fast` of [`build`]'s design. `None` for any other design.
+pub fn sse_lagged(prep: &Prepared, effects: &[Effect]) -> Option<f64> {
+    let mut filters = effects.iter().filter(|e| e.kind.filter_stage().is_some());
+    let (Some(_), None) = (filters.next(), filters.next()) else {
+        return None;
+    };
+    let effects = &*scheduled(prep, effects);
+    let e = effects.iter().find(|e| e.kind.filter_stage().is_some())?;
+    if super::lag_in_frames::lag_time_constants(prep, &[e]).is_some() {
+        return None;
     }
+    let (coeffs, slopes) = e.kind.output_lag(e, prep)?;
+    let (design, _) = unfiltered(prep, effects);
+    let cols = &design.cols;
+    let t = &prep.series.t;
+    if cols.is_empty() || cols.iter().any(|c| c.len() != t.len()) || coeffs.len() != t.len() {
+        return None;
+    }
+    let mut stream = signal::LagStream::new(t, &coeffs, slopes, cols);
+    Some(lsq::sse_fast_streamed(
+        cols.len(),
+        &prep.series.p,
+        &prep.train_rows,
+        |hi, out| stream.advance(cols, hi, out),
+    ))
 }
 
 /// Whether any effect transforms the baseline's inputs.
