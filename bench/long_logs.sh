@@ -44,8 +44,11 @@ measure() { # label, command...
     cat "$OUT/time.err"; return 1; }
   tail -1 "$OUT/time.err"
 }
+quiet() { # command...: its output only when it fails
+  "$@" >"$OUT/quiet.log" 2>&1 || { cat "$OUT/quiet.log"; return 1; }
+}
 sim() { # cycles -> $OUT/c$cycles.csv
-  [ -f "$OUT/c$1.csv" ] || "$VFP" simulate --preset paper --cycles "$1" -q -o "$OUT/c$1.csv" >/dev/null
+  [ -f "$OUT/c$1.csv" ] || quiet "$VFP" simulate --preset paper --cycles "$1" -q -o "$OUT/c$1.csv"
 }
 
 if [ "$MODE" != budgets ]; then
@@ -102,11 +105,11 @@ for spec in paper:1 effect:hysteresis:1 effect:air:2 effect:sensor-lag:3 effect:
   preset=${spec%:*}
   seed=${spec##*:}
   f="$OUT/p6-${preset//:/-}-s$seed.csv"
-  [ -f "$f" ] || "$VFP" simulate --preset "$preset" --cycles 6 --seed "$seed" -q -o "$f" >/dev/null
+  [ -f "$f" ] || quiet "$VFP" simulate --preset "$preset" --cycles 6 --seed "$seed" -q -o "$f"
   logs+=("$f")
 done
 f="$OUT/p6-three-effects.csv"
-[ -f "$f" ] || "$VFP" simulate --scenario "$HERE/protocol-three-effects.toml" -q -o "$f" >/dev/null
+[ -f "$f" ] || quiet "$VFP" simulate --scenario "$HERE/protocol-three-effects.toml" -q -o "$f"
 logs+=("$f")
 cpus=()
 for f in "${logs[@]}"; do

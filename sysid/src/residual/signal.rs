@@ -872,10 +872,11 @@ mod tests {
 
     #[test]
     fn lag_on_all_columns_equals_lag_on_each() {
+        // 15 columns: a group of eight stepped together, then groups of four, two and one.
         let t: Vec<f64> = (0..300)
             .map(|k| k as f64 * 0.04 + 1e-4 * (k % 3) as f64)
             .collect();
-        let cols: Vec<Vec<f64>> = (0..5)
+        let cols: Vec<Vec<f64>> = (0..15)
             .map(|j| t.iter().map(|&s| (s * (j + 1) as f64).sin()).collect())
             .collect();
         let c = lag_cubic_coeffs(&t, |k| 0.05 + 0.001 * k as f64);

@@ -683,6 +683,41 @@ mod tests {
     }
 
     #[test]
+    fn the_streamed_lag_gives_the_built_designs_sse_to_the_bit() {
+        // The searches' streamed route (the lag run block by block into the Gram sum) and the
+        // built design (lagged in place, then summed) are the same arithmetic: equal bits, for
+        // a lag on instants (Akima's slopes and the board's backward ones), alone and with
+        // added columns and an input transform before it; with no such filter there is no
+        // streamed route.
+        let prep = two_tones(9000);
+        let lam = 0.5 * prep.scales.v_range / prep.scales.p_integral;
+        let lag = |point: bool, board: bool| Effect {
+            point_sampled: point,
+            board_form: board,
+            ..Effect::new(EffectKind(&SensorLag), 0.15)
+        };
+        for (point, board) in [(true, false), (true, true)] {
+            for mut effects in [
+                vec![],
+                vec![
+                    Effect::new(EffectKind(&Hysteresis), 20.0),
+                    Effect::new(EffectKind(&Leak), lam),
+                ],
+            ] {
+                effects.push(lag(point, board));
+                let d = build(&prep, &effects);
+                let built = lsq::sse_fast(&d.cols, &prep.series.p, &prep.train_rows);
+                let streamed = sse_lagged(&prep, &effects).expect("one lag between samples");
+                assert_eq!(streamed.to_bits(), built.to_bits(), "{effects:?}");
+            }
+        }
+        // On frame means the lag runs inside the frames: not streamed.
+        assert!(sse_lagged(&prep, &[lag(false, false)]).is_none());
+        assert!(sse_lagged(&prep, &[lag(false, true)]).is_none());
+        assert!(sse_lagged(&prep, &[Effect::new(EffectKind(&Hysteresis), 20.0)]).is_none());
+    }
+
+    #[test]
     fn a_lag_inside_the_frames_shorter_than_anything_is_the_design_itself() {
         // Identity: each column is rebuilt inside the frames with its frame means kept, so a lag
         // of 1 ns leaves the design (baseline and added columns) as built without it.
