@@ -375,9 +375,12 @@ pub fn build(prep: &Prepared, effects: &[Effect]) -> Design {
     design
 }
 
+/// Volume and flow after the input transforms (`transformed_inputs`).
+type Moved = (Vec<f64>, Vec<f64>);
+
 /// [`build`] up to the output filters (of `effects` as [`scheduled`]), with the transformed
 /// inputs when a transform moved them.
-fn unfiltered(prep: &Prepared, effects: &[Effect]) -> (Design, Option<(Vec<f64>, Vec<f64>)>) {
+fn unfiltered(prep: &Prepared, effects: &[Effect]) -> (Design, Option<Moved>) {
     // The size before it is built: the baseline's columns plus (at most, for every effect here)
     // two added ones.
     let width = prep.basis.len() + 2 * effects.len();
