@@ -188,8 +188,11 @@ fn a_design_budget_below_one_design_changes_the_schedule_only() {
     };
     let turns = diagnose(series, &tight).expect("diagnosis runs");
     assert!(!free.effects.is_empty(), "the effects are found");
-    assert_eq!(
-        serde_json::to_value(&free).unwrap(),
-        serde_json::to_value(&turns).unwrap()
-    );
+    // Everything but where the time went (`timing_s`, wall-clock seconds).
+    let document = |d: &Diagnosis| {
+        let mut v = serde_json::to_value(d).unwrap();
+        v.as_object_mut().unwrap().remove("timing_s");
+        v
+    };
+    assert_eq!(document(&free), document(&turns));
 }

@@ -147,15 +147,14 @@ pub fn sse_fast(cols: &[Vec<f64>], y: &[f64], rows: &[usize]) -> f64 {
     if cols.iter().any(|c| c.len() != y.len()) {
         return f64::INFINITY;
     }
-    let mut pos = 0;
-    sse_fast_streamed(cols.len(), y, rows, |hi, out| {
-        let lo = pos;
-        out.clear();
+    // Straight from the columns into the Gram sum's copy (through `sse_fast_streamed`'s block
+    // of rows, the design was copied twice per trial).
+    sse_gram(cols.len(), y, rows, |_, runs, data| {
         for c in cols {
-            out.extend_from_slice(&c[lo..hi]);
+            for &(a, b) in runs {
+                data.extend_from_slice(&c[a..b]);
+            }
         }
-        pos = hi;
-        lo
     })
 }
 
@@ -169,6 +168,27 @@ pub fn sse_fast_streamed(
     y: &[f64],
     rows: &[usize],
     mut advance: impl FnMut(usize, &mut Vec<f64>) -> usize,
+) -> f64 {
+    let mut rows_block = Vec::new();
+    sse_gram(p, y, rows, |hi, runs, data| {
+        let lo = advance(hi, &mut rows_block);
+        let len = hi - lo;
+        for c in 0..p {
+            for &(a, b) in runs {
+                data.extend_from_slice(&rows_block[c * len + a - lo..c * len + b - lo]);
+            }
+        }
+    })
+}
+
+/// The Gram sum of [`sse_fast`] and [`sse_fast_streamed`]: `fill(hi, runs, data)` appends the `p`
+/// columns' training rows of one block (`runs`, half-open runs of rows, the last ending at `hi`)
+/// to `data`, column by column; the centred pressure follows as column `p`.
+fn sse_gram(
+    p: usize,
+    y: &[f64],
+    rows: &[usize],
+    mut fill: impl FnMut(usize, &[(usize, usize)], &mut Vec<f64>),
 ) -> f64 {
     let n = rows.len();
     if n <= p || p == 0 {
@@ -185,23 +205,15 @@ pub fn sse_fast_streamed(
     // per trial θ costs more in page faults than the copy itself.
     let q = p + 1;
     let mut gram = DMatrix::zeros(q, q);
-    let mut rows_block = Vec::new();
     GRAM_BUF.with_borrow_mut(|data| {
         for (k, block) in rows.chunks(GRAM_BLOCK).enumerate() {
             let hi = block[block.len() - 1] + 1;
-            let lo = advance(hi, &mut rows_block);
-            let len = hi - lo;
             let runs = runs_of(block);
             data.clear();
             data.reserve(block.len() * q);
-            for c in 0..q {
-                for &(a, b) in &runs {
-                    if c < p {
-                        data.extend_from_slice(&rows_block[c * len + a - lo..c * len + b - lo]);
-                    } else {
-                        data.extend(y[a..b].iter().map(|&yv| yv - mean));
-                    }
-                }
+            fill(hi, &runs, data);
+            for &(a, b) in &runs {
+                data.extend(y[a..b].iter().map(|&yv| yv - mean));
             }
             at_b_into(data, block.len(), q, data, q, &mut gram, k > 0);
         }

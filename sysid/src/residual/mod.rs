@@ -419,6 +419,56 @@ pub struct Diagnosis {
     /// The polynomial basis (its scaling) the models were fitted in.
     #[serde(skip)]
     pub basis: basis::PolyBasis,
+    /// Where the loop's time went ([`Timings`]; wall-clock seconds).
+    #[serde(rename = "timing_s")]
+    pub timing: Timings,
+}
+
+/// Where the loop's time went, in wall-clock seconds (`vfp diagnose --timings`; JSON `timing_s`,
+/// which the golden comparisons leave out: it is the only part of a diagnosis that depends on the
+/// machine). The stages do not overlap, so they add up to `total` (up to the bookkeeping between
+/// them); the candidate searches run on `Config::threads` workers, so a round's `candidates` (each
+/// search's own seconds) can add up to more than its wall time `searches`.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct Timings {
+    /// The baseline shape's selection (`diagnose_log` without a given shape; 0 otherwise).
+    pub shape_selection: f64,
+    /// The prepared data (scales, basis) and the baseline fit.
+    pub baseline: f64,
+    /// Every round's candidate searches and their tests (the sum of `rounds[..].searches`).
+    pub searches: f64,
+    /// Every round's re-tune of the kept model (the sum of `rounds[..].retune`).
+    pub retune: f64,
+    /// Trials of a kept effect's single look-alikes in its place.
+    pub single_swaps: f64,
+    /// Trials of a kept effect's two best look-alikes together in its place.
+    pub pair_trials: f64,
+    /// Putting a swap in place (leave-one-out drops, the steps rebuilt).
+    pub apply_swaps: f64,
+    /// The held-out residual analyses before and after, and the report's parameters.
+    pub residual_analysis: f64,
+    /// The whole loop.
+    pub total: f64,
+    /// Each round of forward selection in order (rounds after a swap included).
+    pub rounds: Vec<RoundTiming>,
+}
+
+/// One round of forward selection's time ([`Timings::rounds`]).
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct RoundTiming {
+    /// Effects in the model the round extends.
+    pub effects_before: usize,
+    /// The round's searches and tests (wall).
+    pub searches: f64,
+    /// Each candidate's search (seconds on its worker).
+    pub candidates: std::collections::BTreeMap<&'static str, f64>,
+    /// The re-tune of the model with the kept candidate (0 when none was kept).
+    pub retune: f64,
+}
+
+/// Seconds since `t`.
+fn secs(t: std::time::Instant) -> f64 {
+    t.elapsed().as_secs_f64()
 }
 
 /// Device verdict for a list of effect names (for `vfp export`): per effect whether
@@ -462,6 +512,8 @@ struct Selection {
     unphysical: Vec<Signature>,
     /// Look-alikes swapped in.
     swaps: Vec<SwapReport>,
+    /// Where the time went so far.
+    timing: Timings,
 }
 
 /// One searched candidate of a round, judged against the model it would extend.
@@ -483,6 +535,7 @@ pub fn diagnose(series: Series, cfg: &Config) -> Result<Diagnosis, DiagnoseError
     }
     let say = |what: &str| tell(cfg.progress, Progress::Stage { what, total: 0 });
     say("baseline fit");
+    let started = std::time::Instant::now();
     let basis = PolyBasis::for_data(&series.v, &series.vdot, cfg.n, cfg.m)
         .map_err(|e| DiagnoseError::Degenerate(e.to_string()))?;
     let mut prep = effects::Prepared::new(series, basis);
@@ -493,9 +546,14 @@ pub fn diagnose(series: Series, cfg: &Config) -> Result<Diagnosis, DiagnoseError
                 .into(),
         )
     })?;
-    let selection = select_effects(&prep, &baseline, cfg);
+    let baseline_s = secs(started);
+    let mut selection = select_effects(&prep, &baseline, cfg);
+    selection.timing.baseline = baseline_s;
     say("residual analysis");
-    let d = report(&prep, cfg, &baseline, selection);
+    let t = std::time::Instant::now();
+    let mut d = report(&prep, cfg, &baseline, selection);
+    d.timing.residual_analysis = secs(t);
+    d.timing.total = secs(started);
     tell(cfg.progress, Progress::Done);
     Ok(d)
 }
@@ -512,6 +570,7 @@ fn select_effects(prep: &effects::Prepared, baseline: &Stage, cfg: &Config) -> S
         rejected: Vec::new(),
         unphysical: Vec::new(),
         swaps: Vec::new(),
+        timing: Timings::default(),
     };
     // Each candidate's search time in the previous round, to schedule the next (`search_all`).
     let mut costs = std::collections::HashMap::new();
@@ -520,11 +579,24 @@ fn select_effects(prep: &effects::Prepared, baseline: &Stage, cfg: &Config) -> S
         forward(prep, cfg, &mut sel, &mut costs, &banned);
         let what = "comparing look-alikes";
         tell(cfg.progress, Progress::Stage { what, total: 0 });
-        let Some(swap) = swap_look_alike(prep, cfg, &sel, &banned) else {
-            break;
+        let t = std::time::Instant::now();
+        let one = swap_look_alike(prep, &sel, &banned);
+        sel.timing.single_swaps += secs(t);
+        // A pair is tried even where one look-alike wins: the one can leave the other's share to
+        // an effect the plant does not have, taken in a later round.
+        let t = std::time::Instant::now();
+        let two = swap_for_pair(prep, cfg, &sel, &banned);
+        sel.timing.pair_trials += secs(t);
+        let swap = match (one, two) {
+            (Some(one), Some(two)) if two.stage.rmse_heldout < one.stage.rmse_heldout => two,
+            (Some(one), _) => one,
+            (None, Some(two)) => two,
+            (None, None) => break,
         };
         banned.push(swap.out);
+        let t = std::time::Instant::now();
         apply_swap(prep, cfg, baseline, &mut sel, swap);
+        sel.timing.apply_swaps += secs(t);
     }
     sel
 }
@@ -538,7 +610,16 @@ fn forward(
     banned: &[EffectKind],
 ) {
     while sel.model.effects.len() < cfg.max_effects {
-        let mut round = rank_round(prep, &sel.model, cfg, costs, banned);
+        let t = std::time::Instant::now();
+        let (mut round, candidates) = rank_round(prep, &sel.model, cfg, costs, banned);
+        let searches = secs(t);
+        sel.timing.searches += searches;
+        sel.timing.rounds.push(RoundTiming {
+            effects_before: sel.model.effects.len(),
+            searches,
+            candidates,
+            retune: 0.0,
+        });
         match round
             .iter()
             .position(|r| r.passes && r.unphysical.is_none())
@@ -559,7 +640,13 @@ fn forward(
                     })
                     .filter_map(|r| r.cand.stage.effects.last().cloned())
                     .collect();
+                let t = std::time::Instant::now();
                 keep(prep, sel, winner, runner_up, rivals);
+                let retune = secs(t);
+                sel.timing.retune += retune;
+                if let Some(r) = sel.timing.rounds.last_mut() {
+                    r.retune = retune;
+                }
             }
             None => {
                 reject_round(sel, &round);
@@ -585,11 +672,10 @@ struct Swap {
 /// where that already fits the training rows better, every searched parameter re-tuned
 /// ([`select::retune`]), so that two lags that trade against each other find their joint
 /// optimum. A swap must be physical, add no parameter, and lower
-/// both the training SSE and the held-out RMSE. The best by held-out RMSE is returned, or the
-/// best pair of look-alikes in one effect's place ([`swap_for_pair`]) where that is better.
+/// both the training SSE and the held-out RMSE. The best by held-out RMSE is returned
+/// ([`select_effects`] weighs it against the best pair of look-alikes, [`swap_for_pair`]).
 fn swap_look_alike(
     prep: &effects::Prepared,
-    cfg: &Config,
     sel: &Selection,
     banned: &[EffectKind],
 ) -> Option<Swap> {
@@ -643,13 +729,7 @@ fn swap_look_alike(
             }
         }
     }
-    // A pair is tried even where one look-alike wins: the one can leave the other's share to an
-    // effect the plant does not have, taken in a later round.
-    match (best, swap_for_pair(prep, cfg, sel, banned)) {
-        (Some(one), Some(two)) if two.stage.rmse_heldout < one.stage.rmse_heldout => Some(two),
-        (Some(one), _) => Some(one),
-        (None, two) => two,
-    }
+    best
 }
 
 /// Where the kept effect `step` is in `model`, and its look-alikes that may take its place (best
@@ -810,7 +890,7 @@ fn rank_round(
     cfg: &Config,
     costs: &mut std::collections::HashMap<EffectKind, f64>,
     banned: &[EffectKind],
-) -> Vec<Ranked> {
+) -> (Vec<Ranked>, std::collections::BTreeMap<&'static str, f64>) {
     let todo: Vec<EffectKind> = cfg
         .candidates
         .iter()
@@ -829,7 +909,8 @@ fn rank_round(
             total: todo.len(),
         },
     );
-    let mut ranked: Vec<Ranked> = search_all(prep, cur, &todo, cfg, costs)
+    let (found, times) = search_all(prep, cur, &todo, cfg, costs);
+    let mut ranked: Vec<Ranked> = found
         .into_iter()
         .map(|cand| {
             let test = select::nested_test(prep, cur, &cand.stage);
@@ -847,7 +928,7 @@ fn rank_round(
             .rmse_heldout
             .total_cmp(&b.cand.stage.rmse_heldout)
     });
-    ranked
+    (ranked, times)
 }
 
 /// The loop's test of a model `big` against the model `small` it extends: the nested F-test
@@ -1040,6 +1121,7 @@ fn report(prep: &effects::Prepared, cfg: &Config, baseline: &Stage, sel: Selecti
             .chain(sel.kept.iter().map(|k| k.model.clone()))
             .collect(),
         basis: prep.basis.clone(),
+        timing: sel.timing,
     }
 }
 
@@ -1056,7 +1138,10 @@ fn search_all(
     todo: &[EffectKind],
     cfg: &Config,
     costs: &mut std::collections::HashMap<EffectKind, f64>,
-) -> Vec<select::Candidate> {
+) -> (
+    Vec<select::Candidate>,
+    std::collections::BTreeMap<&'static str, f64>,
+) {
     let threads = cfg.threads.max(1).min(todo.len().max(1));
     let finished = std::sync::atomic::AtomicUsize::new(0);
     let guess = |k: EffectKind| k.cost_guess();
@@ -1068,6 +1153,7 @@ fn search_all(
     });
     let next = std::sync::atomic::AtomicUsize::new(0);
     let mut out: Vec<Option<select::Candidate>> = vec![None; todo.len()];
+    let mut times = std::collections::BTreeMap::new();
     std::thread::scope(|s| {
         let handles: Vec<_> = (0..threads)
             .map(|_| {
@@ -1092,11 +1178,12 @@ fn search_all(
                 for (i, c, secs) in results {
                     out[i] = c;
                     costs.insert(todo[i], secs);
+                    times.insert(todo[i].name(), secs);
                 }
             }
         }
     });
-    out.into_iter().flatten().collect()
+    (out.into_iter().flatten().collect(), times)
 }
 
 /// Builds the loop's series from a `sysid` data set (its flow, v̈ and held-out mask).
@@ -1226,10 +1313,15 @@ pub fn diagnose_log(
     };
     let series = series_from_dataset(ds).map_err(wrap)?;
     let mut cfg = cfg.clone();
+    let t = std::time::Instant::now();
     if !shape_given {
         (cfg.n, cfg.m) = select_shape(ds).unwrap_or((3, 2));
     }
-    diagnose(series, &cfg).map_err(wrap)
+    let shape_s = secs(t);
+    let mut d = diagnose(series, &cfg).map_err(wrap)?;
+    d.timing.shape_selection = shape_s;
+    d.timing.total += shape_s;
+    Ok(d)
 }
 
 /// The `vfp diagnose --json` document (also the Python package's `diagnose`): the diagnosis at

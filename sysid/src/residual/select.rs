@@ -123,9 +123,13 @@ pub fn fit_stage(prep: &Prepared, effects: &[Effect]) -> Option<Stage> {
 }
 
 /// Training SSE of the baseline augmented with `effects` (by moments where no output filter
-/// forbids it, [`super::effects::sse_structured`]).
+/// forbids it, [`super::effects::sse_structured`]; with one lag between samples, streamed into
+/// the Gram sum, [`super::effects::design::sse_lagged`]).
 pub(crate) fn sse_of(prep: &Prepared, effects: &[Effect]) -> f64 {
     if let Some(sse) = super::effects::sse_structured(prep, effects) {
+        return sse;
+    }
+    if let Some(sse) = super::effects::design::sse_lagged(prep, effects) {
         return sse;
     }
     let design = build(prep, effects);

@@ -210,15 +210,31 @@ fn akima_slopes_range(
         _ => 2.0 * end - last,
     };
     secants.clear();
-    secants.extend((lo..hi + 3).map(d));
+    // The interior secants (e = 2..=n) in one pass over the samples, the extrapolated ones at
+    // the ends by `d`.
+    let (a, b) = (lo.clamp(2, n + 1), (hi + 3).clamp(2, n + 1));
+    secants.extend((lo..a.max(lo).min(hi + 3)).map(d));
+    if a < b {
+        let (xs, xe, inv) = (&x[a - 2..b - 2], &x[a - 1..b - 1], &inv_dt[a - 2..b - 2]);
+        secants.extend(
+            xe.iter()
+                .zip(xs)
+                .zip(inv)
+                .map(|((x1, x0), inv)| (x1 - x0) * inv),
+        );
+    }
+    secants.extend((b.max(lo)..hi + 3).map(d));
     out.extend(secants.windows(4).map(|w| {
-        // Sample k sits between w[1] (left secant) and w[2] (right secant).
+        // Sample k sits between w[1] (left secant) and w[2] (right secant). Both values are
+        // computed and one chosen (no branch: the loop vectorises).
         let (w_left, w_right) = ((w[3] - w[2]).abs(), (w[1] - w[0]).abs());
         let sum = w_left + w_right;
+        let weighted = (w_left * w[1] + w_right * w[2]) / sum;
+        let mean = 0.5 * (w[1] + w[2]);
         if sum > 1e-12 * (w[1].abs() + w[2].abs()) && sum > 0.0 {
-            (w_left * w[1] + w_right * w[2]) / sum
+            weighted
         } else {
-            0.5 * (w[1] + w[2])
+            mean
         }
     }));
 }
@@ -407,26 +423,92 @@ impl<'a> LagStream<'a> {
         }
         out.clear();
         out.resize(cols.len() * len, 0.0);
-        // Every column's recurrence is a serial chain (latency-bound); stepping all columns
-        // together at each sample lets the independent chains overlap in the pipeline.
-        for k in lo..hi {
-            if k == 0 {
-                for (c, x) in cols.iter().enumerate() {
-                    out[c * len] = x[0];
-                }
-                continue;
+        if len == 0 {
+            return lo;
+        }
+        // Every column's recurrence is a serial chain (latency-bound: a multiply and four adds
+        // per sample); stepping a group of columns together at each sample lets the independent
+        // chains overlap in the pipeline, and within a group each column's rows stream from and
+        // to contiguous slices (stepping all columns at once strode across every column's memory
+        // at each sample, and cost several times the arithmetic).
+        let start = usize::from(lo == 0);
+        if lo == 0 {
+            for (c, x) in cols.iter().enumerate() {
+                out[c * len] = x[0];
             }
-            let [a, wx0, wx1, wm0, wm1] = self.coeffs[k];
-            for (c, (x, st)) in cols.iter().zip(self.state.iter_mut()).enumerate() {
-                let (m0, m1) = (self.m[c * w + k - 1 - s0], self.m[c * w + k - s0]);
-                let x = x[k];
-                let y = a * st.0 + wx0 * st.1 + wx1 * x + wm0 * m0 + wm1 * m1;
-                out[c * len + k - lo] = y;
-                *st = (y, x);
+        }
+        let coeffs = &self.coeffs[lo + start..hi];
+        let groups = cols
+            .chunks(LAG_GROUP)
+            .zip(self.state.chunks_mut(LAG_GROUP))
+            .zip(self.m.chunks(LAG_GROUP * w))
+            .zip(out.chunks_mut(LAG_GROUP * len));
+        for (((cs, st), m), o) in groups {
+            // Row k's interval runs from slope k − 1 − s0 to k − s0: the first row's (k = lo +
+            // start) starts at slope 0 of the block's (s0 = lo − 1, or lo = 0 with start = 1).
+            let m: Vec<&[f64]> = m.chunks_exact(w).collect();
+            let x: Vec<&[f64]> = cs.iter().map(|x| &x[lo + start..hi]).collect();
+            let mut o: Vec<&mut [f64]> = o.chunks_exact_mut(len).map(|o| &mut o[start..]).collect();
+            // A short group (the design's last columns) in groups of 4, 2 and 1.
+            let mut j = 0;
+            while j < cs.len() {
+                let g = match cs.len() - j {
+                    r if r >= LAG_GROUP => LAG_GROUP,
+                    r if r >= 4 => 4,
+                    r if r >= 2 => 2,
+                    _ => 1,
+                };
+                let (x, m, st, o) = (
+                    &x[j..j + g],
+                    &m[j..j + g],
+                    &mut st[j..j + g],
+                    &mut o[j..j + g],
+                );
+                match g {
+                    LAG_GROUP => lag_group::<LAG_GROUP>(coeffs, x, m, st, o),
+                    4 => lag_group::<4>(coeffs, x, m, st, o),
+                    2 => lag_group::<2>(coeffs, x, m, st, o),
+                    _ => lag_group::<1>(coeffs, x, m, st, o),
+                }
+                j += g;
             }
         }
         self.pos = hi;
         lo
+    }
+}
+
+/// Columns [`LagStream::advance`] steps together.
+const LAG_GROUP: usize = 8;
+
+/// [`LagStream::advance`]'s recurrence on `G` columns over the rows of `coeffs`: column j's inputs
+/// `x[j]`, its slopes `m[j]` from the row before the first (`m[j][i]`, `m[j][i + 1]` the slopes at
+/// the ends of row i's interval), its state `st[j]` (last output and input), its outputs `o[j]`.
+#[inline(always)]
+fn lag_group<const G: usize>(
+    coeffs: &[[f64; 5]],
+    x: &[&[f64]],
+    m: &[&[f64]],
+    st: &mut [(f64, f64)],
+    o: &mut [&mut [f64]],
+) {
+    let rows = coeffs.len();
+    let x: [&[f64]; G] = std::array::from_fn(|j| &x[j][..rows]);
+    let m: [&[f64]; G] = std::array::from_fn(|j| &m[j][..rows + 1]);
+    let (mut y, mut xp): ([f64; G], [f64; G]) = (
+        std::array::from_fn(|j| st[j].0),
+        std::array::from_fn(|j| st[j].1),
+    );
+    for (i, &[a, wx0, wx1, wm0, wm1]) in coeffs.iter().enumerate() {
+        for j in 0..G {
+            let xk = x[j][i];
+            let yk = a * y[j] + wx0 * xp[j] + wx1 * xk + wm0 * m[j][i] + wm1 * m[j][i + 1];
+            o[j][i] = yk;
+            (y[j], xp[j]) = (yk, xk);
+        }
+    }
+    for j in 0..G {
+        st[j] = (y[j], xp[j]);
     }
 }
 
@@ -790,10 +872,11 @@ mod tests {
 
     #[test]
     fn lag_on_all_columns_equals_lag_on_each() {
+        // 15 columns: a group of eight stepped together, then groups of four, two and one.
         let t: Vec<f64> = (0..300)
             .map(|k| k as f64 * 0.04 + 1e-4 * (k % 3) as f64)
             .collect();
-        let cols: Vec<Vec<f64>> = (0..5)
+        let cols: Vec<Vec<f64>> = (0..15)
             .map(|j| t.iter().map(|&s| (s * (j + 1) as f64).sin()).collect())
             .collect();
         let c = lag_cubic_coeffs(&t, |k| 0.05 + 0.001 * k as f64);

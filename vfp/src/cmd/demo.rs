@@ -543,7 +543,7 @@ fn stage_diagnose(
     };
     let found = match (&diagnosis, &diagnosis_error) {
         (Some(d), _) => format!(
-            "found: {}; held-out RMSE {:.3} → {:.3} kPa",
+            "found: {}; held-out RMSE {:.3} → {:.3} kPa (loop: {})",
             if d.effects.is_empty() {
                 "nothing".to_string()
             } else {
@@ -554,13 +554,22 @@ fn stage_diagnose(
                     .join(", ")
             },
             d.baseline.rmse_heldout,
-            d.final_model.rmse_heldout
+            d.final_model.rmse_heldout,
+            loop_time(&d.timing)
         ),
         (None, Some(e)) => format!("not run: {e}"),
         (None, None) => "not run".into(),
     };
     st.done(found, stages);
     (diagnosis, diagnosis_error)
+}
+
+/// Where the residual loop's time went, in one line (`vfp diagnose --timings` has the rounds).
+fn loop_time(t: &residual::Timings) -> String {
+    format!(
+        "searches {:.1} s, re-tunes {:.1} s, single swaps {:.1} s, pair trials {:.1} s, analysis {:.1} s",
+        t.searches, t.retune, t.single_swaps + t.apply_swaps, t.pair_trials, t.residual_analysis
+    )
 }
 
 /// What stage 6 deployed and the force runs of the boards that ran it.

@@ -11,6 +11,7 @@ use sysid::residual::analysis::Binned;
 use sysid::residual::validate::{validate_log, Validation};
 use sysid::residual::{
     diagnose_log, document, Config, Diagnosis, EffectKind, EffectReport, Param, ResidualAnalysis,
+    Timings,
 };
 
 /// `vfp diagnose`: trace the residual of a fitted model to physical effects it lacks.
@@ -38,6 +39,11 @@ pub struct Args {
     /// `validation`).
     #[arg(long, value_name = "OTHER.csv")]
     pub validate: Option<PathBuf>,
+    /// Where the loop's time went, stage by stage (wall-clock seconds): added to the text
+    /// report, or written to stderr with `--json` (whose document always carries it as
+    /// `timing_s`).
+    #[arg(long)]
+    pub timings: bool,
     /// `--json`: one document instead of the text report; `--plots DIR`: residual figures
     /// before and after (SVG).
     #[command(flatten)]
@@ -111,6 +117,9 @@ pub fn run(args: &Args) -> Result<(), Error> {
             obj.insert("validation".into(), v);
         }
         crate::opts::print_json(&doc)?;
+        if args.timings {
+            eprint!("{}", timings_report(&d.timing));
+        }
     } else {
         print!(
             "{}",
@@ -124,8 +133,58 @@ pub fn run(args: &Args) -> Result<(), Error> {
         if let Some(v) = &validation {
             print!("{}", validation_report(v));
         }
+        if args.timings {
+            print!("{}", timings_report(&d.timing));
+        }
     }
     Ok(())
+}
+
+/// The `--timings` block: each stage's wall-clock seconds and share of the loop, then each
+/// round's searches (the three costliest candidates) and re-tune.
+pub fn timings_report(t: &Timings) -> String {
+    let mut s = String::new();
+    let share = |x: f64| {
+        if t.total > 0.0 {
+            100.0 * x / t.total
+        } else {
+            0.0
+        }
+    };
+    let _ = writeln!(s, "\ntimings (wall-clock s): total {:.2}", t.total);
+    for (what, x) in [
+        ("shape selection", t.shape_selection),
+        ("baseline fit", t.baseline),
+        ("candidate searches", t.searches),
+        ("re-tunes", t.retune),
+        ("single swaps", t.single_swaps),
+        ("pair trials", t.pair_trials),
+        ("applying swaps", t.apply_swaps),
+        ("residual analysis", t.residual_analysis),
+    ] {
+        let _ = writeln!(s, "  {what:<20} {x:8.2}  ({:4.1} %)", share(x));
+    }
+    for (i, r) in t.rounds.iter().enumerate() {
+        let mut c: Vec<(&str, f64)> = r.candidates.iter().map(|(k, v)| (*k, *v)).collect();
+        c.sort_by(|a, b| b.1.total_cmp(&a.1));
+        let top: Vec<String> = c
+            .iter()
+            .take(3)
+            .map(|(k, v)| format!("{k} {v:.2}"))
+            .collect();
+        let _ = writeln!(
+            s,
+            "  round {} (from {} effects): searches {:.2} ({} candidates, {:.2} s on the workers; costliest {}), re-tune {:.2}",
+            i + 1,
+            r.effects_before,
+            r.searches,
+            c.len(),
+            c.iter().map(|x| x.1).sum::<f64>(),
+            top.join(", "),
+            r.retune
+        );
+    }
+    s
 }
 
 /// The `--validate` block of the text report.

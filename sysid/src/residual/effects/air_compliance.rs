@@ -170,6 +170,18 @@ impl EffectModel for AirCompliance {
         Some(time_constants(e, prep))
     }
 
+    /// [`Self::filter`]'s lag, for the searches' streamed sum.
+    fn output_lag(
+        &self,
+        e: &Effect,
+        prep: &Prepared,
+    ) -> Option<(Vec<[f64; 5]>, signal::LagSlopes)> {
+        let tau = time_constants(e, prep);
+        let mid = |k: usize| 0.5 * (tau[k] + tau[k.saturating_sub(1)]);
+        let coeffs = signal::lag_cubic_coeffs(&prep.series.t, mid);
+        Some((coeffs, super::sensor_lag::slopes_of(e)))
+    }
+
     fn uses_measured_pressure(&self) -> bool {
         true
     }

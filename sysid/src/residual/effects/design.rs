@@ -370,6 +370,17 @@ impl Design {
 /// input transforms, baseline columns, added columns, output filters).
 pub fn build(prep: &Prepared, effects: &[Effect]) -> Design {
     let effects = &*scheduled(prep, effects);
+    let (mut design, inputs) = unfiltered(prep, effects);
+    output_filters(prep, effects, inputs.as_ref(), &mut design.cols);
+    design
+}
+
+/// Volume and flow after the input transforms (`transformed_inputs`).
+type Moved = (Vec<f64>, Vec<f64>);
+
+/// [`build`] up to the output filters (of `effects` as [`scheduled`]), with the transformed
+/// inputs when a transform moved them.
+fn unfiltered(prep: &Prepared, effects: &[Effect]) -> (Design, Option<Moved>) {
     // The size before it is built: the baseline's columns plus (at most, for every effect here)
     // two added ones.
     let width = prep.basis.len() + 2 * effects.len();
@@ -389,13 +400,46 @@ pub fn build(prep: &Prepared, effects: &[Effect]) -> Design {
         &mut labels,
         &mut owner,
     );
-    output_filters(prep, effects, inputs.as_ref(), &mut cols);
-    Design {
+    let design = Design {
         cols,
         labels,
         owner,
         permit,
+    };
+    (design, inputs)
+}
+
+/// Training SSE (`lsq::sse_fast`'s) of the baseline augmented with `effects` when their only
+/// output filter is one cubic lag between samples ([`super::EffectModel::output_lag`]: a sensor
+/// lag or an air pocket taken on instants, or in the board's form): the unfiltered design is
+/// built and the lag streamed into the Gram sum a block of rows at a time
+/// (`lsq::sse_fast_streamed`), so the lagged design is never written back nor copied whole. The
+/// same lag on the same columns and the same Gram sum: the same SSE, to the bit, as
+/// `lsq::sse_fast` of [`build`]'s design. `None` for any other design.
+pub fn sse_lagged(prep: &Prepared, effects: &[Effect]) -> Option<f64> {
+    let mut filters = effects.iter().filter(|e| e.kind.filter_stage().is_some());
+    let (Some(_), None) = (filters.next(), filters.next()) else {
+        return None;
+    };
+    let effects = &*scheduled(prep, effects);
+    let e = effects.iter().find(|e| e.kind.filter_stage().is_some())?;
+    if super::lag_in_frames::lag_time_constants(prep, &[e]).is_some() {
+        return None;
     }
+    let (coeffs, slopes) = e.kind.output_lag(e, prep)?;
+    let (design, _) = unfiltered(prep, effects);
+    let cols = &design.cols;
+    let t = &prep.series.t;
+    if cols.is_empty() || cols.iter().any(|c| c.len() != t.len()) || coeffs.len() != t.len() {
+        return None;
+    }
+    let mut stream = signal::LagStream::new(t, &coeffs, slopes, cols);
+    Some(lsq::sse_fast_streamed(
+        cols.len(),
+        &prep.series.p,
+        &prep.train_rows,
+        |hi, out| stream.advance(cols, hi, out),
+    ))
 }
 
 /// Whether any effect transforms the baseline's inputs.
@@ -639,6 +683,41 @@ mod tests {
             assert!((fast - qr).abs() < 1e-8 * qr, "{effects:?}: {fast} vs {qr}");
         }
         assert!(sse_structured(&prep, &[Effect::new(EffectKind(&SensorLag), 0.1)]).is_none());
+    }
+
+    #[test]
+    fn the_streamed_lag_gives_the_built_designs_sse_to_the_bit() {
+        // The searches' streamed route (the lag run block by block into the Gram sum) and the
+        // built design (lagged in place, then summed) are the same arithmetic: equal bits, for
+        // a lag on instants (Akima's slopes and the board's backward ones), alone and with
+        // added columns and an input transform before it; with no such filter there is no
+        // streamed route.
+        let prep = two_tones(9000);
+        let lam = 0.5 * prep.scales.v_range / prep.scales.p_integral;
+        let lag = |point: bool, board: bool| Effect {
+            point_sampled: point,
+            board_form: board,
+            ..Effect::new(EffectKind(&SensorLag), 0.15)
+        };
+        for (point, board) in [(true, false), (true, true)] {
+            for mut effects in [
+                vec![],
+                vec![
+                    Effect::new(EffectKind(&Hysteresis), 20.0),
+                    Effect::new(EffectKind(&Leak), lam),
+                ],
+            ] {
+                effects.push(lag(point, board));
+                let d = build(&prep, &effects);
+                let built = lsq::sse_fast(&d.cols, &prep.series.p, &prep.train_rows);
+                let streamed = sse_lagged(&prep, &effects).expect("one lag between samples");
+                assert_eq!(streamed.to_bits(), built.to_bits(), "{effects:?}");
+            }
+        }
+        // On frame means the lag runs inside the frames: not streamed.
+        assert!(sse_lagged(&prep, &[lag(false, false)]).is_none());
+        assert!(sse_lagged(&prep, &[lag(false, true)]).is_none());
+        assert!(sse_lagged(&prep, &[Effect::new(EffectKind(&Hysteresis), 20.0)]).is_none());
     }
 
     #[test]

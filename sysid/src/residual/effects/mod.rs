@@ -366,6 +366,19 @@ pub trait EffectModel: Send + Sync {
     /// Filters every design column (each over every sample).
     fn filter(&self, _e: &Effect, _prep: &Prepared, _cols: &mut [Vec<f64>]) {}
 
+    /// For an output filter whose [`Self::filter`] is one cubic lag of every column
+    /// (`signal::LagStream`): its per-interval coefficients and the slopes its cubic takes. The
+    /// searches then sum the lagged design's Gram matrix as the lag produces it, a block of rows
+    /// at a time (`design::sse_lagged`), instead of lagging the whole design in place and copying
+    /// it again; the numbers are the same.
+    fn output_lag(
+        &self,
+        _e: &Effect,
+        _prep: &Prepared,
+    ) -> Option<(Vec<[f64; 5]>, crate::residual::signal::LagSlopes)> {
+        None
+    }
+
     /// For an output filter that is a first-order lag `τ(t) ẏ + y = x`: its time constant over
     /// each frame (s). The loop's form then runs it inside the frames ([`lag_in_frames`]) rather
     /// than through [`Self::filter`]; `None` (default) for no such lag.

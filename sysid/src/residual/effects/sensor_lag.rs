@@ -5,7 +5,17 @@
 //! board's form lags each column's cubic between frames (`signal::lag_cubic_coeffs`).
 
 use super::{param, DeviceSupport, Effect, EffectModel, Fitted, Param, Prepared, Scales, Search};
-use crate::residual::signal;
+use crate::residual::signal::{self, LagSlopes};
+
+/// The slopes a lag's cubic takes in `e`'s form: backward differences on the board, Akima's in
+/// the loop.
+pub(super) fn slopes_of(e: &Effect) -> LagSlopes {
+    if e.board_form {
+        LagSlopes::Backward
+    } else {
+        LagSlopes::Akima
+    }
+}
 
 /// First-order lag of the pressure sensor.
 pub struct SensorLag;
@@ -63,6 +73,11 @@ impl EffectModel for SensorLag {
         } else {
             signal::lag_cubic_apply_all(t, &coeffs, cols);
         }
+    }
+
+    fn output_lag(&self, e: &Effect, prep: &Prepared) -> Option<(Vec<[f64; 5]>, LagSlopes)> {
+        let coeffs = signal::lag_cubic_coeffs(&prep.series.t, |_| e.theta);
+        Some((coeffs, slopes_of(e)))
     }
 
     /// A log's samples may be frame means (our firmware: the lag acts inside each frame) or
