@@ -16,10 +16,10 @@ pub fn scratch(test: &str, name: &str) -> PathBuf {
     d
 }
 
-/// The `vfp` binary, to run in the workspace root.
+/// The `vfp` binary, to run in the workspace root, quietly (`--quiet`: no progress on stderr).
 pub fn vfp() -> std::process::Command {
     let mut c = std::process::Command::new(env!("CARGO_BIN_EXE_vfp"));
-    c.current_dir(root());
+    c.current_dir(root()).arg("--quiet");
     c
 }
 

@@ -7,7 +7,7 @@
 
 #![cfg(unix)]
 
-mod common;
+use crate::common;
 
 use firmware::telemetry::{ChamberFrame, Flags, Frame};
 use std::io::Write;
@@ -58,7 +58,7 @@ fn capture() -> String {
 
 fn spawn(out: &Path) -> (Child, ChildStdin) {
     let mut child = Command::new(env!("CARGO_BIN_EXE_vfp"))
-        .args(["record", "-", "-o"])
+        .args(["--quiet", "record", "-", "-o"])
         .arg(out)
         .stdin(Stdio::piped())
         .stdout(Stdio::piped())

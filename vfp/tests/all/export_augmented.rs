@@ -405,6 +405,7 @@ fn write_csv(s: &Synthetic, name: &str) -> std::path::PathBuf {
 
 fn vfp(args: &[&str]) -> (bool, String, String) {
     let out = std::process::Command::new(env!("CARGO_BIN_EXE_vfp"))
+        .arg("--quiet")
         .args(args)
         .output()
         .unwrap();

@@ -2,8 +2,7 @@
 //! must name each effect, and its held-out RMSE after must come within 15 % of the noise σ; a
 //! clean log gets no effect; a log with two effects gets both.
 
-#[path = "residual_gen.rs"]
-mod gen;
+use crate::residual_gen as gen;
 
 use gen::{generate, Inject};
 use sysid::dataset::{Dataset, DatasetConfig};

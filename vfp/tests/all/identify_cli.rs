@@ -19,7 +19,7 @@ fn write_log(name: &str, rows: usize, volume: impl Fn(f64) -> f64) -> PathBuf {
 
 fn identify(args: &[&str]) -> (bool, String) {
     let out = Command::new(env!("CARGO_BIN_EXE_vfp"))
-        .arg("identify")
+        .args(["--quiet", "identify"])
         .args(args)
         .output()
         .unwrap();

@@ -4,7 +4,7 @@
 //! once, and sensor noise with heavy tails ([`host_sim::NoiseTails`]). Effects are not declared;
 //! σ comes from truth (see `residual_hostsim.rs`).
 
-mod hostsim_common;
+use crate::hostsim_common;
 
 use host_sim::plant::{Drive, Hysteresis};
 use host_sim::{Effects, NoiseTails, PlantConfig, Scenario, SensorSpec, Strokes};

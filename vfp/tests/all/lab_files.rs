@@ -13,7 +13,7 @@
 //! far below any difference between two models (the RMSEs of neighbouring shapes differ by
 //! 10⁻³ relative and more), so the same model is selected.
 
-mod common;
+use crate::common;
 use common::root;
 
 use serde_json::Value;
@@ -113,7 +113,7 @@ fn a_missing_column_names_the_option() {
     let lab = dir.join("bag-lab-units.csv");
     lab_copy(&root().join(BAG), &lab);
     let out = Command::new(env!("CARGO_BIN_EXE_vfp"))
-        .arg("identify")
+        .args(["--quiet", "identify"])
         .arg(&lab)
         .output()
         .expect("vfp runs");

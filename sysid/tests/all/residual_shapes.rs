@@ -4,8 +4,7 @@
 //! (`residual_gen.rs`); each case names its effects and ends within 15 % of the noise σ, or, on a
 //! clean log, names none.
 
-#[path = "residual_gen.rs"]
-mod gen;
+use crate::residual_gen as gen;
 
 use gen::{generate_shaped, Inject, Noise, Shape};
 use sysid::dataset::{Dataset, DatasetConfig};

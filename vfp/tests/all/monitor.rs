@@ -4,7 +4,7 @@
 //! monitor's reader thread into its state, is drawn on ratatui's `TestBackend` and recorded.
 //! The truth is the simulator's: the frames it sent, the lines its transport refused.
 
-mod common;
+use crate::common;
 
 use std::io::Cursor;
 use std::path::PathBuf;

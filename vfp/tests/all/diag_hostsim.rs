@@ -2,8 +2,7 @@
 //! plant with known air pockets, designs and forces).
 
 // The same known-truth generator as sysid's diagnostics tests, from one file.
-#[path = "../../sysid/tests/diag_common/mod.rs"]
-mod diag_common;
+use crate::diag_common;
 use diag_common::tmpdir;
 use host_sim::{simulate, Design, Effects, PlantConfig, Protocol, Scenario};
 use std::path::{Path, PathBuf};

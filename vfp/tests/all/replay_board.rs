@@ -7,7 +7,7 @@
 //! Truths: the plant's planted effect (host-sim), the board's telemetry (the firmware's tasks
 //! under virtual time, not the replay code), the loop's f64 fit.
 
-mod common;
+use crate::common;
 
 use common::{ok, scratch, vfp};
 use firmware::telemetry::{EventKind, Frame};

@@ -15,7 +15,7 @@
 //! Every effect is named (with its parameter against the injected truth) and every log ends
 //! within 15 % of σ.
 
-mod hostsim_common;
+use crate::hostsim_common;
 
 use host_sim::plant::Drive;
 use host_sim::{simulate, Effects, PlantConfig, Protocol, Scenario, SimRun};

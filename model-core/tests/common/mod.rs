@@ -1,4 +1,5 @@
-//! Independent f64 reference implementations for the tests (raw units, no scaling).
+//! Independent f64 reference implementations for the tests (raw units, no scaling). A directory
+//! module, so that Cargo does not build it as a test binary of its own.
 #![allow(dead_code)]
 
 use model_core::poly::{Scaling, Shape};

@@ -2,8 +2,7 @@
 //! actuator held at 500 mm³, shared unevenly between three chambers with different laws.
 
 // The same known-truth generator as sysid's diagnostics tests, from one file.
-#[path = "../../sysid/tests/diag_common/mod.rs"]
-mod diag_common;
+use crate::diag_common;
 use diag_common::*;
 use sysid::dataset::{DatasetConfig, LogData};
 use sysid::diag::force::{self, ForceOptions};
@@ -157,6 +156,8 @@ fn command_runs_and_rejects_bad_options() {
         plots: Some(dir.join("plots")),
         ..OutputOpts::default()
     };
+    // In-process, progress would draw on the test's terminal: quiet, as the binary with `--quiet`.
+    vfp::progress::set_quiet(true);
     vfp::cmd::force::run(&a).unwrap();
     let svg = std::fs::read_to_string(dir.join("plots/diag-force.svg")).unwrap();
     assert!(svg.contains("reference force_n"));

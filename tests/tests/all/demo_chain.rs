@@ -20,6 +20,8 @@ fn the_demo_chain_runs_and_finds_what_was_planted() {
         ..Plan::new(true)
     };
     let out = scratch("demo-chain");
+    // In-process, the stage spinners would draw on the test's terminal: quiet, as `vfp -q demo`.
+    vfp::progress::set_quiet(true);
     let r = run_plan(plan, 3, &out).expect("the chain runs");
 
     // Nothing lost between the board and the log.

@@ -4,7 +4,7 @@
 //! errors), and host-sim plants (the same wall hysteresis on another run of the rig lowers B's
 //! error as it lowered A's; a rig without it gains nothing from it).
 
-mod common;
+use crate::common;
 
 use common::{ok, scratch, vfp};
 use std::path::{Path, PathBuf};
@@ -18,8 +18,7 @@ fn simulate(dir: &Path, name: &str, preset: &str, cycles: u32, seed: u64) -> Pat
         .arg("--seed")
         .arg(seed.to_string())
         .arg("-o")
-        .arg(&out)
-        .arg("-q"));
+        .arg(&out));
     out
 }
 
@@ -29,7 +28,7 @@ fn diagnose(a: &Path, b: &Path, extra: &[&str]) -> serde_json::Value {
         .arg(a)
         .arg("--validate")
         .arg(b)
-        .args(["--json", "-q"])
+        .arg("--json")
         .args(extra));
     serde_json::from_slice(&out.stdout).expect("JSON")
 }
@@ -110,7 +109,6 @@ fn a_bad_other_log_is_a_clear_error() {
             .arg(&a)
             .arg("--validate")
             .arg(b)
-            .args(["-q"])
             .args(extra)
             .output()
             .expect("runs");

@@ -37,6 +37,7 @@ fn golden_dir() -> PathBuf {
 fn vfp(cwd: &Path, args: &[&str]) -> String {
     let out = Command::new(env!("CARGO_BIN_EXE_vfp"))
         .current_dir(cwd)
+        .arg("--quiet")
         .args(args)
         .output()
         .expect("the vfp binary runs");

@@ -4,8 +4,7 @@
 //! (`residual_gen.rs`, no effect injected there) with Gaussian noise of known σ. Truth is the
 //! planted `c` and `q_s`; the library's own twelve effects cannot absorb it.
 
-#[path = "residual_gen.rs"]
-mod gen;
+use crate::residual_gen as gen;
 
 use gen::generate;
 use sysid::dataset::{Dataset, DatasetConfig};

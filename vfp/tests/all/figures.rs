@@ -2,7 +2,7 @@
 //! SVGs of a long log stay under 1 MB (scatter plots are decimated), and both formats write the
 //! same set of figures.
 
-mod common;
+use crate::common;
 
 use std::path::{Path, PathBuf};
 

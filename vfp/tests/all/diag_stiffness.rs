@@ -2,8 +2,7 @@
 //! partials must reproduce the law's hand-differentiated ones.
 
 // The same known-truth generator as sysid's diagnostics tests, from one file.
-#[path = "../../sysid/tests/diag_common/mod.rs"]
-mod diag_common;
+use crate::diag_common;
 use diag_common::*;
 use sysid::dataset::{DatasetConfig, LogData};
 use sysid::diag::stiffness;

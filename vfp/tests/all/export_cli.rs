@@ -172,6 +172,7 @@ fn identify_json_has_the_documented_fields() {
     write_log(&path, &log).unwrap();
     let out = std::process::Command::new(env!("CARGO_BIN_EXE_vfp"))
         .args([
+            "--quiet",
             "identify",
             path.to_str().unwrap(),
             "--json",
@@ -210,7 +211,7 @@ fn identify_json_has_the_documented_fields() {
     )
     .unwrap();
     let out = std::process::Command::new(env!("CARGO_BIN_EXE_vfp"))
-        .args(["identify", path.to_str().unwrap()])
+        .args(["--quiet", "identify", path.to_str().unwrap()])
         .output()
         .unwrap();
     assert!(!out.status.success());

@@ -1,7 +1,7 @@
 //! Chow test (§IV-B): calibration under H₀ (the same actuator, new noise), power between
 //! different laws, and the classic statistic against its defining formula.
 
-mod diag_common;
+use crate::diag_common;
 use diag_common::*;
 use sysid::diag::chow::{chow, ChowOptions, ChowTest, Method};
 use sysid::poly::{self, Xy};

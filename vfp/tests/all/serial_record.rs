@@ -4,7 +4,7 @@
 //! go through `vfp record --binary` and `vfp record`; both logs must hold the same rows and the
 //! same totals, and every frame the board produced.
 
-mod common;
+use crate::common;
 
 use host_sim::{simulate, Scenario, TimedCommand};
 
