@@ -14,6 +14,7 @@ mod diag_force;
 mod diag_hostsim;
 mod diag_stiffness;
 mod diagnose_validate;
+mod docs;
 mod export_augmented;
 mod export_cli;
 mod figures;

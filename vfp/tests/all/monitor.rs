@@ -244,7 +244,7 @@ fn readme_screen() {
 }
 
 /// How fast the reader takes lines, recording included (a measurement, not a check):
-/// `cargo test -p vfp --test monitor throughput -- --ignored --nocapture`.
+/// `cargo test -p vfp --test all monitor::throughput -- --ignored --nocapture`.
 #[test]
 #[ignore]
 fn throughput() {

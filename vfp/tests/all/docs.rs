@@ -6,7 +6,7 @@
 //!   empty);
 //! - the command reference (`docs/guide/src/commands.md`) has a section for every subcommand of
 //!   `vfp --help`, holding that subcommand's `--help` text as the built tool prints it
-//!   (`VFP_DOCS_RECORD=1 cargo test -p vfp --test docs` rewrites those blocks);
+//!   (`VFP_DOCS_RECORD=1 cargo test -p vfp --test all docs::` rewrites those blocks);
 //! - every `vfp` command line shown in a `sh` or `console` block, or in inline code, names a
 //!   subcommand of the built tool, and each long option it passes appears in that subcommand's
 //!   `--help`;
@@ -390,7 +390,7 @@ fn the_command_reference_holds_every_subcommands_help() {
     }
     assert!(
         bad.is_empty(),
-        "docs/guide/src/commands.md:\n{}\n(VFP_DOCS_RECORD=1 cargo test -p vfp --test docs rewrites the help blocks)",
+        "docs/guide/src/commands.md:\n{}\n(VFP_DOCS_RECORD=1 cargo test -p vfp --test all docs:: rewrites the help blocks)",
         bad.join("\n")
     );
 }
