@@ -158,6 +158,21 @@ pub fn sse_fast(cols: &[Vec<f64>], y: &[f64], rows: &[usize]) -> f64 {
     })
 }
 
+/// [`sse_fast`] of the design whose columns are `cols` followed by `extra` (the same numbers as
+/// of one list of them, without joining them).
+pub fn sse_fast_parts(cols: &[Vec<f64>], extra: &[Vec<f64>], y: &[f64], rows: &[usize]) -> f64 {
+    if cols.iter().chain(extra).any(|c| c.len() != y.len()) {
+        return f64::INFINITY;
+    }
+    sse_gram(cols.len() + extra.len(), y, rows, |_, runs, data| {
+        for c in cols.iter().chain(extra) {
+            for &(a, b) in runs {
+                data.extend_from_slice(&c[a..b]);
+            }
+        }
+    })
+}
+
 /// [`sse_fast`] of a design that is produced in row order, a block at a time, and never held
 /// whole: `advance(hi, out)` writes rows `lo..hi` of its `p` columns into `out` (column by
 /// column, `p` runs of `hi − lo`), where `lo` is the `hi` of its previous call (0 at the first),

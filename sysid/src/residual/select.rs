@@ -301,6 +301,9 @@ struct Trials<'a> {
     point: std::cell::Cell<bool>,
     /// The effect's shortcut to the SSE, if it has one.
     fast: Option<Box<dyn Fn(f64) -> f64 + 'a>>,
+    /// The current model's design through its output filters, made at the first trial that can
+    /// use it ([`super::effects::design::sse_adding_columns`]).
+    base: std::cell::OnceCell<Option<super::effects::design::FilteredBase>>,
 }
 
 /// A searched parameter, with the model fitted at it when the search already made that fit.
@@ -320,6 +323,7 @@ impl<'a> Trials<'a> {
             stiffness: needs.stiffness.then(|| stiffness_of(prep, cur)),
             point: std::cell::Cell::new(false),
             fast: kind.fast_sse(prep, cur),
+            base: std::cell::OnceCell::new(),
         }
     }
 
@@ -335,10 +339,28 @@ impl<'a> Trials<'a> {
 
     /// Training SSE of the current model with the effect at `theta` added.
     fn objective(&self, theta: f64) -> f64 {
-        match &self.fast {
-            Some(f) => f(theta),
-            None => sse_of(self.prep, &with(&self.cur.effects, self.make(theta))),
+        if let Some(f) = &self.fast {
+            return f(theta);
         }
+        let effects = with(&self.cur.effects, self.make(theta));
+        // Behind the model's output filters, a candidate that only adds columns has only its own
+        // columns filtered at each trial, the model's filtered once per search.
+        let base = self.base.get_or_init(|| {
+            let k = self.kind;
+            let adds_only = k.filter_stage().is_none()
+                && k.input_stage().is_none()
+                && !k.uses_measured_pressure();
+            adds_only
+                .then(|| super::effects::design::filtered_base(self.prep, &self.cur.effects))
+                .flatten()
+        });
+        if let Some(sse) = base
+            .as_ref()
+            .and_then(|b| super::effects::design::sse_adding_columns(self.prep, b, &effects))
+        {
+            return sse;
+        }
+        sse_of(self.prep, &effects)
     }
 
     /// The current model with the effect at `theta` added, fitted.

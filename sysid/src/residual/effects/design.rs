@@ -371,8 +371,90 @@ impl Design {
 pub fn build(prep: &Prepared, effects: &[Effect]) -> Design {
     let effects = &*scheduled(prep, effects);
     let (mut design, inputs) = unfiltered(prep, effects);
-    output_filters(prep, effects, inputs.as_ref(), &mut design.cols);
+    output_filters(
+        prep,
+        effects,
+        inputs.as_ref(),
+        prep.basis.len(),
+        &mut design.cols,
+    );
     design
+}
+
+/// A model's design with its output filters applied, held through a search of a candidate that
+/// only adds columns ([`sse_adding_columns`]).
+pub struct FilteredBase {
+    design: Design,
+    inputs: Option<Moved>,
+}
+
+/// Most bytes a [`FilteredBase`] may take (a search holds it beside the designs it builds).
+const FILTERED_BASE_BYTES: usize = 64 << 20;
+
+/// The design of `effects` with its output filters applied, for [`sse_adding_columns`]; `None`
+/// when no effect filters the output (the searches then take the moments' route,
+/// [`sse_structured`]) or the design would take more than [`FILTERED_BASE_BYTES`].
+pub fn filtered_base(prep: &Prepared, effects: &[Effect]) -> Option<FilteredBase> {
+    if !effects.iter().any(|e| e.kind.filter_stage().is_some()) {
+        return None;
+    }
+    let width = prep.basis.len() + 2 * effects.len();
+    if width * prep.series.len() * 8 > FILTERED_BASE_BYTES {
+        return None;
+    }
+    let effects = &*scheduled(prep, effects);
+    let (mut design, inputs) = unfiltered(prep, effects);
+    output_filters(
+        prep,
+        effects,
+        inputs.as_ref(),
+        prep.basis.len(),
+        &mut design.cols,
+    );
+    Some(FilteredBase { design, inputs })
+}
+
+/// `lsq::sse_fast` of [`build`]'s design of `effects` (`base`'s effects, as [`filtered_base`] was
+/// given them, and one more, last)
+/// where the last one only adds columns: it neither filters the output, nor moves the inputs,
+/// nor reads the pressure, nor lags the sensor, so the design is `base`'s columns as they are
+/// followed by its own columns through the same output filters. Every column runs through the
+/// filters on its own (`lag_in_frames::apply`, `signal::LagStream`), so those are the same
+/// numbers, to the bit: only the new columns are filtered per trial, not the whole design. `None`
+/// when the last effect does not qualify.
+pub fn sse_adding_columns(prep: &Prepared, base: &FilteredBase, effects: &[Effect]) -> Option<f64> {
+    let e = effects.last()?;
+    let k = &e.kind;
+    if k.filter_stage().is_some()
+        || k.transforms_inputs(e)
+        || k.uses_measured_pressure()
+        || k.sensor_lag(e, &prep.scales).is_some()
+    {
+        return None;
+    }
+    let effects = &*scheduled(prep, effects);
+    let e = effects.last()?;
+    let v = base
+        .inputs
+        .as_ref()
+        .map_or(&prep.series.v[..], |(v, _)| &v[..]);
+    let mut extra: Vec<Vec<f64>> = e
+        .kind
+        .columns(e, prep, v)
+        .into_iter()
+        .map(|c| c.values)
+        .collect();
+    let y = &prep.series.p;
+    if extra.iter().any(|c| c.len() != y.len()) {
+        return None;
+    }
+    output_filters(prep, effects, base.inputs.as_ref(), 0, &mut extra);
+    Some(lsq::sse_fast_parts(
+        &base.design.cols,
+        &extra,
+        y,
+        &prep.train_rows,
+    ))
 }
 
 /// Volume and flow after the input transforms (`transformed_inputs`).
@@ -542,12 +624,14 @@ fn added_columns(
 
 /// Applies the output filters in the order of their [`super::EffectModel::filter_stage`]: when
 /// they are all lags in the loop's frame-mean form, inside the frames ([`super::lag_in_frames`];
-/// `inputs` the transformed volume and flow the baseline's columns were evaluated on, if any);
+/// `inputs` the transformed volume and flow the baseline's columns were evaluated on, if any;
+/// the first `nb` of `cols` the baseline's, the others added columns);
 /// otherwise (a filter in the board's form) each by its own [`super::EffectModel::filter`].
 fn output_filters(
     prep: &Prepared,
     effects: &[Effect],
     inputs: Option<&(Vec<f64>, Vec<f64>)>,
+    nb: usize,
     cols: &mut [Vec<f64>],
 ) {
     let mut filters: Vec<&Effect> = effects
@@ -559,7 +643,7 @@ fn output_filters(
     }
     filters.sort_by_key(|e| e.kind.filter_stage());
     if let Some(taus) = super::lag_in_frames::lag_time_constants(prep, &filters) {
-        super::lag_in_frames::apply(prep, inputs, prep.basis.len(), &taus, cols);
+        super::lag_in_frames::apply(prep, inputs, nb, &taus, cols);
         return;
     }
     for e in filters {
@@ -718,6 +802,41 @@ mod tests {
         assert!(sse_lagged(&prep, &[lag(false, false)]).is_none());
         assert!(sse_lagged(&prep, &[lag(false, true)]).is_none());
         assert!(sse_lagged(&prep, &[Effect::new(EffectKind(&Hysteresis), 20.0)]).is_none());
+    }
+
+    #[test]
+    fn adding_columns_behind_the_filters_gives_the_built_designs_sse_to_the_bit() {
+        // Every column runs through the output filters on its own, so the model's filtered design
+        // with the candidate's columns filtered apart is the built design, column for column:
+        // equal bits, behind a sensor lag inside the frames, on instants, and behind a sensor lag
+        // and a leak-moved volume; a candidate that moves the inputs has no such route.
+        let prep = two_tones(6000);
+        let lam = 0.5 * prep.scales.v_range / prep.scales.p_integral;
+        let lag = |point: bool| Effect {
+            point_sampled: point,
+            ..Effect::new(EffectKind(&SensorLag), 0.15)
+        };
+        for cur in [
+            vec![lag(false)],
+            vec![lag(true)],
+            vec![Effect::new(EffectKind(&Leak), lam), lag(false)],
+        ] {
+            let base = filtered_base(&prep, &cur).expect("a filtered model");
+            for cand in [
+                Effect::new(EffectKind(&Hysteresis), 20.0),
+                Effect::new(EffectKind(&Ripple), 0.27),
+            ] {
+                let effects = super::super::super::select::with(&cur, cand);
+                let d = build(&prep, &effects);
+                let built = lsq::sse_fast(&d.cols, &prep.series.p, &prep.train_rows);
+                let apart = sse_adding_columns(&prep, &base, &effects).expect("adds columns only");
+                assert_eq!(apart.to_bits(), built.to_bits(), "{effects:?}");
+            }
+            let moved =
+                super::super::super::select::with(&cur, Effect::new(EffectKind(&VolumeDrift), 3.0));
+            assert!(sse_adding_columns(&prep, &base, &moved).is_none());
+        }
+        assert!(filtered_base(&prep, &[Effect::new(EffectKind(&Hysteresis), 20.0)]).is_none());
     }
 
     #[test]
