@@ -179,7 +179,7 @@ fn force_pushes_are_estimated_near_the_noise_floor() {
 }
 
 /// Regenerates the README's runs and figures (`docs/img/diag-*.svg`):
-/// `cargo test -p vfp --test diag_hostsim -- --ignored --nocapture readme_runs`.
+/// `cargo test -p vfp --test all diag_hostsim::readme_runs -- --ignored --nocapture`.
 #[test]
 #[ignore]
 fn readme_runs() {

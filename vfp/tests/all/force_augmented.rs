@@ -183,7 +183,7 @@ fn augmented_board_is_no_worse_without_planted_effects() {
 }
 
 /// The numbers of the module docs and the README over a few rig sizes:
-/// `cargo test -p vfp --test force_augmented -- --ignored --nocapture`.
+/// `cargo test -p vfp --test all force_augmented:: -- --ignored --nocapture`.
 #[test]
 #[ignore]
 fn sizes() {
