@@ -77,7 +77,7 @@ fn series_of(s: &Synthetic) -> Series {
 }
 
 /// Float-precision bound for an f32 evaluation of `model` against an f64 evaluation of the same
-/// function (as in `tests/deploy_predict.rs`): Horner on scaled inputs |x|, |y| ≲ 1 errs by at
+/// function (as in `tests/tests/all/deploy_predict.rs`): Horner on scaled inputs |x|, |y| ≲ 1 errs by at
 /// most (n + m + 2)·u·Σ|b|, the AR terms by a few u·Σ|b_AR|; 32·u·(Σ|b| + Σ|b_AR|) bounds both.
 fn f32_bound(model: &PolyModel) -> f64 {
     let u = f64::from(f32::EPSILON) / 2.0;

@@ -227,8 +227,8 @@ fn the_serial_stream_is_shown_and_recorded() {
     let _ = std::fs::remove_dir_all(dir);
 }
 
-/// The README's picture of the monitor: `VFP_MONITOR_SCREEN=FILE cargo test -p vfp --test
-/// monitor readme_screen -- --ignored` writes the screen as text.
+/// The README's picture of the monitor: `VFP_MONITOR_SCREEN=FILE cargo test -p vfp --test all
+/// monitor::readme_screen -- --ignored` writes the screen as text.
 #[test]
 #[ignore]
 fn readme_screen() {

@@ -83,7 +83,7 @@ fn export(
 
 /// The board's frames from the first one its new chain estimated: one of the first two frames
 /// stamped after the model event − one frame (its conversions end within a frame of its mean
-/// instant), the one the replay matches (module docs of `host-sim/tests/chain.rs`).
+/// instant), the one the replay matches (module docs of `host-sim/tests/all/chain.rs`).
 fn after_load(run: &SimRun) -> u64 {
     run.events
         .iter()
@@ -238,7 +238,7 @@ fn transport_delay_runs_on_the_board_as_replayed() {
     check("transport-delay", "transport_delay", 16, 0.02);
 }
 
-/// With the ideal drive, as the loop's own inertance test (`sysid/tests/residual_hostsim.rs`):
+/// With the ideal drive, as the loop's own inertance test (`sysid/tests/all/residual_hostsim.rs`):
 /// the default drive's 3 ms delivery lag hides the inertance's pressure at this protocol's
 /// accelerations, and the loop keeps nothing.
 #[test]

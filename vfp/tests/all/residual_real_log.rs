@@ -1,8 +1,8 @@
 //! The residual loop on the real ventilator + test-lung log in `data/real/` (recorded by others,
 //! not designed for this tool). It checks only what must hold on any data — the loop runs, every
 //! kept effect lowered held-out RMSE, and the report is honest about what remains — and prints the
-//! report (`cargo test --release -p vfp --test all residual_real_log:: -- --ignored --nocapture`). The library is not tuned
-//! to this file.
+//! report (`cargo test --release -p vfp --test all residual_real_log:: -- --ignored
+//! --nocapture`). The library is not tuned to this file.
 
 use std::path::Path;
 
