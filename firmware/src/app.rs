@@ -932,6 +932,11 @@ impl Estimator {
         if !moved {
             return None;
         }
+        Some(self.post_zero(t_us, events))
+    }
+
+    /// Post the `zero` event with the offsets in force; returns them.
+    fn post_zero(&self, t_us: u64, events: &mut EventBuf) -> [f32; AXES] {
         push_event(
             events,
             t_us,
@@ -939,7 +944,7 @@ impl Estimator {
                 offset_kpa: self.zero_kpa,
             },
         );
-        Some(self.zero_kpa)
+        self.zero_kpa
     }
 
     /// The estimation half of [`finish_frame`](Self::finish_frame) on a frame's means: each
@@ -1003,14 +1008,7 @@ impl Estimator {
         if !refused {
             self.warnings &= !Flags::NOT_ZEROED;
         }
-        push_event(
-            events,
-            t_us,
-            EventKind::Zeroed {
-                offset_kpa: self.zero_kpa,
-            },
-        );
-        Some(self.zero_kpa)
+        Some(self.post_zero(t_us, events))
     }
 
     /// P̂, residual, k, c for one chamber from its effect chain (`model_core::chain`; the bare

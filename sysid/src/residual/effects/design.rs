@@ -369,6 +369,11 @@ impl Design {
 /// Builds the design of the baseline augmented with `effects` (see the module docs for the order:
 /// input transforms, baseline columns, added columns, output filters).
 pub fn build(prep: &Prepared, effects: &[Effect]) -> Design {
+    filtered(prep, effects).0
+}
+
+/// The design of `effects` (scheduled), its output filters applied, and the moved inputs.
+fn filtered(prep: &Prepared, effects: &[Effect]) -> (Design, Option<Moved>) {
     let effects = &*scheduled(prep, effects);
     let (mut design, inputs) = unfiltered(prep, effects);
     output_filters(
@@ -378,7 +383,7 @@ pub fn build(prep: &Prepared, effects: &[Effect]) -> Design {
         prep.basis.len(),
         &mut design.cols,
     );
-    design
+    (design, inputs)
 }
 
 /// A model's design with its output filters applied, held through a search of a candidate that
@@ -402,15 +407,7 @@ pub fn filtered_base(prep: &Prepared, effects: &[Effect]) -> Option<FilteredBase
     if width * prep.series.len() * 8 > FILTERED_BASE_BYTES {
         return None;
     }
-    let effects = &*scheduled(prep, effects);
-    let (mut design, inputs) = unfiltered(prep, effects);
-    output_filters(
-        prep,
-        effects,
-        inputs.as_ref(),
-        prep.basis.len(),
-        &mut design.cols,
-    );
+    let (design, inputs) = filtered(prep, effects);
     Some(FilteredBase { design, inputs })
 }
 
