@@ -620,16 +620,25 @@ impl<R: BufRead + Send> LogReader<R> {
         }
         let workers = std::thread::available_parallelism().map_or(1, |n| n.get().min(8));
         // Blocks in flight: one being read, one waiting per worker, one being parsed per worker,
-        // one parsed per worker waiting to be handed on (a few hundred kilobytes each).
+        // one parsed per worker waiting to be handed on (a few hundred kilobytes each). The
+        // buffers are the tickets: the reading thread takes one before it reads a block and the
+        // block's buffers come back once it is handed on, so no more than `in_flight` blocks
+        // are ever held. (Without the bound a worker held up on the next block in order let the
+        // other run ahead, and the parsed blocks waiting for it grew with the file.)
+        let in_flight = 1 + 3 * workers;
         let (work_tx, work_rx) = std::sync::mpsc::sync_channel::<Loaded>(workers);
         let work_rx = std::sync::Arc::new(std::sync::Mutex::new(work_rx));
         let (done_tx, done_rx) = std::sync::mpsc::sync_channel::<Handed>(workers);
         let (spare_tx, spare_rx) = std::sync::mpsc::channel::<Buffers>();
+        for _ in 0..in_flight {
+            let _ = spare_tx.send(Buffers::default());
+        }
         let shape = &shape;
         std::thread::scope(|s| {
             let reading = s.spawn(move || {
                 for k in 0.. {
-                    let spare = spare_rx.try_recv().unwrap_or_default();
+                    // No ticket: the consumer stopped (it drops its sender when it returns).
+                    let Ok(spare) = spare_rx.recv() else { break };
                     let item = match lines.next_block(shape.delimiter, spare) {
                         Ok(Some(b)) => Ok(b),
                         Ok(None) => break,
@@ -656,8 +665,9 @@ impl<R: BufRead + Send> LogReader<R> {
                 });
             }
             drop((done_tx, work_rx));
-            // Returning drops the receiver: the workers stop at their next block, then the reader.
-            let outcome = (|| {
+            // Returning drops the receiver and the tickets' sender: the workers stop at their
+            // next block, then the reader.
+            let outcome = (move || {
                 let mut waiting = std::collections::BTreeMap::new();
                 let mut next = 0;
                 for (k, item) in done_rx {
