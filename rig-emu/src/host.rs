@@ -15,8 +15,6 @@ pub struct HostPort {
     outgoing: VecDeque<(VirtualNanos, u16)>,
     /// Every byte the firmware sent, with the instant it arrived.
     received: Vec<(VirtualNanos, u8)>,
-    /// The same words as rigless's record of them.
-    words: Vec<u16>,
 }
 
 impl HostPort {
@@ -24,11 +22,6 @@ impl HostPort {
     pub fn send_at(&mut self, at: VirtualNanos, bytes: &[u8]) {
         self.outgoing
             .extend(bytes.iter().map(|&b| (at, u16::from(b))));
-    }
-
-    /// Bytes queued and not yet put on the line.
-    pub fn pending(&self) -> usize {
-        self.outgoing.len()
     }
 
     /// Every byte received so far, with its arrival instant.
@@ -41,7 +34,6 @@ impl Store for HostPort {}
 
 impl Peer for HostPort {
     fn receive(&mut self, word: u16, context: &mut Timeline<'_, '_>) {
-        self.words.push(word);
         self.received.push((context.now(), word as u8));
     }
 
@@ -52,9 +44,5 @@ impl Peer for HostPort {
         } else {
             None
         }
-    }
-
-    fn received(&self) -> &[u16] {
-        &self.words
     }
 }

@@ -20,14 +20,14 @@ use std::time::Duration;
 use host_sim::plant::Plant;
 use host_sim::PlantConfig;
 use rigless::device::Level;
-use rigless::emulator::{self, Access, AccessKind, Driver, Host, Settled, Start, Stop};
+use rigless::emulator::{self, Access, AccessKind, Driver, Host, Settled, Start, Stop, StopReason};
 use rigless::image::Image;
 use rigless::session::Session;
 use rigless::soc::Width;
 use rigless::time::VirtualNanos;
 
-use crate::board::{Nucleo, PinId, DIR, ENABLE, STEP};
-use crate::wire::{Received, Stream};
+use crate::board::{Nucleo, DIR, ENABLE, STEP};
+use crate::wire::Stream;
 
 /// GPIOA and GPIOB's register blocks (RM0390 table 1): the ports the step, direction and enable
 /// pins are on.
@@ -137,7 +137,6 @@ struct RigDriver {
     requests: Receiver<Request>,
     reached: Sender<u64>,
     target_ns: u64,
-    next_stop_ns: u64,
 }
 
 impl RigDriver {
@@ -154,8 +153,14 @@ impl Driver<Nucleo> for RigDriver {
         _host: &mut dyn Host,
         settled: Settled,
     ) {
-        let Settled::Access { access, .. } = settled else {
-            return;
+        let access = match settled {
+            Settled::Access { access, .. } => access,
+            // A reset puts the ports back to inputs with no access the driver would see.
+            Settled::Stop(stop) if stop.reason == StopReason::Reset => {
+                self.bench.pins(session.board_mut(), stop.at.0);
+                return;
+            }
+            _ => return,
         };
         if access.kind != AccessKind::Write {
             return;
@@ -176,10 +181,6 @@ impl Driver<Nucleo> for RigDriver {
         host: &mut dyn Host,
     ) -> Option<VirtualNanos> {
         let now = stop.at.0;
-        self.bench.pins(session.board_mut(), now);
-        if now >= self.next_stop_ns {
-            self.next_stop_ns = (now / STOP_PERIOD_NS + 1) * STOP_PERIOD_NS;
-        }
         self.bench.feed_host(session.board_mut());
         if now >= self.target_ns {
             if self.reached.send(now).is_err() {
@@ -199,9 +200,9 @@ impl Driver<Nucleo> for RigDriver {
                 }
             }
         }
-        Some(VirtualNanos(
-            self.target_ns.min(self.next_stop_ns).max(now + 1),
-        ))
+        // Both are past `now`: the target was set past it, the next whole millisecond is.
+        let next_ms = (now / STOP_PERIOD_NS + 1) * STOP_PERIOD_NS;
+        Some(VirtualNanos(self.target_ns.min(next_ms)))
     }
 }
 
@@ -301,7 +302,6 @@ impl Rig {
                     requests: req_rx,
                     reached: reached_tx,
                     target_ns: STOP_PERIOD_NS,
-                    next_stop_ns: STOP_PERIOD_NS,
                 };
                 let images = [image];
                 let start = Start::new(&images);
@@ -432,11 +432,6 @@ impl Rig {
         self.send(format!("{command}\n").as_bytes())
     }
 
-    /// Everything the host has read so far.
-    pub fn received(&mut self) -> Result<Vec<Received>, RigError> {
-        self.with(|_, b| b.stream.items().to_vec())
-    }
-
     /// Text lines received so far.
     pub fn lines(&mut self) -> Result<Vec<String>, RigError> {
         self.with(|_, b| b.stream.lines())
@@ -496,12 +491,7 @@ impl Rig {
         let end = self.now_ns + 5_000_000_000;
         loop {
             let status = self.command("status")?.unwrap_or_default();
-            let flags: u32 = status
-                .split_whitespace()
-                .skip_while(|w| *w != "flags")
-                .nth(1)
-                .and_then(|f| f.parse().ok())
-                .unwrap_or(u32::MAX);
+            let flags = status_flags(&status).unwrap_or(u32::MAX);
             if flags & not_zeroed == 0 || self.now_ns >= end {
                 return Ok(status);
             }
@@ -529,6 +519,16 @@ impl Drop for Rig {
     }
 }
 
+/// The `flags` field of a `status` reply.
+pub fn status_flags(status: &str) -> Option<u32> {
+    status
+        .split_whitespace()
+        .skip_while(|w| *w != "flags")
+        .nth(1)?
+        .parse()
+        .ok()
+}
+
 /// Whether a text line is a command's reply.
 pub fn is_reply(line: &str) -> bool {
     line.starts_with("ok") || line.starts_with("err")
@@ -541,9 +541,4 @@ pub fn default_elf() -> PathBuf {
         return PathBuf::from(p);
     }
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../target/thumbv7em-none-eabihf/firmware/vfp-fw")
-}
-
-/// Pin levels for a quick look (tests and diagnostics).
-pub fn pin_level(board: &mut Nucleo, pin: PinId) -> Level {
-    board.level(pin)
 }

@@ -4,6 +4,7 @@
 
 use std::time::Duration;
 
+use rig_emu::rig::status_flags;
 use rig_emu::{default_elf, Rig, RigConfig};
 
 /// ADC1's data register (RM0390 13.13.14), which the sampler reads.
@@ -17,10 +18,6 @@ fn rig() -> Rig {
 
 fn enabled(rig: &mut Rig) -> bool {
     rig.with(|_, b| b.enabled).unwrap()
-}
-
-fn flags(status: &str) -> u32 {
-    status.split_whitespace().nth(2).unwrap().parse().unwrap()
 }
 
 #[test]
@@ -69,7 +66,7 @@ fn a_hardfault_disables_the_drivers_and_they_stay_disabled_until_clear() {
     let status = rig.command("status").unwrap().expect("a reply");
     assert!(status.contains(" reset hardfault 0x"), "{status}");
     assert!(
-        flags(&status) & firmware::telemetry::Flags::FAULT_RESET != 0,
+        status_flags(&status).unwrap() & firmware::telemetry::Flags::FAULT_RESET != 0,
         "{status}"
     );
     // A second later the drivers are still disabled and a move is refused.

@@ -4,6 +4,7 @@
 use std::time::Duration;
 
 use host_sim::PlantConfig;
+use rig_emu::rig::status_flags;
 use rig_emu::{default_elf, Rig, RigConfig};
 
 #[test]
@@ -19,7 +20,7 @@ fn a_channel_pressurised_at_boot_is_not_zeroed_and_reads_its_pressure() {
     .expect("the virtual rig starts");
     rig.run_for(Duration::from_millis(2_500)).unwrap();
     let status = rig.command("status").unwrap().expect("a reply");
-    let flags: u32 = status.split_whitespace().nth(2).unwrap().parse().unwrap();
+    let flags = status_flags(&status).expect("a flags field");
     assert!(
         flags & firmware::telemetry::Flags::NOT_ZEROED != 0,
         "the refused zero is reported: {status}"
