@@ -534,6 +534,22 @@ pub fn is_reply(line: &str) -> bool {
     line.starts_with("ok") || line.starts_with("err")
 }
 
+/// A command running the main workspace's `vfp`: `VFP_BIN`, or its dev or release build (the
+/// tests that close the loop through the command-line tool).
+pub fn vfp() -> std::process::Command {
+    let path = std::env::var_os("VFP_BIN").map(PathBuf::from).unwrap_or_else(|| {
+        let target = Path::new(env!("CARGO_MANIFEST_DIR")).join("../target");
+        ["debug", "release"]
+            .iter()
+            .map(|p| target.join(p).join("vfp"))
+            .find(|p| p.exists())
+            .unwrap_or_else(|| {
+                panic!("no vfp binary: build it first (`cargo build -p vfp` in the main workspace) or set VFP_BIN")
+            })
+    });
+    std::process::Command::new(path)
+}
+
 /// The ELF the rig runs by default: `VFP_FW_ELF`, or the `firmware` profile's build in the main
 /// workspace's target directory.
 pub fn default_elf() -> PathBuf {

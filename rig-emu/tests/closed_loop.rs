@@ -2,27 +2,12 @@
 //! (`vfp record --binary`), identified and diagnosed, names the plant's planted effect as
 //! host-sim's log of the same protocol and plant does, with the same parameters.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::Command;
 use std::time::Duration;
 
 use host_sim::{Effects, PlantConfig};
-use rig_emu::{default_elf, Rig, RigConfig};
-
-/// The `vfp` binary of the main workspace: `VFP_BIN`, or its dev or release build.
-fn vfp() -> Command {
-    let path = std::env::var_os("VFP_BIN").map(PathBuf::from).unwrap_or_else(|| {
-        let target = Path::new(env!("CARGO_MANIFEST_DIR")).join("../target");
-        ["debug", "release"]
-            .iter()
-            .map(|p| target.join(p).join("vfp"))
-            .find(|p| p.exists())
-            .unwrap_or_else(|| {
-                panic!("no vfp binary: build it first (`cargo build -p vfp` in the main workspace) or set VFP_BIN")
-            })
-    });
-    Command::new(path)
-}
+use rig_emu::{default_elf, vfp, Rig, RigConfig};
 
 fn run(cmd: &mut Command) -> Vec<u8> {
     let out = cmd.output().expect("vfp runs");

@@ -24,6 +24,9 @@ use std::io::{Read, Write};
 
 use firmware::command::{self, Command, ModelCmd};
 
+use crate::capture::CaptureLine;
+use crate::packets::PacketReader;
+
 /// Everything sent to one channel, and the values it should hold afterwards.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Upload {
@@ -316,14 +319,20 @@ pub struct ChannelResult {
     pub readback: Readback,
 }
 
-/// Line-based exchange over a byte port.
+/// Line-based exchange over a byte port. The port may also carry the board's binary telemetry
+/// (a board left streaming after `telemetry on`): its packets and event lines are split off by
+/// [`PacketReader`] and skipped, so a reply is read between them.
 struct Link<'a, P> {
     port: &'a mut P,
-    pending: Vec<u8>,
+    reader: PacketReader,
+    lines: VecDeque<String>,
+    /// Bytes read since the last reply line (packets included).
+    unanswered: usize,
 }
 
-/// Longest reply line accepted (the firmware's replies are at most 192 bytes).
-const MAX_REPLY: usize = 1024;
+/// Bytes read without a single reply line after which the device is taken for something else
+/// than the firmware: a second of the binary stream at its full rate is about 7.5 KB.
+const MAX_UNANSWERED: usize = 64 * 1024;
 
 impl<P: Read + Write> Link<'_, P> {
     fn send(&mut self, line: &str) -> Result<String, DeployError> {
@@ -347,22 +356,30 @@ impl<P: Read + Write> Link<'_, P> {
     fn reply(&mut self, sent: &str) -> Result<String, DeployError> {
         let mut buf = [0u8; 64];
         loop {
-            if let Some(end) = self.pending.iter().position(|&b| b == b'\n') {
-                let line: Vec<u8> = self.pending.drain(..=end).collect();
-                let s = String::from_utf8_lossy(&line)
-                    .trim_end_matches(['\r', '\n'])
-                    .to_string();
-                return Ok(s);
+            if let Some(line) = self.lines.pop_front() {
+                self.unanswered = 0;
+                return Ok(line);
             }
-            if self.pending.len() > MAX_REPLY {
-                let s = String::from_utf8_lossy(&self.pending[..80]).to_string();
+            if self.unanswered > MAX_UNANSWERED {
                 return Err(DeployError::NotFirmware {
-                    reply: format!("{s}… (no line end)"),
+                    reply: format!("{} bytes without a reply line", self.unanswered),
                 });
             }
             match self.port.read(&mut buf) {
                 Ok(0) => return Err(DeployError::Closed { sent: sent.into() }),
-                Ok(n) => self.pending.extend_from_slice(&buf[..n]),
+                Ok(n) => {
+                    self.unanswered += n;
+                    let lines = &mut self.lines;
+                    self.reader.feed(&buf[..n], |item| {
+                        // Frames, events and damaged packets are the stream's, not replies;
+                        // nor is a blank line.
+                        if let CaptureLine::Other(text) = item {
+                            if !text.trim().is_empty() {
+                                lines.push_back(text.trim_end().to_string());
+                            }
+                        }
+                    });
+                }
                 Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
                 Err(e)
                     if matches!(
@@ -434,7 +451,9 @@ pub fn deploy<P: Read + Write>(
 ) -> Result<Vec<ChannelResult>, DeployError> {
     let mut link = Link {
         port,
-        pending: Vec::new(),
+        reader: PacketReader::new(),
+        lines: VecDeque::new(),
+        unanswered: 0,
     };
     // Skip stale lines (at most a few) until the status reply.
     let mut reply = link.send("status")?;
@@ -698,6 +717,78 @@ mod tests {
         let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
         assert_eq!(bits(m.ar().as_flattened()), bits(&ups[0].ar));
         assert_eq!(bits(m.scaled()), bits(&ups[0].coef));
+    }
+
+    /// A board left streaming (`telemetry on`): every read hands a telemetry packet, blank
+    /// lines or an event line, then the next reply line.
+    struct Streaming {
+        board: FirmwarePort,
+        reads: u32,
+        out: VecDeque<u8>,
+    }
+
+    impl Write for Streaming {
+        fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+            self.board.write(buf)
+        }
+        fn flush(&mut self) -> std::io::Result<()> {
+            Ok(())
+        }
+    }
+
+    impl Read for Streaming {
+        fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+            use firmware::wire::{encode_frame, Packet};
+            if !self.out.is_empty() {
+                let n = buf.len().min(self.out.len());
+                for (d, s) in buf.iter_mut().zip(self.out.drain(..n)) {
+                    *d = s;
+                }
+                return Ok(n);
+            }
+            self.reads += 1;
+            let mut p = Packet::new();
+            let frame = firmware::telemetry::Frame {
+                seq: self.reads,
+                ..Default::default()
+            };
+            encode_frame(&frame, &mut p);
+            let mut out: Vec<u8> = match self.reads % 3 {
+                0 => p.to_vec(),
+                1 => b"\r\n\n".to_vec(),
+                // The event line the firmware writes on its command port at boot.
+                _ => b"$E 1200 boot 0 power-on\n".to_vec(),
+            };
+            // Then one whole reply line, if one is pending: the board writes a line and a
+            // packet each whole, never one inside the other.
+            let mut byte = [0u8; 1];
+            while let Ok(1) = self.board.read(&mut byte) {
+                out.push(byte[0]);
+                if byte[0] == b'\n' {
+                    break;
+                }
+            }
+            self.out.extend(out);
+            self.read(buf)
+        }
+    }
+
+    #[test]
+    fn deploys_to_a_board_left_streaming() {
+        let text = LINES.replace(
+            "model 1 commit",
+            "model 1 effect hysteresis 6e0 8e-1 -1.0000001e-1\nmodel 1 commit",
+        );
+        let up = parse_lines(&text, "x").unwrap();
+        let mut port = Streaming {
+            board: FirmwarePort::new(),
+            reads: 0,
+            out: VecDeque::new(),
+        };
+        let r = deploy(&mut port, &up).unwrap();
+        assert_eq!(r[0].readback, Readback::Verified { values: 7 + 12 + 4 });
+        // Each reply came after stream content (a packet, blank lines or an event).
+        assert!(port.reads >= 10, "{} reads", port.reads);
     }
 
     #[test]

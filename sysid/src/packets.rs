@@ -45,6 +45,12 @@ fn is_text(bytes: &[u8]) -> bool {
         .all(|&b| matches!(b, 0x20..=0x7E | b'\t' | b'\r'))
 }
 
+/// Text, after any blank lines: what a `\n` ends as a line.
+fn is_line(chunk: &[u8]) -> bool {
+    let body = &chunk[chunk.iter().take_while(|&&c| c == b'\n').count()..];
+    !body.is_empty() && is_text(body)
+}
+
 impl PacketReader {
     /// Nothing read yet.
     pub fn new() -> Self {
@@ -58,8 +64,11 @@ impl PacketReader {
     pub fn push(&mut self, b: u8) -> Option<CaptureLine<'static>> {
         match b {
             0 => self.end_chunk(),
-            b'\n' if !self.chunk.is_empty() && is_text(&self.chunk) => {
-                let line = classify(&self.chunk).into_owned();
+            // A line end after text. Blank lines before it (`\n`s kept while the chunk could
+            // still have been a packet's start) are dropped.
+            b'\n' if is_line(&self.chunk) => {
+                let start = self.chunk.iter().take_while(|&&c| c == b'\n').count();
+                let line = classify(&self.chunk[start..]).into_owned();
                 self.chunk.clear();
                 Some(line)
             }
