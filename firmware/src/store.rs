@@ -16,7 +16,7 @@
 //! | 4..20 | v_offset, v_scale, f_offset, f_scale (`f32` little-endian) |
 //! | then | the (n+1)(m+1) scaled coefficients b_ij, index i·(m+1)+j (`f32` LE) |
 //! | then | the 2p flattened AR coefficients b₁₁ b₁₂ b₂₁ … (`f32` LE) |
-//! | version 2 only | the number of effects e (1..=4), then per effect, in the chain's evaluation order (`model_core::chain::EffectKind::ALL`): its code (the index in that list, one byte) and its parameters (`f32` LE, as many as the kind takes) |
+//! | version 2 only | the number of effects e (1..=4), then per effect, in the chain's evaluation order (`model_core::chain::EffectKind::ALL`): its stored code (`EffectKind::code`, one byte, fixed forever and independent of that order) and its parameters (`f32` LE, as many as the kind takes) |
 //!
 //! A model without effects serialises exactly as before the chain existed, so its CRC is
 //! unchanged. The model's CRC ([`model_crc`], [`crc`]) is the CRC-32/ISO-HDLC (zlib's CRC-32) of
@@ -105,7 +105,7 @@ pub fn encode(model: &Model, out: &mut [u8; MODEL_BYTES]) -> usize {
     out[at] = effects.len() as u8;
     at += 1;
     for e in effects {
-        out[at] = e.kind().rank();
+        out[at] = e.kind().code();
         at += 1;
         for x in e.params() {
             out[at..at + 4].copy_from_slice(&x.to_le_bytes());
@@ -203,7 +203,7 @@ fn decode_chain(b: &[u8]) -> Result<Chain, DecodeError> {
     let mut chain = Chain::new();
     for _ in 0..count {
         let (&code, tail) = rest.split_first().ok_or(DecodeError::Length)?;
-        let kind = EffectKind::from_rank(code).ok_or(DecodeError::Model)?;
+        let kind = EffectKind::from_code(code).ok_or(DecodeError::Model)?;
         let n = kind.params();
         let bytes = tail.get(..4 * n).ok_or(DecodeError::Length)?;
         let mut params = [0.0f32; MAX_EFFECT_PARAMS];

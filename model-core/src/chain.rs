@@ -151,14 +151,34 @@ impl EffectKind {
         Self::ALL.into_iter().find(|k| k.name() == name)
     }
 
-    /// Position in [`ALL`](Self::ALL): the evaluation order and the stored code.
+    /// Position in [`ALL`](Self::ALL): the evaluation order. Not stored anywhere: a kind may
+    /// move in the order without changing what a board has kept (that is [`code`](Self::code)).
     pub fn rank(self) -> u8 {
         Self::ALL.iter().position(|&k| k == self).unwrap_or(0) as u8
     }
 
-    /// The kind of rank `code`.
-    pub fn from_rank(code: u8) -> Option<Self> {
-        Self::ALL.get(code as usize).copied()
+    /// The kind's code in a stored or transmitted model (`firmware::store`'s serialised chain).
+    /// Fixed forever: a board keeps models across firmware updates, so a code never changes and
+    /// is never reused; a new kind takes the next free one (9). The first nine are the ranks
+    /// the evaluation order had when codes were split from it, so stores written before decode
+    /// as they were.
+    pub fn code(self) -> u8 {
+        match self {
+            EffectKind::DeliveryLag => 0,
+            EffectKind::TransportDelay => 1,
+            EffectKind::Backlash => 2,
+            EffectKind::Leak => 3,
+            EffectKind::AirCompliance => 4,
+            EffectKind::Hysteresis => 5,
+            EffectKind::Inertance => 6,
+            EffectKind::PumpRipple => 7,
+            EffectKind::SensorLag => 8,
+        }
+    }
+
+    /// The kind stored as `code` ([`code`](Self::code)); `None` for a code no kind has.
+    pub fn from_code(code: u8) -> Option<Self> {
+        Self::ALL.into_iter().find(|k| k.code() == code)
     }
 
     /// Number of parameters (see the module table).

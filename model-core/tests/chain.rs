@@ -772,8 +772,9 @@ fn bad_effects_are_refused() {
     );
     for k in EffectKind::ALL {
         assert_eq!(EffectKind::from_name(k.name()), Some(k));
-        assert_eq!(EffectKind::from_rank(k.rank()), Some(k));
+        assert_eq!(EffectKind::from_code(k.code()), Some(k));
     }
+    assert_eq!(EffectKind::from_code(9), None);
     assert_eq!(EffectKind::from_name("ripple"), None);
     assert_eq!(EffectKind::from_name("offset_drift"), None);
 }
@@ -928,4 +929,32 @@ fn the_load_pressure_undoes_the_sensor_lag_on_the_residual() {
         assert_eq!(plain.load_pressure(&mut st, r, dt), r);
     }
     assert_eq!(Chain::new().load_pressure(&mut st, 0.7, dt), 0.7);
+}
+
+/// The stored codes of the effect kinds, pinned: boards keep models across firmware updates, so
+/// a code that changed would decode every stored chain holding it as another effect. A failure
+/// here means a code moved: give the kind its old code back (`EffectKind::code`), never change
+/// this table; a new kind is added with the next free code.
+#[test]
+fn stored_effect_codes_never_change() {
+    use EffectKind::*;
+    let pinned = [
+        (DeliveryLag, 0),
+        (TransportDelay, 1),
+        (Backlash, 2),
+        (Leak, 3),
+        (AirCompliance, 4),
+        (Hysteresis, 5),
+        (Inertance, 6),
+        (PumpRipple, 7),
+        (SensorLag, 8),
+    ];
+    assert_eq!(
+        pinned.len(),
+        EffectKind::ALL.len(),
+        "a kind without a pinned code"
+    );
+    for (kind, code) in pinned {
+        assert_eq!(kind.code(), code, "{kind:?}");
+    }
 }
