@@ -35,6 +35,11 @@ const GPIO_AB: std::ops::Range<u64> = 0x4002_0000..0x4002_0800;
 /// ADC1's CR2 (RM0390 13.13.3) and its SWSTART bit: a regular conversion starts.
 const ADC1_CR2: u64 = 0x4001_2008;
 const SWSTART: u64 = 1 << 30;
+/// The flash interface's access control and control registers (RM0390 3.8): the caches and
+/// the erase and program operations.
+pub const FLASH_ACR: u64 = 0x4002_3C00;
+/// See [`FLASH_ACR`].
+pub const FLASH_CR: u64 = 0x4002_3C10;
 /// How often the driver hands the test thread a stop (and reads the pins and the host's wire
 /// there) while it runs.
 const STOP_PERIOD_NS: u64 = 1_000_000;
@@ -61,6 +66,10 @@ pub struct Bench {
     pub steps_while_disabled: u64,
     /// Every change of the drivers' enable (true = enabled, EN low), with its instant, ns.
     pub enable_changes: Vec<(u64, bool)>,
+    /// Every write the firmware made to [`FLASH_ACR`] or [`FLASH_CR`]: (instant ns, address,
+    /// value). The flash model neither erases nor programs the array, but the sequence of
+    /// operations and cache resets the firmware asks for is here.
+    pub flash_writes: Vec<(u64, u64, u64)>,
     /// Whether the drivers are enabled now.
     pub enabled: bool,
     step_level: [Level; 3],
@@ -77,6 +86,7 @@ impl Bench {
             steps: Vec::new(),
             steps_while_disabled: 0,
             enable_changes: Vec::new(),
+            flash_writes: Vec::new(),
             enabled: false,
             step_level: [Level::Low; 3],
             stream: Stream::default(),
@@ -165,7 +175,11 @@ impl Driver<Nucleo> for RigDriver {
         if access.kind != AccessKind::Write {
             return;
         }
-        if GPIO_AB.contains(&access.address) {
+        if access.address == FLASH_ACR || access.address == FLASH_CR {
+            self.bench
+                .flash_writes
+                .push((access.virtual_time.0, access.address, access.value));
+        } else if GPIO_AB.contains(&access.address) {
             self.bench.pins(session.board_mut(), access.virtual_time.0);
         } else if access.address == ADC1_CR2 && access.value & SWSTART != 0 {
             // The converter samples its pin when the conversion starts (the model computes the

@@ -15,6 +15,7 @@ use std::process::{Child, Output, Stdio};
 use std::time::{Duration, Instant};
 
 use host_sim::{Effects, PlantConfig};
+use rig_emu::rig::FLASH_CR;
 use rig_emu::wire::Received;
 use rig_emu::{default_elf, vfp, Rig, RigConfig};
 use serialport::{SerialPort, TTYPort};
@@ -160,13 +161,13 @@ fn a_deployed_chain_runs_on_the_binary_as_vfp_replay_computes_it() {
     }
     assert!(done, "the run ended within 60 virtual seconds");
     assert_eq!(rig.command("telemetry off").unwrap().as_deref(), Some("ok"));
-    let (capture, items): (Vec<u8>, Vec<Received>) = rig
+    let (capture, items, flash) = rig
         .with(move |s, b| {
             let bytes = s.board_mut().host().received_bytes()[capture_from..]
                 .iter()
                 .map(|&(_, b)| b)
-                .collect();
-            (bytes, b.stream.items().to_vec())
+                .collect::<Vec<u8>>();
+            (bytes, b.stream.items().to_vec(), b.flash_writes.clone())
         })
         .unwrap();
     drop(rig);
@@ -195,6 +196,19 @@ fn a_deployed_chain_runs_on_the_binary_as_vfp_replay_computes_it() {
     assert!(
         stored > done,
         "stored at {stored} µs, run ended at {done} µs"
+    );
+    // And at the registers: every program or erase the firmware started (FLASH_CR with PG, or
+    // SER and STRT) came after the run's end, none while the steppers ran.
+    let operations: Vec<u64> = flash
+        .iter()
+        .filter(|&&(_, a, v)| a == FLASH_CR && (v & 1 != 0 || v & (1 << 16) != 0))
+        .map(|&(t, ..)| t / 1000)
+        .collect();
+    eprintln!("flash operations at {operations:?} µs");
+    assert!(!operations.is_empty(), "the store touched the flash");
+    assert!(
+        operations.iter().all(|&t| t > done),
+        "flash operations at {operations:?} µs, the run ended at {done} µs"
     );
 
     // The frame the new chain first estimated: the first stamped after the load event (module
