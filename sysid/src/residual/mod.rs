@@ -44,6 +44,61 @@ pub use basis::PolyBasis;
 pub use effects::{Effect, EffectKind, EffectModel, REGISTRY};
 pub use select::{param, NestedTest, Param, Stage};
 
+/// The kind of rig a log comes from, for the names of the effects the loop reports (issue 35):
+/// an effect whose story is a mechanism of a syringe pump (lead-screw ripple, backlash, the
+/// syringe's delivery lag) carries that name only on a syringe rig; elsewhere a neutral name that
+/// claims no more than the signal ([`EffectModel::generic`]). Only names and stories change, never
+/// a model.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Rig {
+    /// This project's syringe rig (its firmware's logs, host-sim's, or said with `--rig`).
+    #[default]
+    Syringe,
+    /// Any other source: a ventilator, a lung simulator, a lab's own file.
+    Generic,
+}
+
+impl Rig {
+    /// The rig a log's header names: [`Rig::Syringe`] for the logs this project writes
+    /// (`# source=vfp record …` from a board, `# source=host-sim …` from the simulated rig),
+    /// [`Rig::Generic`] for any other.
+    pub fn of_log(comments: &[String]) -> Rig {
+        match crate::log::metadata(comments, "source") {
+            Some(s) if s.starts_with("vfp record") || s.starts_with("host-sim") => Rig::Syringe,
+            _ => Rig::Generic,
+        }
+    }
+
+    /// `syringe` or `generic`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Rig::Syringe => "syringe",
+            Rig::Generic => "generic",
+        }
+    }
+
+    /// The name an effect called `name` is reported under on this rig.
+    pub fn effect_name(self, name: &'static str) -> &'static str {
+        match (self, EffectKind::named(name).and_then(|k| k.generic())) {
+            (Rig::Generic, Some((neutral, _))) => neutral,
+            _ => name,
+        }
+    }
+}
+
+impl std::str::FromStr for Rig {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "syringe" => Ok(Rig::Syringe),
+            "generic" => Ok(Rig::Generic),
+            _ => Err(format!("unknown rig `{s}` (syringe or generic)")),
+        }
+    }
+}
+
 /// Bad input to the loop; each says what to do.
 #[derive(Debug, thiserror::Error)]
 pub enum DiagnoseError {
@@ -108,6 +163,9 @@ pub struct Series {
     /// what a plausible periodic effect must not be locked to. `None` (the default) when unknown
     /// or irregular; [`series_from_dataset`] sets it from the cycle split ([`cycle_period`]).
     pub cycle_s: Option<f64>,
+    /// The rig the data come from, for the effects' names ([`Rig`]; [`Series::new`]: this
+    /// project's syringe rig; [`diagnose_log`] reads it from the log's header).
+    pub rig: Rig,
 }
 
 impl Series {
@@ -165,6 +223,7 @@ impl Series {
             p,
             train,
             cycle_s: None,
+            rig: Rig::Syringe,
         })
     }
 
@@ -205,6 +264,9 @@ pub struct Config {
     /// Told as each stage starts (baseline, each round's searches, the final analysis) and as
     /// each candidate's search finishes; `None`: silent.
     pub progress: Option<crate::progress::ProgressFn>,
+    /// The rig the effects are named for ([`Rig`]); `None`: the series' own ([`Series::rig`]),
+    /// which [`diagnose_log`] takes from the log's header.
+    pub rig: Option<Rig>,
 }
 
 impl Default for Config {
@@ -222,6 +284,7 @@ impl Default for Config {
                 .min(4),
             design_memory: effects::DESIGN_MEMORY,
             progress: None,
+            rig: None,
         }
     }
 }
@@ -379,6 +442,8 @@ impl From<&ResidualAnalysis> for AnalysisSummary {
 /// Everything the loop found.
 #[derive(Clone, Debug, Serialize)]
 pub struct Diagnosis {
+    /// The rig the effects are named for.
+    pub rig: Rig,
     /// Training / held-out sample counts.
     pub samples: (usize, usize),
     /// How significance is decided, in words.
@@ -1054,14 +1119,18 @@ fn effect_reports(prep: &effects::Prepared, sel: &Selection) -> Vec<EffectReport
 }
 
 /// The neutral name and story of the final model's `i`-th effect, if its parameters call for one
-/// ([`EffectModel::neutral`]).
+/// ([`EffectModel::neutral`]) or the rig does ([`EffectModel::generic`] off a syringe rig).
 fn neutral(
     prep: &effects::Prepared,
     sel: &Selection,
     i: usize,
 ) -> Option<(&'static str, &'static str)> {
     let e = sel.model.effects.get(i)?;
-    e.kind.neutral(e, &prep.scales)
+    e.kind.neutral(e, &prep.scales).or_else(|| {
+        (prep.scales.rig == Rig::Generic)
+            .then(|| e.kind.generic())
+            .flatten()
+    })
 }
 
 /// The held-out residual analysis (step 2) of a model's residual.
@@ -1088,7 +1157,23 @@ fn report(prep: &effects::Prepared, cfg: &Config, baseline: &Stage, sel: Selecti
     let mut remaining = analysis::signatures(&analysis_after, cfg.whiteness_alpha, harmonic);
     remaining.extend(sel.unphysical);
     let cur = &sel.model;
+    let rig = prep.scales.rig;
+    let name = |n: &'static str| rig.effect_name(n);
+    let mut rejected = sel.rejected;
+    rejected.iter_mut().for_each(|r| r.name = name(r.name));
+    let mut swaps = sel.swaps;
+    for s in &mut swaps {
+        s.replaced = name(s.replaced);
+        s.by.iter_mut().for_each(|b| *b = name(b));
+    }
+    let mut effects = effects;
+    for e in &mut effects {
+        if let Some(r) = &mut e.runner_up {
+            r.name = name(r.name);
+        }
+    }
     Diagnosis {
+        rig,
         samples: (prep.train_rows.len(), prep.held_rows.len()),
         significance: format!(
             "kept only if the nested F-test with autocorrelation-corrected effective sample size rejects at alpha = {} AND held-out RMSE falls by at least {:.1} % AND the fit is physical (inertance ≥ 0, hysteresis gap ≥ 0; lags, delays, widths, air, leak > 0 by construction)",
@@ -1110,8 +1195,8 @@ fn report(prep: &effects::Prepared, cfg: &Config, baseline: &Stage, sel: Selecti
             uses_measured_pressure: cur.effects.iter().any(|e| e.kind.uses_measured_pressure()),
         },
         remaining,
-        rejected_last_round: sel.rejected,
-        swaps: sel.swaps,
+        rejected_last_round: rejected,
+        swaps,
         before: (&analysis_before).into(),
         after: (&analysis_after).into(),
         analysis_before,
@@ -1311,7 +1396,8 @@ pub fn diagnose_log(
         chamber: ds.chamber,
         source,
     };
-    let series = series_from_dataset(ds).map_err(wrap)?;
+    let mut series = series_from_dataset(ds).map_err(wrap)?;
+    series.rig = cfg.rig.unwrap_or_else(|| Rig::of_log(&data.comments));
     let mut cfg = cfg.clone();
     let t = std::time::Instant::now();
     if !shape_given {
@@ -1336,4 +1422,50 @@ pub fn document(data: &crate::dataset::LogData, d: &Diagnosis) -> serde_json::Va
         obj.insert("split".into(), ds.split_description().into());
     }
     doc
+}
+
+#[cfg(test)]
+mod rig_tests {
+    use super::Rig;
+
+    #[test]
+    fn the_rig_is_read_from_the_logs_header() {
+        let header = |lines: &[&str]| lines.iter().map(|l| l.to_string()).collect::<Vec<_>>();
+        assert_eq!(
+            Rig::of_log(&header(&["source=vfp record /dev/ttyACM0", "x"])),
+            Rig::Syringe
+        );
+        assert_eq!(
+            Rig::of_log(&header(&[
+                "source=host-sim (firmware tasks on a simulated plant)"
+            ])),
+            Rig::Syringe
+        );
+        // A ventilator's log (data/real's header), and a file with no header.
+        assert_eq!(
+            Rig::of_log(&header(&[
+                "source: github RespiraWorks/Ventilator @ 718bce0"
+            ])),
+            Rig::Generic
+        );
+        assert_eq!(Rig::of_log(&[]), Rig::Generic);
+        assert_eq!("generic".parse::<Rig>(), Ok(Rig::Generic));
+        assert!("pump".parse::<Rig>().is_err());
+    }
+
+    #[test]
+    fn a_pump_mechanism_is_named_for_the_signal_off_a_syringe_rig() {
+        for (name, neutral) in [
+            ("pump_ripple", "periodic_in_volume"),
+            ("backlash", "dead_band"),
+            ("delivery_lag", "input_lag"),
+        ] {
+            assert_eq!(Rig::Generic.effect_name(name), neutral);
+            assert_eq!(Rig::Syringe.effect_name(name), name);
+        }
+        // Effects whose story is no pump's keep their name anywhere.
+        for name in ["hysteresis", "sensor_lag", "air_compliance", "ripple"] {
+            assert_eq!(Rig::Generic.effect_name(name), name);
+        }
+    }
 }

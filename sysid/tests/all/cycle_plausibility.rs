@@ -88,6 +88,7 @@ fn a_ripple_at_a_harmonic_of_the_cycle_is_not_a_ripple() {
         duration: 41.0,
         p_integral: 100.0,
         cycle_s,
+        rig: sysid::residual::Rig::Generic,
     };
     let judge =
         |f: f64, cycle_s| ripple.unphysical(&Effect::new(ripple, f), &[0.1, 0.1], &scales(cycle_s));
@@ -116,6 +117,7 @@ fn a_lag_of_a_good_part_of_the_cycle_is_named_pressure_dynamics() {
         duration: 233.0,
         p_integral: 100.0,
         cycle_s,
+        rig: sysid::residual::Rig::Generic,
     };
     let name = |tau: f64, cycle_s| {
         lag.neutral(&Effect::new(lag, tau), &scales(cycle_s))
@@ -140,6 +142,7 @@ fn a_play_leak_or_air_pocket_of_a_large_part_of_the_stroke_is_not_kept() {
         duration: 2000.0,
         p_integral: 20_000.0,
         cycle_s: None,
+        rig: sysid::residual::Rig::Syringe,
     };
     let judge = |name: &str, theta: f64| {
         let k = EffectKind::named(name).expect("known effect");

@@ -11,7 +11,7 @@ use sysid::residual::analysis::Binned;
 use sysid::residual::validate::{validate_log, Validation};
 use sysid::residual::{
     diagnose_log, document, Config, Diagnosis, EffectKind, EffectReport, Param, ResidualAnalysis,
-    Timings,
+    Rig, Timings,
 };
 
 /// `vfp diagnose`: trace the residual of a fitted model to physical effects it lacks.
@@ -39,6 +39,13 @@ pub struct Args {
     /// `validation`).
     #[arg(long, value_name = "OTHER.csv")]
     pub validate: Option<PathBuf>,
+    /// The rig the log comes from, which names the effects: `syringe` (this project's pumps:
+    /// lead-screw ripple, backlash, delivery lag) or `generic` (any other source: the same
+    /// effects as periodic_in_volume, dead_band, input_lag). Default: `syringe` for the logs
+    /// this project writes (their header says `source=vfp record` or `source=host-sim`),
+    /// `generic` for any other file.
+    #[arg(long, value_name = "RIG", value_parser = parse_rig)]
+    pub rig: Option<Rig>,
     /// Where the loop's time went, stage by stage (wall-clock seconds): added to the text
     /// report, or written to stderr with `--json` (whose document always carries it as
     /// `timing_s`).
@@ -48,6 +55,10 @@ pub struct Args {
     /// before and after (SVG).
     #[command(flatten)]
     pub out: OutputOpts,
+}
+
+fn parse_rig(s: &str) -> Result<Rig, String> {
+    s.parse()
 }
 
 fn parse_shape(s: &str) -> Result<(usize, usize), Error> {
@@ -94,6 +105,7 @@ pub fn run(args: &Args) -> Result<(), Error> {
         min_gain: args.min_gain,
         progress: crate::progress::shown()
             .then_some(crate::progress::stages as sysid::progress::ProgressFn),
+        rig: args.rig,
         ..Config::default()
     };
     if !args.effects.is_empty() {
@@ -239,6 +251,16 @@ pub fn report(path: &Path, chamber: u8, split: &str, d: &Diagnosis) -> String {
         d.samples.0, d.samples.1
     );
     let _ = writeln!(s, "significance: {}", d.significance);
+    let _ = writeln!(
+        s,
+        "rig: {} ({})",
+        d.rig.name(),
+        match d.rig {
+            Rig::Syringe => "effects named for a syringe pump's mechanisms",
+            Rig::Generic =>
+                "not a syringe rig of this project: effects named for the signal, not a pump's mechanism; --rig syringe to name them so",
+        }
+    );
     let _ = writeln!(
         s,
         "\nbaseline polynomial n = {}, m = {} ({} parameters): RMSE train {:.4} kPa, held-out {:.4} kPa",

@@ -23,6 +23,13 @@ impl EffectModel for Backlash {
         "Play between lead-screw nut and plunger: after each reversal the motor turns through a dead band before the plunger moves, so volume and flow reach the chamber late and offset by half the play."
     }
 
+    fn generic(&self) -> Option<(&'static str, &'static str)> {
+        Some((
+            "dead_band",
+            "After each reversal of the flow, the volume and flow reach the chamber late and offset, as through a dead band of the input: the model plays the logged volume through that band. The name claims no more.",
+        ))
+    }
+
     /// Down to a few motor steps of play (0.1 mm³ on a 550 mm³ stroke): at the paper's stiffest
     /// point 0.1 mm³ is already 0.03 kPa, above a frame's noise.
     fn search(&self, sc: &Scales) -> Search {

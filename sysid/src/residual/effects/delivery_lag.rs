@@ -20,6 +20,13 @@ impl EffectModel for DeliveryLag {
         "The motor, lead screw, plunger seal and tubing deliver the commanded motion late and rounded off (a critically damped lag of time constant tau, about 2 tau late), so the chamber sees a smoothed, delayed copy of the logged volume and flow."
     }
 
+    fn generic(&self) -> Option<(&'static str, &'static str)> {
+        Some((
+            "input_lag",
+            "The chamber sees a smoothed, delayed copy of the logged volume and flow (a critically damped lag of time constant tau, about 2 tau late): the input is delivered late and rounded off. The name claims no more.",
+        ))
+    }
+
     fn search(&self, sc: &Scales) -> Search {
         Search::Log(0.05 * sc.dt, (0.75f64).min(sc.duration / 40.0).max(sc.dt))
     }

@@ -23,6 +23,8 @@ pub struct Scales {
     pub p_integral: f64,
     /// The period of the log's cycles when they repeat regularly (s; `Series::cycle_s`).
     pub cycle_s: Option<f64>,
+    /// The rig the log comes from (`Series::rig`): the effects' names.
+    pub rig: crate::residual::Rig,
 }
 
 /// One effect with its nonlinear parameter fixed.
@@ -263,6 +265,7 @@ impl Prepared {
                 duration,
                 p_integral,
                 cycle_s: series.cycle_s,
+                rig: series.rig,
             },
             train_rows,
             held_rows,

@@ -417,6 +417,14 @@ pub trait EffectModel: Send + Sync {
         None
     }
 
+    /// The name and story the effect is reported under on a log that does not come from a
+    /// syringe rig (`crate::residual::Rig::Generic`), when its own name and story tell a
+    /// mechanism of a syringe pump (default: `None`, the same name anywhere). They claim no more
+    /// than the signal.
+    fn generic(&self) -> Option<(&'static str, &'static str)> {
+        None
+    }
+
     /// Physical parameters with uncertainties and units (default: θ when searched, then each
     /// column's coefficient).
     fn params(&self, f: &Fitted) -> Vec<Param> {

@@ -29,6 +29,13 @@ impl EffectModel for PumpRipple {
         "The lead screw's pitch error makes the plunger run ahead of and behind the step count once per screw turn, so pressure ripples periodically in volume (in time its frequency follows the flow): the stiffness times the volume error plus the damping times its rate."
     }
 
+    fn generic(&self) -> Option<(&'static str, &'static str)> {
+        Some((
+            "periodic_in_volume",
+            "The pressure ripples periodically in volume, at a period fixed in volume whatever the flow (in time, its frequency follows the flow): an input whose delivered volume runs ahead of and behind the logged one once per period. The name claims no more.",
+        ))
+    }
+
     fn search(&self, _sc: &Scales) -> Search {
         Search::VolumeSpectral
     }
