@@ -30,7 +30,9 @@ fn moving_state() -> Shared {
         }
     }
     let mut reply = String::new();
-    shared.command_line(b"move all 500 400 10000", 100_000, &mut reply);
+    let mut line = String::new();
+    firmware::command::write_checksummed("move all 500 400 10000", &mut line).unwrap();
+    shared.command_line(line.as_bytes(), 100_000, &mut reply);
     assert_eq!(reply, "ok");
     shared
 }

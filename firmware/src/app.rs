@@ -1460,7 +1460,7 @@ pub struct Shared {
     ctl: Mutex<CriticalSectionRawMutex, RefCell<Control>>,
     /// The estimation side, under an async mutex (interrupts stay on while it is held).
     est: AsyncMutex<CriticalSectionRawMutex, Estimator>,
-    /// Checksum policy of the command stream.
+    /// Checksum policy of the command stream (required at boot, [`LinkState::default`]).
     link: Mutex<CriticalSectionRawMutex, Cell<LinkState>>,
     /// Wakes the stepper task when the plan changes (new move, stop, fault).
     wake: Signal<CriticalSectionRawMutex, ()>,
@@ -1855,7 +1855,8 @@ impl Shared {
     }
 
     /// Check, parse and execute one command line (without its terminator; a checksummed line is
-    /// checked first), writing the reply line to `out`. For callers outside the tasks (tests,
+    /// checked first, and a plain line other than `stop` is refused until `checksum optional`),
+    /// writing the reply line to `out`. For callers outside the tasks (tests,
     /// host tools); `err busy` if a task holds the estimator.
     pub fn command_line(&self, line: &[u8], now_us: u64, out: &mut impl Write) {
         match self.est.try_lock() {

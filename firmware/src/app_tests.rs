@@ -573,14 +573,29 @@ fn step_until_now(s: &mut S, until: u64) {
     panic!("the stepper never caught up with {until} µs");
 }
 
+/// `command` with its checksum prefix, `*LLCC <command>`: what a host sends.
+fn checked(command: &str) -> String {
+    let mut line = String::new();
+    command::write_checksummed(command, &mut line).expect("a command that can be framed");
+    line
+}
+
+/// The reply to `line`, sent as it is (plain, or framed by the caller).
+fn send_raw(shared: &Shared, line: &str) -> String {
+    let mut out = String::new();
+    shared.command_line(line.as_bytes(), 0, &mut out);
+    out
+}
+
+/// The reply to `command`, sent checksummed as a host does.
+fn send(shared: &Shared, command: &str) -> String {
+    send_raw(shared, &checked(command))
+}
+
 #[test]
 fn command_lines_get_one_reply_each() {
     let shared = Shared::new(Config::default());
-    let reply = |line: &str| {
-        let mut out = String::new();
-        shared.command_line(line.as_bytes(), 0, &mut out);
-        out
-    };
+    let reply = |line: &str| send(&shared, line);
     assert_eq!(reply("jump"), "err unknown-command");
     assert_eq!(reply("move 0 1e39"), "err invalid-argument 2");
     assert_eq!(reply("move 0 10"), "err busy", "zero still being taken");
@@ -594,9 +609,7 @@ fn command_lines_get_one_reply_each() {
 /// Sends `lines` through the command handler, each must be answered `ok`.
 fn load(shared: &Shared, lines: &[String]) {
     for l in lines {
-        let mut out = String::new();
-        shared.command_line(l.as_bytes(), 0, &mut out);
-        assert_eq!(out, "ok", "{l}");
+        assert_eq!(send(shared, l), "ok", "{l}");
     }
 }
 
@@ -625,8 +638,7 @@ fn model_lines(ch: u8, shape: [u8; 3], scaling: [f32; 4], coef: &[f32], ar: &[f3
 /// reply checked to fit [`REPLY_LEN`] and to hold at most [`command::MAX_CHUNK`] values.
 fn read_all(shared: &Shared, ch: u8) -> (Vec<u32>, Vec<u32>, Vec<u32>) {
     let read = |line: &str| -> Option<Vec<u32>> {
-        let mut out = String::new();
-        shared.command_line(line.as_bytes(), 0, &mut out);
+        let out = send(shared, line);
         let fields = out.strip_prefix("ok")?;
         assert!(fields.len() <= REPLY_LEN, "{out}");
         let v: Vec<u32> = fields
@@ -652,12 +664,7 @@ fn read_all(shared: &Shared, ch: u8) -> (Vec<u32>, Vec<u32>, Vec<u32>) {
             part.extend(got);
         }
         // One past the end is refused, naming the index word.
-        let mut out = String::new();
-        shared.command_line(
-            format!("model {ch} read {verb} {len}").as_bytes(),
-            0,
-            &mut out,
-        );
+        let out = send(shared, &format!("model {ch} read {verb} {len}"));
         assert_eq!(out, "err out-of-range 4");
     }
     let [coef, ar] = parts;
@@ -705,11 +712,7 @@ fn installed_model_reads_back_bit_for_bit() {
     assert_eq!(head, bits(&[0.0, 0.0, 1.0, 0.0, 1.0, 0.0, 1.0]));
     assert_eq!((c, a), (bits(&[1.5]), bits(&[0.25, -0.5])));
     // Past the maximum index the parser refuses it the same way; other mistakes name the word.
-    let reply = |line: &str| {
-        let mut out = String::new();
-        shared.command_line(line.as_bytes(), 0, &mut out);
-        out
-    };
+    let reply = |line: &str| send(&shared, line);
     assert_eq!(reply("model 0 read coef 64"), "err out-of-range 4");
     assert_eq!(reply("model 0 read ar 2"), "err out-of-range 4");
     assert_eq!(reply("model 0 read ar 1"), "ok -0.5");
@@ -768,28 +771,80 @@ mod readback_prop {
 #[test]
 fn checksum_mode_is_set_by_command_and_applies_to_every_line() {
     let shared = Shared::new(Config::default());
-    let reply = |line: &str| {
-        let mut out = String::new();
-        shared.command_line(line.as_bytes(), 0, &mut out);
-        out
-    };
-    let checked = |line: &str| {
-        let mut s = String::new();
-        command::write_checksummed(line, &mut s).unwrap();
-        s
-    };
-    assert_eq!(reply("checksum"), "ok optional");
+    let reply = |line: &str| send_raw(&shared, line);
+    // Required at boot, so the mode itself is asked for checksummed.
+    assert_eq!(reply("checksum"), "err checksum-required");
+    assert_eq!(reply(&checked("checksum")), "ok require");
     assert_eq!(reply(&checked("stop")), "ok");
-    assert_eq!(reply("checksum require"), "ok");
-    assert_eq!(reply("zero"), "err checksum-required");
     // `stop` is obeyed in any form.
     assert_eq!(reply("stop"), "ok");
-    assert_eq!(reply(&checked("checksum")), "ok require");
     let mut bad = checked("clear");
     bad.remove(7); // a byte of the command lost
     assert_eq!(reply(&bad), "err bad-checksum");
-    assert_eq!(reply(&checked("checksum optional")), "ok");
+    // The line the guide (protocol.md) gives a person at a terminal, typed as it stands there.
+    assert_eq!(reply("*1104 checksum optional"), "ok");
+    assert_eq!(reply("checksum"), "ok optional");
     assert_eq!(reply("clear"), "ok");
+    // Plain lines again until `checksum require`, which may itself come plain.
+    assert_eq!(reply("checksum require"), "ok");
+    assert_eq!(reply("zero"), "err checksum-required");
+    assert_eq!(reply(&checked("checksum")), "ok require");
+}
+
+/// At boot a plain line other than `stop` is refused with `err checksum-required` and changes
+/// nothing a host can see (status, checksum mode, telemetry switch, the installed models, the
+/// pulses, the events); the same lines checksummed do execute, and change what is compared.
+#[test]
+fn a_plain_command_is_refused_at_boot_and_changes_nothing() {
+    let (mut s, t) = zeroed(0.0);
+    let seen = |s: &S| {
+        let mut v = vec![
+            send(&s.shared, "status"),
+            send(&s.shared, "checksum"),
+            send(&s.shared, "telemetry"),
+        ];
+        for ch in 0..AXES {
+            v.push(send(&s.shared, &format!("model {ch} read")));
+            v.push(send(&s.shared, &format!("model {ch} read coef 0")));
+            v.push(send(&s.shared, &format!("model {ch} read effect 0")));
+        }
+        v
+    };
+    while s.pop_event().is_some() {}
+    let before = seen(&s);
+    // Each would change the state if it ran (`origin 1 300` is the one-bit flip of
+    // `origin 1 100`); `run` and `zero` would too, but only at rest, so they are sent plain only.
+    let lines = [
+        "origin 1 300",
+        "limit all 70 540",
+        "rls 0 on",
+        "model 0 begin 0 0 0 0 1 0 1",
+        "model 0 coef 0 1",
+        "model 0 commit",
+        "telemetry on",
+        "checksum optional",
+        "move 0 100 50",
+    ];
+    for l in lines
+        .iter()
+        .chain(&["run all 0 100 1 0 50", "zero", "clear", "status"])
+    {
+        assert_eq!(send_raw(&s.shared, l), "err checksum-required", "{l}");
+    }
+    assert_eq!(seen(&s), before);
+    assert!(s.idle());
+    assert_eq!(step_until(&mut s, t + 1_000_000), 0, "no pulse");
+    assert_eq!(s.pop_event(), None, "no event");
+    // The observation sees a command that runs: the same lines checksummed.
+    for l in lines {
+        assert_eq!(send(&s.shared, l), "ok", "{l}");
+    }
+    let after = seen(&s);
+    for (i, field) in ["status", "checksum", "telemetry"].iter().enumerate() {
+        assert_ne!(after[i], before[i], "{field}");
+    }
+    assert_ne!(after[3..], before[3..], "model 0");
+    assert!(!s.idle());
 }
 
 /// SBA1 with an effect chain on chamber `ch`, as upload lines.
@@ -966,8 +1021,7 @@ fn status_ends_with_the_whole_reset_cause() {
             reset_cause: cause,
             ..Config::default()
         });
-        let mut out = String::new();
-        shared.command_line(b"status", 0, &mut out);
+        let out = send(&shared, "status");
         assert!(out.starts_with("ok flags "), "{out}");
         assert!(out.ends_with(&tail), "{out}");
     }

@@ -25,14 +25,14 @@
 //! | `model <ch> effect <name> <param>…` | add an effect to the staged model's chain (`model_core::chain`; at most 4, one per kind): `hysteresis <w> <H0> <H1>`, `sensor_lag <tau>`, `delivery_lag <tau>`, `transport_delay <d>`, `backlash <b>`, `inertance <L>`, `pump_ripple <period> <a> <b>`, `air_compliance <V_a>`, `leak <lambda>` (mm³, kPa, s) |
 //! | `model <ch> read effect <index>` | `ok <name> <param>…` of the installed chain's effect `index` (in evaluation order); `err out-of-range 4` past the last |
 //! | `rls <ch> on [<lambda>]` / `rls <ch> off` | online RLS identification (chamber force-free!) |
-//! | `checksum require` / `checksum optional` / `checksum` | require a checksum on every line, or not; alone: `ok require` or `ok optional` |
+//! | `checksum require` / `checksum optional` / `checksum` | require a checksum on every line (the default at boot), or not; alone: `ok require` or `ok optional` |
 //! | `telemetry on` / `telemetry off` / `telemetry` | the binary telemetry stream on this serial port ([`crate::wire`]) on or off (off at boot); alone: `ok on` or `ok off` |
 //!
 //! Replies: `ok` (possibly followed by fields) or `err <code> [<detail>]`. The parser never
 //! panics; every bad line gets an `err` reply naming the argument.
 //!
 //! # Checksummed lines
-//! A line may carry a checksum in front of its command: `*LLCC <command>`, where `LL` is the
+//! A line carries a checksum in front of its command: `*LLCC <command>`, where `LL` is the
 //! command's length in bytes and `CC` its CRC-8 (SMBus polynomial 0x07, initial value 0), each
 //! two upper-case hex digits, and exactly one space separates them from the command
 //! ([`write_checksummed`] builds such a line). Any line that holds a `*` is checked as one:
@@ -49,10 +49,13 @@
 //! `stop` is obeyed in any form: a plain `stop` in `checksum require` mode or after a failed
 //! check, and a `stop` behind a damaged prefix (stopping is safe whatever the line was).
 //!
-//! `checksum require` makes the checksum mandatory (`err checksum-required` otherwise);
-//! `checksum optional` (the default at boot) accepts plain lines too. A receive error on the
-//! serial port (framing, overrun, noise, parity) rejects the line being received with
-//! `err line-corrupt`, whatever the mode.
+//! The checksum is required at boot: a plain line other than `stop` gets
+//! `err checksum-required` and changes nothing, so no single flipped bit on the wire (the UART
+//! has no parity) executes a command. `checksum optional`, itself checksummed
+//! (`*1104 checksum optional`, the line a person at a terminal types once), accepts plain lines
+//! too until `checksum require` or the next reset. A receive error on the serial port (framing,
+//! overrun, noise, parity) rejects the line being received with `err line-corrupt`, whatever
+//! the mode.
 
 use core::fmt;
 use core::str::FromStr;
@@ -280,8 +283,8 @@ pub enum ParseError {
     LineCorrupt,
     /// The line holds a `*` but not a valid `*LLCC ` prefix, or its length or CRC do not match.
     BadChecksum,
-    /// The line has no checksum, but one is required (`checksum require`, or the line follows a
-    /// line that failed its checksum).
+    /// The line has no checksum, but one is required (at boot and after `checksum require`,
+    /// or the line follows a line that failed its checksum).
     ChecksumRequired,
 }
 
@@ -630,12 +633,23 @@ pub fn write_checksummed(command: &str, out: &mut impl fmt::Write) -> fmt::Resul
 const STOP: &[u8] = b"stop";
 
 /// Checksum policy and state of one command stream.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct LinkState {
-    /// Every line must carry a checksum (`checksum require`).
+    /// Every line must carry a checksum (`checksum require`, the default).
     pub require: bool,
     /// The previous line failed its checksum: this one must carry one.
     after_bad: bool,
+}
+
+impl Default for LinkState {
+    /// The state at boot: a checksum is required on every line but `stop`, so no line damaged
+    /// on the wire (the UART has no parity) can execute anything else.
+    fn default() -> Self {
+        Self {
+            require: true,
+            after_bad: false,
+        }
+    }
 }
 
 impl LinkState {
@@ -1006,9 +1020,17 @@ mod tests {
             .collect()
     }
 
+    /// A link after `checksum optional`: plain lines accepted.
+    fn optional() -> LinkState {
+        LinkState {
+            require: false,
+            ..LinkState::default()
+        }
+    }
+
     #[test]
     fn assembler_splits_lines_and_reports_overflow_once() {
-        let mut link = LinkState::default();
+        let mut link = optional();
         assert_eq!(
             lines(b"stop\r\nzero\n", &mut link),
             [Ok(Command::Stop), Ok(Command::Zero)]
@@ -1079,9 +1101,14 @@ mod tests {
         let mut readme = std::string::String::new();
         write_checksummed("move 0 12.5", &mut readme).unwrap();
         assert_eq!(readme, "*0BE1 move 0 12.5");
+        // At boot a checksum is required.
         let mut link = LinkState::default();
+        assert_eq!(link.check(b"zero"), Err(ParseError::ChecksumRequired));
+        assert_eq!(link.check(b"*0429 zero"), Ok(&b"zero"[..]));
+        // With checksums optional, after a failed check the next line needs a checksum; then
+        // plain lines pass again.
+        link.require = false;
         assert_eq!(link.check(s.as_bytes()), Ok(&b"stop"[..]));
-        // After a failed check the next line needs a checksum; then plain lines pass again.
         assert_eq!(link.check(b"*04ZZ zero"), Err(ParseError::BadChecksum));
         assert_eq!(link.check(b"zero"), Err(ParseError::ChecksumRequired));
         assert_eq!(link.check(b"zero"), Ok(&b"zero"[..]));
@@ -1183,6 +1210,11 @@ mod tests {
                 Some(true) => "telemetry on",
                 Some(false) => "telemetry off",
             }),
+            Command::Checksum { require } => s.push_str(match require {
+                None => "checksum",
+                Some(true) => "checksum require",
+                Some(false) => "checksum optional",
+            }),
             Command::Origin { axes: a, volume } => {
                 write!(s, "origin {} {volume:?}", axes(*a)).unwrap()
             }
@@ -1253,6 +1285,10 @@ mod tests {
             Just(Command::Status),
             Just(Command::Telemetry { on: Some(true) }),
             Just(Command::Telemetry { on: None }),
+            Just(Command::Checksum {
+                require: Some(false)
+            }),
+            Just(Command::Checksum { require: None }),
         ]
     }
 
@@ -1421,6 +1457,23 @@ mod tests {
                     prop_assert!(r.is_err() || safe, "{:?} accepted as {:?}", String::from_utf8_lossy(&bad), r);
                 }
             }
+        }
+
+        /// At boot every plain line but `stop` is refused as `checksum-required`, the same
+        /// command checksummed is accepted, and `stop` passes plain.
+        #[test]
+        fn a_plain_line_is_refused_at_boot(c in any_command()) {
+            let plain = render(&c);
+            let mut checked = std::string::String::new();
+            write_checksummed(&plain, &mut checked).unwrap();
+            let mut link = LinkState::default();
+            let want = if c == Command::Stop {
+                Ok(Command::Stop)
+            } else {
+                Err(ParseError::ChecksumRequired)
+            };
+            prop_assert_eq!(lines(std::format!("{plain}\n").as_bytes(), &mut link), [want]);
+            prop_assert_eq!(lines(std::format!("{checked}\n").as_bytes(), &mut link), [Ok(c)]);
         }
 
         /// Any non-finite number in a numeric position is refused, naming that word.

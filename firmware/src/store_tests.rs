@@ -565,8 +565,11 @@ fn the_persist_task_writes_the_committed_model_to_flash() {
     let mut app = App::new();
     let mut st = store(flash());
     let mut reply = String::new();
+    let mut line = String::new();
+    command::write_checksummed("model 2 default", &mut line).unwrap();
     // Far enough in the past that the port is quiet at the mock clock's current instant.
-    app.shared.command_line(b"model 2 default", 0, &mut reply);
+    app.shared.command_line(line.as_bytes(), 0, &mut reply);
+    assert_eq!(reply, "ok");
     embassy_time::MockDriver::get().advance(embassy_time::Duration::from_micros(QUIET_US));
     // Not zeroed yet at boot: the zero is in progress, so nothing is written.
     assert!(!block_on(persist_once(&app.shared, &mut st, &mut ())));

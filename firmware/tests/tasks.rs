@@ -117,7 +117,15 @@ fn tasks_step_on_plan_report_every_frame_and_stop_on_fault() {
 
     // 1 s of pressure zero at rest, then one move.
     run_until_ms(1_100, &rig, None);
-    rig.rx.borrow_mut().extend(b"move 0 10 20 500\r\n");
+    // Checksummed, as a host sends it (plain lines are refused at boot), ended by `\r\n`.
+    let framed = |command: &str, end: &str| {
+        let mut line = String::new();
+        firmware::command::write_checksummed(command, &mut line).unwrap();
+        line + end
+    };
+    rig.rx
+        .borrow_mut()
+        .extend(framed("move 0 10 20 500", "\r\n").bytes());
     run_until_ms(3_000, &rig, None);
     // The boot event on the command port when the task started, then the move's reply.
     assert_eq!(
@@ -142,7 +150,9 @@ fn tasks_step_on_plan_report_every_frame_and_stop_on_fault() {
     assert!(dirs[0].2 + 5 <= steps[0].1);
 
     // Deflate; 90 kPa appears at 3.5 s, during the move.
-    rig.rx.borrow_mut().extend(b"move 0 0 20 500\n");
+    rig.rx
+        .borrow_mut()
+        .extend(framed("move 0 0 20 500", "\n").bytes());
     run_until_ms(5_000, &rig, Some(3_500));
     let steps = rig.steps.borrow().clone();
     let after = &steps[250..];

@@ -44,8 +44,8 @@ pub use plant::{
     ChamberTruth, Effects, ForcePush, NoiseTails, PlantConfig, SensorSpec, EFFECT_PRESETS,
 };
 pub use scenario::{
-    FaultInjection, PresetOptions, Protocol, Scenario, SerialFault, SerialFaultKind, Strokes,
-    TelemetryStall, TimedCommand,
+    FaultInjection, Framing, PresetOptions, Protocol, Scenario, SerialFault, SerialFaultKind,
+    Strokes, TelemetryStall, TimedCommand,
 };
 pub use sim::{simulate, simulate_with, FrameTruth, LogRow, RunStats, SimRun, LOG_COLUMNS};
 

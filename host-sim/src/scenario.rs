@@ -47,10 +47,14 @@
 //! [[commands]]                      # lines sent to the firmware's command port (its protocol)
 //! at_s = 1.5
 //! line = "run all 0 550 20 200 20 40 60 80 100"
+//! framing = "checksummed"           # sent as `*LLCC <line>`, as a host does (the firmware
+//!                                   # requires it); plain: the line as written (refused at
+//!                                   # boot unless `stop`; or a line framed by hand)
 //!
 //! [[serial_faults]]                 # a byte of one command line goes wrong on the UART
 //! command = 0                       # index into `commands` (in file order)
-//! byte = 7                          # byte of the line as sent (0-based; the `\n` is byte len)
+//! byte = 7                          # byte of the line as sent, its `*LLCC ` prefix included
+//!                                   # (0-based; the `\n` is the last)
 //! kind = "lose"                     # lose: lost, the UART reports an overrun
 //!                                   # flag: arrives, with a framing error reported
 //!                                   # drop: lost, no error reported (only a checksum can tell)
@@ -72,23 +76,67 @@ use serde::{Deserialize, Serialize};
 use crate::law::Design;
 use crate::plant::{Effects, ForcePush, PlantConfig, CHAMBERS};
 
+/// How the simulated host puts a command line on the wire.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Framing {
+    /// `*LLCC <line>` (`firmware::command::write_checksummed`), as every host sends: the
+    /// firmware requires it from boot.
+    #[default]
+    Checksummed,
+    /// The line as written: what a person types at a terminal (refused at boot unless it is
+    /// `stop`), or a line framed by hand.
+    Plain,
+}
+
+impl Framing {
+    fn is_default(&self) -> bool {
+        *self == Self::default()
+    }
+}
+
 /// A command line sent at a given time.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct TimedCommand {
     /// When, s of simulated time.
     pub at_s: f64,
-    /// The line, without terminator (the simulator appends `\n`). A checksummed line is given
-    /// whole (`firmware::command::write_checksummed`).
+    /// The command, without terminator (the simulator appends `\n`).
     pub line: String,
+    /// How it is sent: checksummed unless given.
+    #[serde(default, skip_serializing_if = "Framing::is_default")]
+    pub framing: Framing,
 }
 
 impl TimedCommand {
-    /// A command at `at_s`.
+    /// A command at `at_s`, sent checksummed.
     pub fn new(at_s: f64, line: &str) -> Self {
         Self {
             at_s,
             line: line.into(),
+            framing: Framing::Checksummed,
+        }
+    }
+
+    /// A line at `at_s`, sent as written ([`Framing::Plain`]).
+    pub fn plain(at_s: f64, line: &str) -> Self {
+        Self {
+            framing: Framing::Plain,
+            ..Self::new(at_s, line)
+        }
+    }
+
+    /// The bytes put on the wire, without the `\n`; `None` if the line cannot be checksummed
+    /// (it holds a `*`, or is too long for its prefix).
+    pub fn wire(&self) -> Option<String> {
+        match self.framing {
+            Framing::Plain => Some(self.line.clone()),
+            Framing::Checksummed => {
+                let mut s =
+                    String::with_capacity(firmware::command::CHECKSUM_PREFIX + self.line.len());
+                firmware::command::write_checksummed(&self.line, &mut s).ok()?;
+                Some(s)
+            }
         }
     }
 }
@@ -620,6 +668,13 @@ impl Scenario {
             if c.line.contains(['\n', '\r']) {
                 return bad(format!("commands[{i}].line holds a line break"));
             }
+            if c.wire().is_none() {
+                return bad(format!(
+                    "commands[{i}].line cannot be checksummed: it holds a `*` or is longer than \
+                     {} bytes (a line framed by hand is sent with framing = \"plain\")",
+                    firmware::command::MAX_LINE - firmware::command::CHECKSUM_PREFIX
+                ));
+            }
         }
         for (i, f) in self.serial_faults.iter().enumerate() {
             let Some(c) = self.commands.get(f.command) else {
@@ -628,11 +683,12 @@ impl Scenario {
                     f.command
                 ));
             };
-            if f.byte > c.line.len() {
+            let sent = c.wire().map_or(0, |w| w.len());
+            if f.byte > sent {
                 return bad(format!(
-                    "serial_faults[{i}].byte = {}: the line has {} bytes and its terminator",
-                    f.byte,
-                    c.line.len()
+                    "serial_faults[{i}].byte = {}: the line as sent has {sent} bytes and its \
+                     terminator",
+                    f.byte
                 ));
             }
         }

@@ -207,7 +207,8 @@ pub fn simulate_with(scenario: &Scenario, fw: Config) -> Result<SimRun, SimError
         }
         let mut injected = false;
         while let Some((i, c)) = commands.next_if(|c| to_us(c.1.at_s) <= now) {
-            let mut line = c.line.clone().into_bytes();
+            // The scenario was validated: every line can be framed.
+            let mut line = c.wire().unwrap_or_default().into_bytes();
             line.push(b'\n');
             let mut items = Vec::with_capacity(line.len() + 1);
             for (k, &b) in line.iter().enumerate() {

@@ -441,7 +441,8 @@ impl Rig {
         self.with(move |s, _| s.board_mut().host().send_at(at, &bytes))
     }
 
-    /// Send `command` as a line, unchecked.
+    /// Send `command` as a plain line, without a checksum: the firmware refuses it from boot
+    /// (`err checksum-required`) unless it is `stop` or `checksum optional` came first.
     pub fn send_line(&mut self, command: &str) -> Result<(), RigError> {
         self.send(format!("{command}\n").as_bytes())
     }

@@ -1,4 +1,6 @@
-//! The command port of the real firmware: checksummed lines executed, damaged ones refused.
+//! The command port of the real firmware: checksummed lines executed, damaged and plain ones
+//! refused (checksums are required from boot), `stop` obeyed in any form, and the guide's line
+//! for a person at a terminal.
 
 use std::time::Duration;
 
@@ -108,11 +110,11 @@ fn words_arriving_with_noise_reject_their_line_and_nothing_else() {
 fn stop_is_obeyed_plain_while_checksums_are_required() {
     let mut rig = Rig::start(&RigConfig::new(default_elf())).expect("the virtual rig starts");
     rig.until_zeroed().unwrap();
+    // Required from boot: a plain line is refused.
     assert_eq!(
-        rig.command("checksum require").unwrap().as_deref(),
-        Some("ok")
+        rig.command("checksum").unwrap().as_deref(),
+        Some("ok require")
     );
-    // A plain line is refused now.
     let refused = rig.exchange(b"status\n").unwrap();
     assert_eq!(refused.as_deref(), Some("err checksum-required"));
     // A slow move (100 mm³ at 20 mm³/s: 5 s), stopped by a plain `stop` after 300 ms.
@@ -139,4 +141,82 @@ fn stop_is_obeyed_plain_while_checksums_are_required() {
     let at_stop = rig.with(|_, b| b.steps.len()).unwrap();
     rig.run_for(Duration::from_millis(300)).unwrap();
     assert_eq!(rig.with(|_, b| b.steps.len()).unwrap(), at_stop);
+}
+
+/// A `status` reply without its frame counter (`seq <n>`, which runs on with the frames).
+fn without_seq(status: &str) -> String {
+    let mut words: Vec<&str> = status.split_whitespace().collect();
+    let at = words.iter().position(|w| *w == "seq").expect("a seq field");
+    words.drain(at..at + 2);
+    words.join(" ")
+}
+
+/// From boot, a plain line other than `stop` is refused with `err checksum-required` and changes
+/// nothing: no step, the same status, checksum mode and telemetry switch. `origin 1 300` is the
+/// issue's one-bit flip of `origin 1 100`, which the old default executed.
+#[test]
+fn a_plain_command_is_refused_from_boot_and_changes_nothing() {
+    let mut rig = Rig::start(&RigConfig::new(default_elf())).expect("the virtual rig starts");
+    rig.until_zeroed().unwrap();
+    let seen = |rig: &mut Rig| {
+        [
+            without_seq(&rig.command("status").unwrap().expect("status")),
+            rig.command("checksum").unwrap().expect("checksum"),
+            rig.command("telemetry").unwrap().expect("telemetry"),
+        ]
+    };
+    let before = seen(&mut rig);
+    let lines = [
+        "origin 1 300",
+        "move 0 100 20",
+        "telemetry on",
+        "checksum optional",
+        "zero",
+        "status",
+    ];
+    for line in lines {
+        let reply = rig.exchange(format!("{line}\n").as_bytes()).unwrap();
+        assert_eq!(reply.as_deref(), Some("err checksum-required"), "{line}");
+    }
+    rig.run_for(Duration::from_millis(500)).unwrap();
+    assert_eq!(seen(&mut rig), before);
+    assert_eq!(before[1..], ["ok require", "ok off"]);
+    assert_eq!(rig.with(|_, b| b.steps.len()).unwrap(), 0, "steps");
+    // The same `origin` checksummed runs, and the status shows it.
+    assert_eq!(rig.command("origin 1 300").unwrap().as_deref(), Some("ok"));
+    let status = rig.command("status").unwrap().unwrap();
+    assert_eq!(volumes(&status), [0.0, 300.0, 0.0], "{status}");
+}
+
+/// The path the guide gives a person at a serial terminal (docs/guide/src/protocol.md): the
+/// line `*1104 checksum optional`, typed as it stands there, lets plain lines through until
+/// `checksum require` or the next reset.
+#[test]
+fn the_guides_terminal_line_allows_plain_lines_until_a_reset() {
+    let mut rig = Rig::start(&RigConfig::new(default_elf())).expect("the virtual rig starts");
+    rig.until_zeroed().unwrap();
+    let typed = |rig: &mut Rig, line: &str| {
+        rig.exchange(format!("{line}\r\n").as_bytes())
+            .unwrap()
+            .expect("a reply")
+    };
+    assert_eq!(typed(&mut rig, "status"), "err checksum-required");
+    assert_eq!(typed(&mut rig, "*1104 checksum optional"), "ok");
+    assert_eq!(typed(&mut rig, "checksum"), "ok optional");
+    assert_eq!(typed(&mut rig, "origin 0 50"), "ok");
+    let status = typed(&mut rig, "status");
+    assert_eq!(volumes(&status), [50.0, 0.0, 0.0], "{status}");
+    assert_eq!(typed(&mut rig, "checksum require"), "ok");
+    assert_eq!(typed(&mut rig, "origin 0 60"), "err checksum-required");
+    assert_eq!(typed(&mut rig, "*1104 checksum optional"), "ok");
+    // A reset (the watchdog's, with TIM5 stopped under the firmware) requires checksums again.
+    const TIM5_CR1: u64 = 0x4000_0C00;
+    rig.poke(TIM5_CR1, 0).unwrap();
+    let boot = rig.next_boot(Duration::from_secs(2)).unwrap();
+    assert!(boot.is_some_and(|b| b.contains(" watchdog")), "no reset");
+    assert_eq!(typed(&mut rig, "checksum"), "err checksum-required");
+    assert_eq!(
+        rig.command("checksum").unwrap().as_deref(),
+        Some("ok require")
+    );
 }

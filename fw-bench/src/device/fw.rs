@@ -25,7 +25,8 @@
 //! `drift_frac`, `rls_min_flow`), `app::Shared::new`, `app::Sampler::{new, period_us, drops}`,
 //! `app::Shared::with_control` with `app::Control::{motion, latched}`,
 //! `motion::Motion::{volume, next_batch, all_idle}`, `telemetry::parse_line` (the bench reads
-//! the telemetry channel back the way the host does). `app::Shared::lock` is not used: it keeps
+//! the telemetry channel back the way the host does), `command::write_checksummed` (the bench
+//! frames each command line as a host does: the firmware requires the checksum from boot). `app::Shared::lock` is not used: it keeps
 //! interrupts off for its whole closure and no task calls it.
 //!
 //! The telemetry sink is the binary's `RttSink`, copied: RTT up-channel 1 ("telemetry", 4 KiB,
@@ -274,6 +275,11 @@ impl Board {
             done = true;
         }
         done.then_some(self.reply.as_str())
+    }
+
+    /// The host's side: `command` as the line a host sends, `*LLCC <command>` (not measured).
+    pub fn checksummed(command: &str, out: &mut impl core::fmt::Write) -> core::fmt::Result {
+        firmware::command::write_checksummed(command, out)
     }
 
     /// Syringe volumes, mm³ (drives the synthetic sensors; not measured).

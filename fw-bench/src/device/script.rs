@@ -303,8 +303,11 @@ impl Rig {
     /// One command line through the command task, measured as `region`; the reply must be `ok…`.
     fn command(&mut self, region: extern "C" fn(), line: &str) -> Line {
         let mut bytes: Line = String::new();
-        let _ = bytes.push_str(line);
-        let _ = bytes.push('\n');
+        assert!(
+            Board::checksummed(line, &mut bytes).is_ok() && bytes.push('\n').is_ok(),
+            "`{}` does not fit a line",
+            line
+        );
         let now = self.now;
         let b = &mut self.b;
         let reply = measure(region, || b.command_bytes(bytes.as_bytes(), now));

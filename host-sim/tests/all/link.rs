@@ -2,7 +2,6 @@
 //! (the board drops and counts lines, and nothing else changes), and a serial port that loses or
 //! garbles command bytes (the line is refused, never executed).
 
-use firmware::command::write_checksummed;
 use firmware::motion::Trapezoid;
 use firmware::telemetry::{Event, EventKind, Flags, Frame};
 use host_sim::{
@@ -230,12 +229,13 @@ fn refused_or_received_zero(run: &SimRun) -> [f32; 3] {
 
 /// Bytes lost or flagged on the UART: the line is refused (`err line-corrupt`), a checksummed
 /// line missing a byte is refused (`err bad-checksum`) and so is the plain line after it
-/// (`err checksum-required`); none of them moves anything. `move 0 12.5` losing its `.` would
-/// otherwise have moved axis 0 to 125 mm³.
+/// (`err checksum-required`, even with plain lines allowed); none of them moves anything.
+/// `move 0 12.5` losing its `.` would otherwise have moved axis 0 to 125 mm³.
 #[test]
 fn corrupted_command_bytes_never_move_anything() {
-    let mut checked = String::new();
-    write_checksummed("move 2 12.5", &mut checked).unwrap();
+    // Every line checksummed (`*LLCC ` is the 6 bytes before the command) but one: plain lines
+    // are allowed after `checksum optional`, except right after a failed check.
+    let prefix = 6;
     let sc = Scenario {
         name: "uart-faults".into(),
         duration_s: 6.0,
@@ -243,27 +243,28 @@ fn corrupted_command_bytes_never_move_anything() {
         commands: vec![
             TimedCommand::new(1.5, "move 0 12.5"),
             TimedCommand::new(2.0, "move 1 12.5"),
-            TimedCommand::new(2.5, &checked),
-            TimedCommand::new(3.0, "status"),
+            TimedCommand::new(2.2, "checksum optional"),
+            TimedCommand::new(2.5, "move 2 12.5"),
+            TimedCommand::plain(3.0, "status"),
             TimedCommand::new(3.5, "move 0 5"),
         ],
         serial_faults: vec![
             // The '.' of "move 0 12.5" is lost; the UART reports an overrun.
             SerialFault {
                 command: 0,
-                byte: 9,
+                byte: prefix + 9,
                 kind: SerialFaultKind::Lose,
             },
             // A framing error on the '2' of "move 1 12.5".
             SerialFault {
                 command: 1,
-                byte: 8,
+                byte: prefix + 8,
                 kind: SerialFaultKind::Flag,
             },
-            // A byte of the checksummed command lost with no error reported.
+            // The '.' of "move 2 12.5" lost with no error reported.
             SerialFault {
-                command: 2,
-                byte: 6 + 9,
+                command: 3,
+                byte: prefix + 9,
                 kind: SerialFaultKind::Drop,
             },
         ],
@@ -276,6 +277,7 @@ fn corrupted_command_bytes_never_move_anything() {
         [
             "err line-corrupt",
             "err line-corrupt",
+            "ok",
             "err bad-checksum",
             "err checksum-required",
             "ok"
@@ -287,4 +289,36 @@ fn corrupted_command_bytes_never_move_anything() {
     let last = run.frames.last().unwrap();
     assert_eq!(last.chambers[0].v, 5.0);
     assert_eq!((last.chambers[1].v, last.chambers[2].v), (0.0, 0.0));
+}
+
+/// A scenario's lines go checksummed, as a host sends them, unless they say
+/// `framing = "plain"`: then the board refuses them from boot (`err checksum-required`), except
+/// `stop`, and nothing moves until the same command comes checksummed.
+#[test]
+fn plain_lines_are_refused_from_boot() {
+    let sc = Scenario::from_toml(
+        r#"
+duration_s = 4.0
+record_detail = true
+[[commands]]
+at_s = 1.5
+line = "move 0 12.5"
+framing = "plain"
+[[commands]]
+at_s = 1.6
+line = "stop"
+framing = "plain"
+[[commands]]
+at_s = 2.0
+line = "move 1 12"
+"#,
+        "plain.toml",
+    )
+    .unwrap();
+    let run = simulate(&sc).unwrap();
+    let replies: Vec<&str> = run.replies.iter().map(|(_, r)| r.as_str()).collect();
+    assert_eq!(replies, ["err checksum-required", "ok", "ok"]);
+    // Only the checksummed move ran: axis 1 to 12 mm³ (300 steps of 0.04 mm³), after 2 s.
+    assert_eq!(run.step_count, [0, 300, 0]);
+    assert!(run.steps.iter().all(|s| s.0 > 2_000_000));
 }

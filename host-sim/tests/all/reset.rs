@@ -12,10 +12,7 @@ const ORIGIN_NEEDED_ALL: u32 = Flags::ORIGIN_NEEDED * 0b111;
 /// `move` (refused or not), `clear`, `move` again, `origin all`, `move` once more; then a
 /// read of the status.
 fn sequence() -> Scenario {
-    let cmd = |at_s: f64, line: &str| TimedCommand {
-        at_s,
-        line: line.into(),
-    };
+    let cmd = TimedCommand::new;
     Scenario {
         name: "reset".into(),
         duration_s: 5.0,

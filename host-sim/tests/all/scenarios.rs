@@ -252,6 +252,21 @@ fn every_scenario_file_parses_and_bad_ones_are_named() {
         .unwrap_err()
         .to_string()
         .contains("backlash_mm3"));
+    // A line framed by hand must say so: the simulator cannot checksum a line holding `*`.
+    let framed = "duration_s = 1.0\n[[commands]]\nat_s = 0.5\nline = \"*068B status\"\n";
+    let sc = Scenario::from_toml(framed, "c.toml").unwrap();
+    let e = simulate(&sc).unwrap_err().to_string();
+    assert!(
+        e.contains("commands[0].line") && e.contains("framing = \"plain\""),
+        "{e}"
+    );
+    let sc = Scenario::from_toml(&format!("{framed}framing = \"plain\"\n"), "c.toml").unwrap();
+    let run = simulate(&sc).unwrap();
+    assert!(
+        run.replies[0].1.starts_with("ok flags "),
+        "{:?}",
+        run.replies
+    );
 }
 
 /// Every effect at once (stiff integration, all state) still completes the protocol.

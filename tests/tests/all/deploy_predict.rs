@@ -34,10 +34,7 @@ fn exported_model_predicts_on_the_board_as_in_sysid() {
         (8.0, "move all 150 35"),
         (17.0, "move all 300 60"),
     ] {
-        cmds.push(TimedCommand {
-            at_s,
-            line: line.into(),
-        });
+        cmds.push(TimedCommand::new(at_s, line));
     }
     let sc = Scenario {
         name: "e2e-deploy".into(),

@@ -295,10 +295,7 @@ pub fn upload_commands(lines: &[String]) -> Vec<TimedCommand> {
     lines
         .iter()
         .enumerate()
-        .map(|(i, l)| TimedCommand {
-            at_s: 0.05 + 0.01 * i as f64,
-            line: l.clone(),
-        })
+        .map(|(i, l)| TimedCommand::new(0.05 + 0.01 * i as f64, l))
         .collect()
 }
 

@@ -520,3 +520,46 @@ fn shown_cargo_commands_name_real_packages_and_targets() {
         bad.join("\n")
     );
 }
+
+/// Every checksummed command line the pages show (`*LLCC <command>`, `LLCC` four upper-case
+/// hex digits, in a code span, a code block or a code example's string) is one the firmware accepts from boot, checksum
+/// required, and parses: a person who types it as shown gets it executed.
+#[test]
+fn shown_checksummed_lines_pass_the_firmwares_check() {
+    let mut shown = 0;
+    let mut bad = vec![];
+    for rel in pages() {
+        let text = fs::read_to_string(root().join(&rel)).unwrap();
+        for (i, line) in text.lines().enumerate() {
+            for (at, _) in line.match_indices('*') {
+                let rest = &line[at..];
+                let prefix = rest.as_bytes().get(1..6);
+                let Some([a, b, c, d, b' ']) = prefix else {
+                    continue;
+                };
+                if ![a, b, c, d]
+                    .iter()
+                    .all(|x| x.is_ascii_digit() || (b'A'..=b'F').contains(x))
+                {
+                    continue;
+                }
+                // Up to the end of its code span, or of the string literal in a code example.
+                let shown_line = rest.split(['`', '"']).next().unwrap().trim_end();
+                shown += 1;
+                let mut link = firmware::command::LinkState::default();
+                let ok = link
+                    .check(shown_line.as_bytes())
+                    .is_ok_and(|cmd| firmware::command::parse(cmd).is_ok());
+                if !ok {
+                    bad.push(format!("{}:{}: {shown_line}", rel.display(), i + 1));
+                }
+            }
+        }
+    }
+    assert!(shown >= 5, "only {shown} checksummed lines found");
+    assert!(
+        bad.is_empty(),
+        "refused by the firmware:\n{}",
+        bad.join("\n")
+    );
+}

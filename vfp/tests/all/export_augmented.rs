@@ -288,10 +288,7 @@ fn exported_lines_run_on_the_firmware_as_in_sysid() {
         (7.0, "move 0 150 35"),
         (15.0, "move 0 300 100"),
     ] {
-        cmds.push(TimedCommand {
-            at_s,
-            line: line.into(),
-        });
+        cmds.push(TimedCommand::new(at_s, line));
     }
     let sc = Scenario {
         name: "export-augmented-board".into(),
