@@ -343,8 +343,8 @@ impl RigSpec {
         )
     }
 
-    /// The plant with every planted effect except `without`.
-    pub fn plant(&self, without: Option<PlantedKind>) -> PlantConfig {
+    /// The plant with the planted effects `keep` accepts.
+    pub fn plant(&self, keep: impl Fn(PlantedKind) -> bool) -> PlantConfig {
         let mut plant = PlantConfig {
             design: self.design,
             sensor: self.sensor.clone(),
@@ -352,7 +352,7 @@ impl RigSpec {
             effects: Effects::default(),
             ..PlantConfig::default()
         };
-        for p in self.planted.iter().filter(|p| Some(p.kind) != without) {
+        for p in self.planted.iter().filter(|p| keep(p.kind)) {
             p.apply(&mut plant);
         }
         plant
@@ -366,7 +366,13 @@ impl RigSpec {
     /// The scenario of the rig without one of its effects (`None`: with all): the same
     /// trajectory, sensor and noise seed, so the two runs differ by that effect alone.
     pub fn scenario_without(&self, without: Option<PlantedKind>) -> Scenario {
-        let plant = self.plant(without);
+        self.scenario_with(|k| Some(k) != without)
+    }
+
+    /// The scenario of the rig with the planted effects `keep` accepts (same trajectory, sensor
+    /// and noise seed).
+    pub fn scenario_with(&self, keep: impl Fn(PlantedKind) -> bool) -> Scenario {
+        let plant = self.plant(keep);
         let d = self.design;
         let scale = Design::Sba1.mean_damping() / d.mean_damping();
         let (flow_low, flow_high) = (20.0 * scale, 100.0 * scale);

@@ -94,10 +94,15 @@ pub struct RigResult {
     pub planted: Vec<PlantedResult>,
     /// Effects named, in the loop's order.
     pub named: Vec<NamedResult>,
+    /// The baseline polynomial's shape (n, m) the loop selected.
+    pub baseline_shape: (usize, usize),
     /// Baseline held-out RMSE, kPa.
     pub baseline_rmse_kpa: f64,
     /// Final held-out RMSE, kPa.
     pub final_rmse_kpa: f64,
+    /// Held-out RMSE of the oracle's complete model (the baseline shape plus every effect's true
+    /// contribution), kPa: what the loop could reach with every effect exactly right.
+    pub oracle_rmse_kpa: f64,
     /// Process CPU seconds of the diagnosis (every thread; `None` where unavailable).
     pub cpu_s: Option<f64>,
     /// The loop's stages, wall-clock seconds (`vfp diagnose --timings`).
@@ -567,11 +572,11 @@ pub fn markdown(command: &str, s: &Summary, results: &[RigResult]) -> String {
 
     let _ = writeln!(
         o,
-        "\n## Rigs\n\n| rig | planted (oracle gain, RMS/σ) | named | final / σ | CPU s |\n|---|---|---|---|---|"
+        "\n## Rigs\n\nOracle / σ: the held-out RMSE of the baseline shape plus every planted effect's true contribution.\n\n| rig | planted (oracle gain, RMS/σ) | named | final / σ | oracle / σ | CPU s |\n|---|---|---|---|---|---|"
     );
     for r in results {
         if let Some(e) = &r.error {
-            let _ = writeln!(o, "| {} | failed: {e} | | | |", r.label);
+            let _ = writeln!(o, "| {} | failed: {e} | | | | |", r.label);
             continue;
         }
         let planted: Vec<String> = r
@@ -590,7 +595,7 @@ pub fn markdown(command: &str, s: &Summary, results: &[RigResult]) -> String {
         let named: Vec<&str> = r.named.iter().map(|n| n.name.as_str()).collect();
         let _ = writeln!(
             o,
-            "| {} | {} | {} | {:.3} | {} |",
+            "| {} | {} | {} | {:.3} | {:.3} | {} |",
             r.label,
             if planted.is_empty() {
                 "–".into()
@@ -603,6 +608,7 @@ pub fn markdown(command: &str, s: &Summary, results: &[RigResult]) -> String {
                 named.join(", ")
             },
             r.final_over_sigma(),
+            r.oracle_rmse_kpa / r.sigma_kpa,
             r.cpu_s.map_or("–".into(), |c| format!("{c:.2}"))
         );
     }
@@ -803,6 +809,23 @@ mod tests {
             ..gate
         };
         assert!(lenient.check(&s).is_empty());
+    }
+
+    #[test]
+    fn the_committed_gate_file_parses_and_its_thresholds_are_ratios() {
+        let text = include_str!("../../bench/loop-gate.toml");
+        let g: Gate = toml::from_str(text).expect("bench/loop-gate.toml parses");
+        assert!(g.rigs > 0 && g.samples[0] <= g.samples[1]);
+        for x in [
+            g.min_precision,
+            g.min_recall_gain_5pct,
+            g.min_share_within_1_10,
+        ] {
+            assert!((0.0..=1.0).contains(&x), "{x}");
+        }
+        // An unknown key (a misspelt threshold) is an error, not a gate that checks nothing.
+        let typo = format!("{text}\nmin_recal = 0.9\n");
+        assert!(toml::from_str::<Gate>(&typo).is_err());
     }
 
     #[test]

@@ -13,9 +13,12 @@
 //! noise seed), and the difference of the sensor output before its noise (`sensed_kpa` plus the
 //! thermal drift, chamber 0's truth per frame) is the effect's exact contribution `d` given the
 //! others. Two figures come from it: its RMS over the held-out frames (mean removed) over σ, and
-//! its **held-out gain as a known regressor**: the baseline polynomial of the loop's shape plus
-//! every planted effect's `d` as columns, fitted on the training frames, against the same without
-//! this effect's `d`, 1 − RMSE(with)/RMSE(without) on the held-out frames. The gain is what
+//! its **held-out gain as a known regressor**: the chamber law's polynomial shape (n = 3, m = 2:
+//! host-sim's law, so the loop's own shape selection plays no part) plus
+//! every planted effect's `d` as columns (and, with two effects or more, their interaction: the
+//! rig's output minus the clean rig's minus every `d`, from one more run without any effect, so
+//! the columns hold the whole departure from the law), fitted on the training frames, against the
+//! same without this effect's `d`, 1 − RMSE(with)/RMSE(without) on the held-out frames. The gain is what
 //! recall is binned by: it measures what the effect adds beyond what the polynomial absorbs (a
 //! leak's pressure-proportional loss is largely a change of stiffness, an offset drift's mean an
 //! offset), on the same split and by the same measure (held-out RMSE) the loop's `--min-gain` uses.
@@ -63,6 +66,10 @@ pub struct Args {
     #[arg(long, value_name = "DIR")]
     pub keep_logs: Option<PathBuf>,
 }
+
+/// The polynomial shape of the oracle's fits: host-sim's chamber law (`host_sim::law`, the paper's
+/// n = 3, m = 2 for every design).
+const ORACLE_SHAPE: (usize, usize) = (3, 2);
 
 /// The loop's name for a planted kind.
 pub fn expected_name(kind: PlantedKind) -> &'static str {
@@ -178,20 +185,28 @@ struct Rows<'a> {
 
 /// The oracle's figures for each planted effect: (RMS over σ, held-out gain), from the
 /// differences `diffs` (one per planted effect, per dataset row).
+/// The held-out RMSE of the complete oracle model (`extra`: the interaction column, never scored)
+/// comes first, then each effect's (RMS/σ, gain).
 fn oracle(
     ds: &Rows<'_>,
     shape: (usize, usize),
     diffs: &[Vec<f64>],
+    extra: Option<&[f64]>,
     sigma: f64,
-) -> Result<Vec<(f64, f64)>, String> {
+) -> Result<(f64, Vec<(f64, f64)>), String> {
     let train: Vec<usize> = (0..ds.p.len()).filter(|&k| !ds.heldout[k]).collect();
     let test: Vec<usize> = (0..ds.p.len()).filter(|&k| ds.heldout[k]).collect();
     let basis = PolyBasis::for_data(ds.v, ds.vdot, shape.0, shape.1)
         .map_err(|e| format!("oracle basis: {e}"))?;
     let poly = basis.columns(ds.v, ds.vdot);
-    let with_all: Vec<&[f64]> = poly.iter().chain(diffs).map(Vec::as_slice).collect();
+    let with_all: Vec<&[f64]> = poly
+        .iter()
+        .chain(diffs)
+        .map(Vec::as_slice)
+        .chain(extra)
+        .collect();
     let all = heldout_rmse(&with_all, ds.p, &train, &test);
-    Ok(diffs
+    let sizes = diffs
         .iter()
         .enumerate()
         .map(|(i, d)| {
@@ -205,6 +220,7 @@ fn oracle(
                         .map(|x| x.1),
                 )
                 .map(Vec::as_slice)
+                .chain(extra)
                 .collect();
             let without = heldout_rmse(&cols, ds.p, &train, &test);
             let gain = match (all, without) {
@@ -213,7 +229,8 @@ fn oracle(
             };
             (rms_about_mean(d, &test) / sigma, gain)
         })
-        .collect())
+        .collect();
+    Ok((all.unwrap_or(f64::NAN), sizes))
 }
 
 fn stages(t: &Timings) -> BTreeMap<String, f64> {
@@ -264,6 +281,7 @@ fn run_rig(spec: &RigSpec, keep: Option<&Path>, result: &mut RigResult) -> Resul
     result.cpu_s = cpu0.zip(cpu1).map(|(a, b)| b - a);
     result.stages_s = stages(&d.timing);
     result.baseline_rmse_kpa = d.baseline.rmse_heldout;
+    result.baseline_shape = (d.baseline.n, d.baseline.m);
     result.final_rmse_kpa = d.final_model.rmse_heldout;
     result.named = d
         .effects
@@ -312,13 +330,36 @@ fn run_rig(spec: &RigSpec, keep: Option<&Path>, result: &mut RigResult) -> Resul
                 .collect::<Vec<f64>>(),
         );
     }
+    // Two effects or more: what they do together beyond the sum of each one's part.
+    let interaction = if spec.planted.len() >= 2 {
+        let clean = simulate(&spec.scenario_with(|_| false))
+            .map_err(|e| format!("simulation without any effect: {e}"))?;
+        let out = sensor_output(&clean);
+        if out.len() != out_all.len() {
+            return Err(format!(
+                "the run without any effect has {} frames, the rig {}",
+                out.len(),
+                out_all.len()
+            ));
+        }
+        Some(
+            (0..ds.t.len())
+                .map(|k| {
+                    out_all[k + skip] - out[k + skip] - diffs.iter().map(|d| d[k]).sum::<f64>()
+                })
+                .collect::<Vec<f64>>(),
+        )
+    } else {
+        None
+    };
     let rows = Rows {
         v: &ds.v,
         vdot: &ds.vdot,
         p: &ds.p,
         heldout: &ds.heldout,
     };
-    let sizes = oracle(&rows, (d.baseline.n, d.baseline.m), &diffs, sigma)?;
+    let (complete, sizes) = oracle(&rows, ORACLE_SHAPE, &diffs, interaction.as_deref(), sigma)?;
+    result.oracle_rmse_kpa = complete;
     let span = (ds.t[0], ds.t[ds.t.len() - 1]);
     result.planted = spec
         .planted
@@ -353,6 +394,33 @@ fn run_rig(spec: &RigSpec, keep: Option<&Path>, result: &mut RigResult) -> Resul
 
 fn write_file(path: &Path, text: &str) -> Result<(), Error> {
     std::fs::write(path, text).map_err(|e| Error::output(path, e))
+}
+
+/// Writes `--json` and `--markdown` for `results`; returns the summary and the markdown.
+fn write_outputs(
+    args: &Args,
+    command: &str,
+    seed: u64,
+    samples: (usize, usize),
+    results: &[RigResult],
+) -> Result<(crate::loop_bench::Summary, String), Error> {
+    let summary = summarise(results);
+    let md = markdown(command, &summary, results);
+    if let Some(p) = &args.markdown {
+        write_file(p, &md)?;
+    }
+    if let Some(p) = &args.json {
+        let doc = serde_json::json!({
+            "command": command,
+            "seed": seed,
+            "samples": [samples.0, samples.1],
+            "summary": summary,
+            "rigs": results,
+        });
+        let text = serde_json::to_string_pretty(&doc).map_err(|e| Error::Msg(e.to_string()))?;
+        write_file(p, &text)?;
+    }
+    Ok((summary, md))
 }
 
 /// Runs `vfp bench-loop`.
@@ -403,28 +471,18 @@ pub fn run(args: &Args) -> Result<(), Error> {
         if let Err(e) = run_rig(&spec, args.keep_logs.as_deref(), &mut r) {
             r.error = Some(e);
         }
-        if crate::progress::shown() {
+        // One line per rig even into a file (a long run's log); `--quiet` silences it.
+        if !crate::progress::quiet() {
             eprintln!("{}", progress_line(&r, n));
         }
         results.push(r);
+        // The files hold the rigs so far after each one: a long run stopped early keeps them.
+        if i + 1 < n {
+            write_outputs(args, &command, seed, samples, &results)?;
+        }
     }
-    let summary = summarise(&results);
-    let md = markdown(&command, &summary, &results);
+    let (summary, md) = write_outputs(args, &command, seed, samples, &results)?;
     print!("{md}");
-    if let Some(p) = &args.markdown {
-        write_file(p, &md)?;
-    }
-    if let Some(p) = &args.json {
-        let doc = serde_json::json!({
-            "command": command,
-            "seed": seed,
-            "samples": [samples.0, samples.1],
-            "summary": summary,
-            "rigs": results,
-        });
-        let text = serde_json::to_string_pretty(&doc).map_err(|e| Error::Msg(e.to_string()))?;
-        write_file(p, &text)?;
-    }
     if let Some(g) = &gate {
         let missed = g.check(&summary);
         if !missed.is_empty() {
@@ -499,7 +557,11 @@ mod tests {
             p: &p,
             heldout: &heldout,
         };
-        let r = oracle(&rows, (1, 1), &[d], 0.5).unwrap();
+        let (complete, r) = oracle(&rows, (1, 1), &[d], None, 0.5).unwrap();
+        assert!(
+            complete < 1e-9,
+            "the complete model is exact, RMSE {complete}"
+        );
         assert!((r[0].1 - 1.0).abs() < 1e-6, "gain {}", r[0].1);
         // RMS of sin over the held-out rows ≈ 1/√2, over σ = 0.5.
         assert!(
