@@ -223,6 +223,8 @@ pub struct Summary {
     pub recall: f64,
     /// Recall over planted effects whose oracle gain is at least 5 %.
     pub recall_gain_5pct: f64,
+    /// Recall by planted kind: (kind, planted, found).
+    pub recall_by_kind: Vec<(String, usize, usize)>,
     /// Recall by the oracle's held-out gain ([`GAIN_BINS`]).
     pub recall_by_gain: Vec<RecallBin>,
     /// Recall by the oracle's RMS over σ ([`RMS_BINS`]).
@@ -342,6 +344,12 @@ pub fn summarise(results: &[RigResult]) -> Summary {
         })
         .collect();
 
+    let mut by_kind: BTreeMap<String, (usize, usize)> = BTreeMap::new();
+    for p in ok.iter().flat_map(|r| &r.planted) {
+        let e = by_kind.entry(p.kind.clone()).or_default();
+        e.0 += 1;
+        e.1 += usize::from(p.found);
+    }
     let strong: Vec<&PlantedResult> = ok
         .iter()
         .flat_map(|r| &r.planted)
@@ -399,6 +407,7 @@ pub fn summarise(results: &[RigResult]) -> Summary {
         precision: ratio(right, named),
         recall: ratio(found, planted),
         recall_gain_5pct: ratio(strong_found, strong.len()),
+        recall_by_kind: by_kind.into_iter().map(|(k, (n, f))| (k, n, f)).collect(),
         recall_by_gain: bins(&GAIN_BINS, &ok, |p| p.oracle_gain),
         recall_by_rms: bins(&RMS_BINS, &ok, |p| p.oracle_rms_sigma),
         share_within_1_10: ratio(within, ok.len()),
@@ -529,6 +538,14 @@ pub fn markdown(command: &str, s: &Summary, results: &[RigResult]) -> String {
             .map(|&n| if n == 0 { ".".into() } else { n.to_string() })
             .collect();
         let _ = writeln!(o, "| {r} | {} |", cells.join(" | "));
+    }
+
+    let _ = writeln!(
+        o,
+        "\n## Recall by planted kind\n\n| planted | planted | found | recall |\n|---|---|---|---|"
+    );
+    for (k, n, f) in &s.recall_by_kind {
+        let _ = writeln!(o, "| {k} | {n} | {f} | {:.2} |", ratio(*f, *n));
     }
 
     for (title, bins) in [
@@ -761,6 +778,20 @@ mod tests {
             .collect();
         assert_eq!(g, [(0, 0), (1, 0), (2, 1), (1, 1)]);
         // RMS/σ = 10 × gain: 3.0, 0.2, 1.0, 0.6.
+        let k: Vec<(&str, usize, usize)> = s
+            .recall_by_kind
+            .iter()
+            .map(|(k, n, f)| (k.as_str(), *n, *f))
+            .collect();
+        assert_eq!(
+            k,
+            [
+                ("air", 1, 1),
+                ("backlash", 1, 0),
+                ("hysteresis", 1, 1),
+                ("leak", 1, 0)
+            ]
+        );
         let r: Vec<(usize, usize)> = s
             .recall_by_rms
             .iter()
