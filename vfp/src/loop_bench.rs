@@ -223,6 +223,10 @@ pub struct Summary {
     pub recall: f64,
     /// Recall over planted effects whose oracle gain is at least 5 %.
     pub recall_gain_5pct: f64,
+    /// Planted effects whose oracle gain is at least 5 %, and of them found.
+    pub gain_5pct: (usize, usize),
+    /// Rigs scored (not failed), and of them ending ≤ 1.10 σ.
+    pub within_1_10: (usize, usize),
     /// Recall by planted kind: (kind, planted, found).
     pub recall_by_kind: Vec<(String, usize, usize)>,
     /// Recall by the oracle's held-out gain ([`GAIN_BINS`]).
@@ -407,6 +411,8 @@ pub fn summarise(results: &[RigResult]) -> Summary {
         precision: ratio(right, named),
         recall: ratio(found, planted),
         recall_gain_5pct: ratio(strong_found, strong.len()),
+        gain_5pct: (strong.len(), strong_found),
+        within_1_10: (ok.len(), within),
         recall_by_kind: by_kind.into_iter().map(|(k, (n, f))| (k, n, f)).collect(),
         recall_by_gain: bins(&GAIN_BINS, &ok, |p| p.oracle_gain),
         recall_by_rms: bins(&RMS_BINS, &ok, |p| p.oracle_rms_sigma),
@@ -481,6 +487,16 @@ impl Gate {
     }
 }
 
+/// The binomial standard error of `k` of `n`, √(p(1 − p)/n) (0 without trials). Names and effects
+/// of one rig are not independent, so it is a guide to the spread between seeds, not a bound.
+pub fn binomial_se(k: usize, n: usize) -> f64 {
+    if n == 0 {
+        return 0.0;
+    }
+    let p = k as f64 / n as f64;
+    (p * (1.0 - p) / n as f64).sqrt()
+}
+
 fn pct(x: f64) -> String {
     format!("{:.1} %", 100.0 * x)
 }
@@ -494,15 +510,33 @@ pub fn markdown(command: &str, s: &Summary, results: &[RigResult]) -> String {
         ("rigs (failed)", format!("{} ({})", s.rigs, s.failed)),
         (
             "precision (right / named)",
-            format!("{:.3} ({} / {})", s.precision, s.named_right, s.named),
+            format!(
+                "{:.3} ± {:.3} ({} / {})",
+                s.precision,
+                binomial_se(s.named_right, s.named),
+                s.named_right,
+                s.named
+            ),
         ),
         (
             "recall (found / planted)",
-            format!("{:.3} ({} / {})", s.recall, s.found, s.planted),
+            format!(
+                "{:.3} ± {:.3} ({} / {})",
+                s.recall,
+                binomial_se(s.found, s.planted),
+                s.found,
+                s.planted
+            ),
         ),
         (
             "recall, oracle gain ≥ 5 %",
-            format!("{:.3}", s.recall_gain_5pct),
+            format!(
+                "{:.3} ± {:.3} ({} / {})",
+                s.recall_gain_5pct,
+                binomial_se(s.gain_5pct.1, s.gain_5pct.0),
+                s.gain_5pct.1,
+                s.gain_5pct.0
+            ),
         ),
         (
             "clean rigs with a false alarm",
@@ -511,7 +545,16 @@ pub fn markdown(command: &str, s: &Summary, results: &[RigResult]) -> String {
                 s.false_alarm_rigs, s.clean_rigs, s.false_alarm_effects
             ),
         ),
-        ("rigs ending ≤ 1.10 σ", pct(s.share_within_1_10)),
+        (
+            "rigs ending ≤ 1.10 σ",
+            format!(
+                "{} ± {} ({} / {})",
+                pct(s.share_within_1_10),
+                pct(binomial_se(s.within_1_10.1, s.within_1_10.0)),
+                s.within_1_10.1,
+                s.within_1_10.0
+            ),
+        ),
         (
             "rigs whose oracle model ends ≤ 1.10 σ",
             pct(s.oracle_within_1_10),
@@ -733,6 +776,11 @@ mod tests {
         assert!((s.recall - 0.5).abs() < 1e-12);
         // Gain ≥ 5 %: air (found), hysteresis (found), backlash (missed).
         assert!((s.recall_gain_5pct - 2.0 / 3.0).abs() < 1e-12);
+        assert_eq!(s.gain_5pct, (3, 2));
+        assert_eq!(s.within_1_10, (5, 3));
+        // √(0.4 · 0.6 / 5) = 0.219…, printed with the counts.
+        let md = markdown("vfp bench-loop", &s, &rigs());
+        assert!(md.contains("| 0.400 ± 0.219 (2 / 5) |"), "{md}");
         assert_eq!(
             (s.clean_rigs, s.false_alarm_rigs, s.false_alarm_effects),
             (2, 1, 1)
