@@ -645,11 +645,11 @@ pub fn markdown(command: &str, s: &Summary, results: &[RigResult]) -> String {
 
     let _ = writeln!(
         o,
-        "\n## Rigs\n\nOracle / σ: the held-out RMSE of the baseline shape plus every planted effect's true contribution.\n\n| rig | planted (oracle gain, RMS/σ) | named | final / σ | oracle / σ | CPU s |\n|---|---|---|---|---|---|"
+        "\n## Rigs\n\nShape: the baseline (n, m) the loop selected. Oracle / σ: the held-out RMSE of the chamber law's shape (3, 2) plus every planted effect's true contribution. ✗: missed.\n\n| rig | planted (oracle gain, RMS/σ) | named | shape | final / σ | oracle / σ | CPU s |\n|---|---|---|---|---|---|---|"
     );
     for r in results {
         if let Some(e) = &r.error {
-            let _ = writeln!(o, "| {} | failed: {e} | | | | |", r.label);
+            let _ = writeln!(o, "| {} | failed: {e} | | | | | |", r.label);
             continue;
         }
         let planted: Vec<String> = r
@@ -668,7 +668,7 @@ pub fn markdown(command: &str, s: &Summary, results: &[RigResult]) -> String {
         let named: Vec<&str> = r.named.iter().map(|n| n.name.as_str()).collect();
         let _ = writeln!(
             o,
-            "| {} | {} | {} | {:.3} | {:.3} | {} |",
+            "| {} | {} | {} | ({}, {}) | {:.3} | {:.3} | {} |",
             r.label,
             if planted.is_empty() {
                 "–".into()
@@ -680,6 +680,8 @@ pub fn markdown(command: &str, s: &Summary, results: &[RigResult]) -> String {
             } else {
                 named.join(", ")
             },
+            r.baseline_shape.0,
+            r.baseline_shape.1,
             r.final_over_sigma(),
             r.oracle_rmse_kpa / r.sigma_kpa,
             r.cpu_s.map_or("–".into(), |c| format!("{c:.2}"))
