@@ -36,6 +36,7 @@
 pub mod board;
 pub mod law;
 pub mod plant;
+pub mod rigs;
 pub mod scenario;
 pub mod sim;
 
@@ -44,7 +45,8 @@ pub use plant::{
     ChamberTruth, Effects, ForcePush, NoiseTails, PlantConfig, SensorSpec, EFFECT_PRESETS,
 };
 pub use scenario::{
-    FaultInjection, Framing, PresetOptions, Protocol, Scenario, SerialFault, SerialFaultKind,
+    Breathing, FaultInjection, Framing, PresetOptions, Protocol, Scenario, SerialFault,
+    SerialFaultKind,
     Strokes, TelemetryStall, TimedCommand,
 };
 pub use sim::{simulate, simulate_with, FrameTruth, LogRow, RunStats, SimRun, LOG_COLUMNS};

@@ -373,6 +373,60 @@ impl Strokes {
     }
 }
 
+/// Breathing-like cycles, unlike strokes between random targets: all three axes inhale from
+/// below `v_mid` to above it and exhale back, each breath's depth (0.6–1.4 × `amplitude_mm3` on
+/// either side of `v_mid`) and inhaling flow (0.7–1.3 × `flow_mm3_s`) drawn anew, exhaling at
+/// 0.6× the inhaling flow, holding 0.2 s at the top and pausing up to `pause_max_s` at the
+/// bottom; drawn from `seed`, for `duration_s` of motion.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Breathing {
+    /// Length of the motion, s.
+    pub duration_s: f64,
+    /// Volume the breaths swing about, mm³.
+    pub v_mid: f64,
+    /// Mean swing to either side, mm³.
+    pub amplitude_mm3: f64,
+    /// Mean inhaling flow, mm³/s.
+    pub flow_mm3_s: f64,
+    /// Longest pause after exhaling, s.
+    pub pause_max_s: f64,
+    /// Seed of the draws.
+    pub seed: u64,
+}
+
+impl Breathing {
+    /// The `move all V F` command lines, timed from [`START_S`] (each sent when the one before
+    /// has had time to finish, plus 0.3 s for the ramps), and the time the last one is done, s.
+    /// Targets stay within `0..=2·v_mid`.
+    pub fn commands(&self) -> (Vec<TimedCommand>, f64) {
+        use rand::{RngExt, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(self.seed);
+        let round = |x: f64| (x * 10.0).round() / 10.0;
+        let (lo, hi) = (0.0, 2.0 * self.v_mid);
+        let (mut t, mut v) = (START_S, 0.0f64);
+        let mut out = Vec::new();
+        let go = |out: &mut Vec<TimedCommand>, t: &mut f64, v: &mut f64, to: f64, f: f64| {
+            let (to, f) = (round(to.clamp(lo, hi)), round(f.max(1.0)));
+            out.push(TimedCommand::new(*t, &format!("move all {to} {f}")));
+            *t += (to - *v).abs() / f + 0.3;
+            *v = to;
+        };
+        let depth = |u: f64| self.amplitude_mm3 * (0.6 + 0.8 * u);
+        let first = self.v_mid - depth(rng.random::<f64>());
+        go(&mut out, &mut t, &mut v, first, self.flow_mm3_s);
+        while t < START_S + self.duration_s {
+            let f_in = self.flow_mm3_s * (0.7 + 0.6 * rng.random::<f64>());
+            let top = self.v_mid + depth(rng.random::<f64>());
+            go(&mut out, &mut t, &mut v, top, f_in);
+            t += 0.2;
+            let bottom = self.v_mid - depth(rng.random::<f64>());
+            go(&mut out, &mut t, &mut v, bottom, 0.6 * f_in);
+            t += self.pause_max_s * rng.random::<f64>();
+        }
+        (out, t)
+    }
+}
+
 /// The settings of [`Scenario::preset`] beyond its name.
 #[derive(Debug, Clone, PartialEq)]
 pub struct PresetOptions {
@@ -520,6 +574,27 @@ impl Scenario {
                 strokes.flow_high,
                 strokes.dwell_max_s,
                 strokes.seed
+            ),
+            duration_s: end + 2.0,
+            plant,
+            commands,
+            ..Self::default()
+        }
+    }
+
+    /// Run `breathing` on all three chambers of `plant` (see [`Breathing`]), ending 2 s after
+    /// the last move is done.
+    pub fn breathing(name: &str, plant: PlantConfig, breathing: &Breathing) -> Self {
+        let (commands, end) = breathing.commands();
+        Self {
+            name: name.into(),
+            description: format!(
+                "breathing about {} mm³, ±{} mm³ at {} mm³/s, pauses up to {} s (seed {})",
+                breathing.v_mid,
+                breathing.amplitude_mm3,
+                breathing.flow_mm3_s,
+                breathing.pause_max_s,
+                breathing.seed
             ),
             duration_s: end + 2.0,
             plant,

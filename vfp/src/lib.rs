@@ -6,6 +6,7 @@
 pub mod cmd;
 pub mod error;
 pub mod figure;
+pub mod loop_bench;
 pub mod opts;
 pub mod plots;
 pub mod port;

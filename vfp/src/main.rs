@@ -51,6 +51,8 @@ enum Command {
     Record(cmd::record::Args),
     /// Live terminal view of the board's telemetry (probe-rs output on stdin or a file), recording it.
     Monitor(cmd::monitor::Args),
+    /// The residual loop judged on random simulated rigs: confusion matrix, precision, recall by effect size, CPU.
+    BenchLoop(cmd::bench_loop::Args),
     /// Send a model to a board over its serial port and read it back.
     Deploy(cmd::deploy::Args),
     /// What the board would have estimated on a log: the firmware's estimator over its frames with an exported model.
@@ -74,6 +76,7 @@ fn main() -> ExitCode {
         Command::Diagnose(a) => cmd::diagnose::run(a),
         Command::Record(a) => cmd::record::run(a),
         Command::Monitor(a) => cmd::monitor::run(a),
+        Command::BenchLoop(a) => cmd::bench_loop::run(a),
         Command::Deploy(a) => cmd::deploy::run(a),
         Command::Replay(a) => cmd::replay::run(a),
     };

@@ -2,6 +2,7 @@
 //! `main.rs` only dispatches, so a new subcommand is a module here plus one enum line there.
 
 pub mod air_scan;
+pub mod bench_loop;
 pub mod chow;
 pub mod demo;
 pub mod deploy;

@@ -10,6 +10,7 @@ mod common;
 #[path = "../../../sysid/tests/diag_common/mod.rs"]
 mod diag_common;
 
+mod bench_loop;
 mod diag_force;
 mod diag_hostsim;
 mod diag_stiffness;
