@@ -46,8 +46,7 @@ pub use plant::{
 };
 pub use scenario::{
     Breathing, FaultInjection, Framing, PresetOptions, Protocol, Scenario, SerialFault,
-    SerialFaultKind,
-    Strokes, TelemetryStall, TimedCommand,
+    SerialFaultKind, Strokes, TelemetryStall, TimedCommand,
 };
 pub use sim::{simulate, simulate_with, FrameTruth, LogRow, RunStats, SimRun, LOG_COLUMNS};
 
