@@ -93,6 +93,17 @@ pub const MAX_FOLDS: usize = 10;
 /// Number of time stretches used as blocks when there are too few cycles: four per fold, so
 /// each fold leaves out four short pieces spread over the log.
 pub const TIME_STRETCHES: usize = 4 * MAX_FOLDS;
+/// Largest ratio of the selected model's typical cross-validated RMSE to the lowest (module
+/// docs, step 5): however wide the standard error, the rule never trades more accuracy than this
+/// for fewer terms.
+pub const MAX_RMSE_RATIO: f64 = 1.05;
+/// Most parameters of the reduced model (module docs, "Terms"), when a model of at most this
+/// many is admissible.
+pub const MAX_PARAMS: usize = 40;
+/// Floor added to every block's mean squared error before its logarithm is taken, as a fraction
+/// of the training pressure's variance: it only keeps a block that some shape fits exactly
+/// (a flat stretch of a quantised log) from deciding the comparison by log 0.
+pub const ERROR_FLOOR: f64 = 1e-6;
 
 /// What the cross-validation's blocks are.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
@@ -166,6 +177,12 @@ pub struct CvScore {
     pub se: f64,
     /// Every block's error is at most the training pressure's variance (module docs).
     pub admissible: bool,
+    /// The typical block's error: the geometric mean over blocks of (e_b + floor), kPa²
+    /// (module docs, step 3).
+    pub typical_mse: f64,
+    /// The floor added to each block's error, kPa² ([`ERROR_FLOOR`] × Var(P)).
+    #[serde(skip)]
+    pub floor: f64,
     /// Each block's SSE under the fold that left it out, kPa².
     #[serde(skip)]
     pub block_sse: Vec<f64>,
@@ -178,6 +195,11 @@ impl CvScore {
     /// √ē, kPa.
     pub fn rmse(&self) -> f64 {
         self.mse.sqrt()
+    }
+
+    /// The typical block's RMSE, kPa (√ of [`CvScore::typical_mse`]).
+    pub fn typical_rmse(&self) -> f64 {
+        self.typical_mse.sqrt()
     }
 }
 
@@ -272,15 +294,15 @@ impl BlockMoments {
 impl BlockMoments {
     /// The raw terms of the (n, m) model reduced by the selection's own rule (module docs,
     /// "Terms"): backward elimination on the training fit, each step cross-validated, then the
-    /// fewest terms within one paired standard error of the lowest error seen, `reference` (the
-    /// sweep's lowest) included.
-    /// `Err` when the full shape cannot be fitted on some fold.
+    /// fewest terms within the band of the lowest error seen, the sweep's `scores` included.
+    /// `Err` when the full shape cannot be fitted on some fold or no score of the sweep is finite.
     pub fn reduce_terms(
         &self,
         n: usize,
         m: usize,
-        reference: &CvScore,
+        scores: &[CvScore],
     ) -> Result<Reduction, PolyError> {
+        let reference = lowest(scores).ok_or(PolyError::NoData)?;
         let nu = (n + 1) * (m + 1);
         let folds: Vec<FoldMaps> =
             crate::par::par_map(self.fold_fits.len(), |f| self.fold_maps(f, n, m))
@@ -323,17 +345,37 @@ impl BlockMoments {
         );
         let mut lowest = reference;
         for (_, s) in &path {
-            if s.admissible && s.mse < lowest.mse {
+            if s.admissible && s.typical_mse < lowest.typical_mse {
                 lowest = s;
             }
         }
-        let pick = path
+        let by_nu = |a: &CvScore, b: &CvScore| {
+            a.nu.cmp(&b.nu)
+                .then(a.typical_mse.total_cmp(&b.typical_mse))
+        };
+        let mut pick = path
             .iter()
             .enumerate()
-            .filter(|(_, (_, s))| s.admissible && within_one_se(s, lowest))
-            .min_by(|(_, a), (_, b)| a.1.nu.cmp(&b.1.nu).then(a.1.mse.total_cmp(&b.1.mse)))
+            .filter(|(_, (_, s))| s.admissible && within_band(s, lowest))
+            .min_by(|(_, a), (_, b)| by_nu(&a.1, &b.1))
             .map_or(0, |(k, _)| k);
-        Ok(Reduction::of_path(n, m, &path, pick, lowest))
+        // More than MAX_PARAMS terms within the band: the best admissible step of at most
+        // MAX_PARAMS terms instead, if there is one.
+        let mut limited = false;
+        if path[pick].1.nu > MAX_PARAMS {
+            if let Some((k, _)) = path
+                .iter()
+                .enumerate()
+                .filter(|(_, (_, s))| s.admissible && s.nu <= MAX_PARAMS)
+                .min_by(|(_, a), (_, b)| a.1.typical_mse.total_cmp(&b.1.typical_mse))
+            {
+                pick = k;
+                limited = true;
+            }
+        }
+        let mut red = Reduction::of_path(n, m, &path, pick, lowest);
+        red.limited = limited;
+        Ok(red)
     }
 
     /// RMSE on `held` of the reduction `red` fitted on all the training blocks (restricted least
@@ -511,14 +553,19 @@ pub struct Reduction {
     pub kept: Vec<String>,
     /// The dropped terms' names, in the order they were dropped.
     pub dropped: Vec<String>,
-    /// The reduced model's cross-validated RMSE, kPa.
+    /// The reduced model's cross-validated RMSE (pooled over blocks), kPa.
     pub cv_rmse: f64,
-    /// The lowest cross-validated RMSE of the sweep and the elimination, kPa.
-    pub cv_lowest_rmse: f64,
-    /// ē_reduced − ē_lowest, kPa².
-    pub mse_excess: f64,
-    /// Its standard error paired across blocks, kPa².
-    pub mse_excess_paired_se: f64,
+    /// The reduced model's typical block RMSE, kPa.
+    pub typical_rmse: f64,
+    /// The lowest typical block RMSE of the sweep and the elimination, kPa.
+    pub typical_lowest_rmse: f64,
+    /// Mean log ratio of the reduced model's block errors to the lowest's.
+    pub log_excess: f64,
+    /// Its standard error across blocks.
+    pub log_excess_se: f64,
+    /// The fewest terms within the band were more than [`MAX_PARAMS`], and the best admissible
+    /// step of at most [`MAX_PARAMS`] was taken instead.
+    pub limited: bool,
     /// The reduced model refitted on the training cycles and scored on the held-out ones, kPa
     /// (filled by [`crate::identify`]).
     pub rmse_heldout: Option<f64>,
@@ -537,7 +584,7 @@ impl Reduction {
         lowest: &CvScore,
     ) -> Reduction {
         let nu = (n + 1) * (m + 1);
-        let (mse_excess, mse_excess_paired_se) = paired_difference(&path[pick].1, lowest);
+        let (log_excess, log_excess_se) = paired_log_ratio(&path[pick].1, lowest);
         let gone: Vec<usize> = path[1..=pick].iter().filter_map(|(t, _)| *t).collect();
         let name = |t: usize| poly::term_name(t / (m + 1), t % (m + 1));
         Reduction {
@@ -548,9 +595,11 @@ impl Reduction {
             kept: (0..nu).filter(|t| !gone.contains(t)).map(name).collect(),
             dropped: gone.iter().map(|&t| name(t)).collect(),
             cv_rmse: path[pick].1.rmse(),
-            cv_lowest_rmse: lowest.rmse(),
-            mse_excess,
-            mse_excess_paired_se,
+            typical_rmse: path[pick].1.typical_rmse(),
+            typical_lowest_rmse: lowest.typical_rmse(),
+            log_excess,
+            log_excess_se,
+            limited: false,
             rmse_heldout: None,
             path: path
                 .iter()
@@ -612,6 +661,13 @@ fn cv_score(
         .zip(block_n.iter().copied())
         .collect();
     let (mse, se) = pooled(&errs);
+    let floor = ERROR_FLOOR * var_p.max(f64::MIN_POSITIVE);
+    let logs: Vec<f64> = errs
+        .iter()
+        .filter(|e| e.1 > 0)
+        .map(|&(e, nb)| (e / nb as f64 + floor).ln())
+        .collect();
+    let typical_mse = (logs.iter().sum::<f64>() / logs.len().max(1) as f64).exp();
     CvScore {
         n,
         m,
@@ -621,6 +677,8 @@ fn cv_score(
         admissible: errs
             .iter()
             .all(|&(e, nb)| nb == 0 || e / nb as f64 <= var_p),
+        typical_mse,
+        floor,
         block_sse,
         block_n,
     }
@@ -675,28 +733,54 @@ fn candidates(scores: &[CvScore]) -> Vec<&CvScore> {
     }
 }
 
-/// The candidate with the lowest ē (module docs: admissible shapes first).
+/// The mean over blocks of ln((e_a,b + floor) / (e_b,b + floor)), the log of the ratio of `a`'s
+/// typical block error to `b`'s, and its standard error across the (common) blocks, each block
+/// counted once (module docs, step 5). Infinite standard error with fewer than two blocks.
+pub fn paired_log_ratio(a: &CvScore, b: &CvScore) -> (f64, f64) {
+    let floor = a.floor.max(b.floor);
+    let d: Vec<f64> = (0..a.block_n.len().min(b.block_n.len()))
+        .filter(|&k| a.block_n[k] > 0 && a.block_n[k] == b.block_n[k])
+        .map(|k| {
+            let nb = a.block_n[k] as f64;
+            ((a.block_sse[k] / nb + floor) / (b.block_sse[k] / nb + floor)).ln()
+        })
+        .collect();
+    let k = d.len() as f64;
+    let mean = d.iter().sum::<f64>() / k.max(1.0);
+    if d.len() < 2 {
+        return (mean, f64::INFINITY);
+    }
+    let var = d.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (k - 1.0);
+    (mean, (var / k).sqrt())
+}
+
+/// The candidate with the lowest typical block error (module docs, step 5; admissible shapes
+/// first).
 pub fn lowest(scores: &[CvScore]) -> Option<&CvScore> {
     candidates(scores)
         .into_iter()
-        .min_by(|a, b| a.mse.total_cmp(&b.mse))
+        .min_by(|a, b| a.typical_mse.total_cmp(&b.typical_mse))
 }
 
-/// Whether `s` is within one standard error of `best` (of the paired difference).
-fn within_one_se(s: &CvScore, best: &CvScore) -> bool {
-    let (d, se) = paired_difference(s, best);
-    d <= se
+/// Whether `s` is within the rule's band (module docs, step 5) of `best`, the lowest typical
+/// error: its log error ratio to `best` at most one paired standard error, and its typical RMSE
+/// at most [`MAX_RMSE_RATIO`] × best's.
+fn within_band(s: &CvScore, best: &CvScore) -> bool {
+    let (d, se) = paired_log_ratio(s, best);
+    d <= se && d <= 2.0 * MAX_RMSE_RATIO.ln()
 }
 
-/// The one-standard-error choice among `scores`: the fewest parameters whose ē exceeds the
-/// lowest by at most one standard error of the paired difference (equal ν: the lower ē). `None`
-/// when no score is finite.
+/// The rule's choice among `scores`: the fewest parameters within the band of the lowest typical
+/// error (module docs, step 5; equal ν: the lower typical error). `None` when no score is finite.
 pub fn one_se_rule(scores: &[CvScore]) -> Option<CvScore> {
     let best = lowest(scores)?;
     candidates(scores)
         .into_iter()
-        .filter(|s| within_one_se(s, best))
-        .min_by(|a, b| a.nu.cmp(&b.nu).then(a.mse.total_cmp(&b.mse)))
+        .filter(|s| within_band(s, best))
+        .min_by(|a, b| {
+            a.nu.cmp(&b.nu)
+                .then(a.typical_mse.total_cmp(&b.typical_mse))
+        })
         .cloned()
 }
 
@@ -729,18 +813,28 @@ pub struct Selection {
     pub rule: String,
     /// The chosen shape (one-standard-error rule on cycle-blocked cross-validation).
     pub selected: Shape,
-    /// The lowest cross-validated RMSE of the sweep, kPa (√ē_best), and its shape.
-    pub cv_best_rmse: f64,
-    /// The shape with the lowest cross-validated error.
+    /// The shape with the lowest typical block error.
     pub cv_best: Shape,
-    /// The textbook rule's limit √(ē_best + SE_best), kPa (SE of ē_best alone; not used).
-    pub cv_limit_rmse: f64,
-    /// The selected shape's cross-validated RMSE, kPa.
+    /// Its typical block RMSE, kPa.
+    pub typical_best_rmse: f64,
+    /// Its cross-validated RMSE (pooled over blocks), kPa.
+    pub cv_best_rmse: f64,
+    /// The selected shape's typical block RMSE, kPa.
+    pub typical_rmse: f64,
+    /// The selected shape's cross-validated RMSE (pooled over blocks), kPa.
     pub cv_rmse: f64,
-    /// ē_selected − ē_best, kPa².
-    pub mse_excess: f64,
-    /// Its standard error paired across blocks, kPa²: the rule admits an excess up to this.
-    pub mse_excess_paired_se: f64,
+    /// Mean log ratio of the selected shape's block errors to the best's (module docs, step 5).
+    pub log_excess: f64,
+    /// Its standard error across blocks: the rule admits an excess up to this.
+    pub log_excess_se: f64,
+    /// The pooled rule's numbers (before issue 35), for comparison: ē_selected − ē_best, kPa²,
+    /// and its standard error paired across blocks weighted by their samples, kPa².
+    pub pooled_excess: (f64, f64),
+    /// The lowest pooled cross-validated RMSE of the sweep, kPa, and its shape.
+    pub pooled_best: (f64, Shape),
+    /// The textbook rule's limit √(ē_best + SE_best), kPa (SE of the pooled best's ē alone; not
+    /// used).
+    pub cv_limit_rmse: f64,
     /// The shape with the lowest training AICc.
     pub aicc_pick: Option<Shape>,
     /// The shape with the lowest joint cost J (eq. (8) here) under `weights`.
@@ -792,19 +886,28 @@ pub fn selection(
 ) -> Option<Selection> {
     let chosen = one_se_rule(scores)?;
     let best = lowest(scores)?;
-    let (mse_excess, mse_excess_paired_se) = paired_difference(&chosen, best);
+    let pooled_best = candidates(scores)
+        .into_iter()
+        .min_by(|a, b| a.mse.total_cmp(&b.mse))?;
+    let (log_excess, log_excess_se) = paired_log_ratio(&chosen, best);
     Some(Selection {
-        rule: "fewest parameters within one standard error (of the paired difference across \
-               blocks) of the lowest cross-validated error; training cycles as blocks, held-out \
-               cycles not used"
-            .into(),
+        rule: format!(
+            "fewest parameters whose block errors exceed the lowest typical error's by at most one \
+             standard error of their log ratio, paired block by block, and whose typical RMSE is \
+             at most {MAX_RMSE_RATIO} times the lowest; training cycles as blocks, held-out \
+             cycles not used"
+        ),
         selected: Shape::new(chosen.n, chosen.m),
-        cv_best_rmse: best.rmse(),
         cv_best: Shape::new(best.n, best.m),
-        cv_limit_rmse: (best.mse + best.se).sqrt(),
+        typical_best_rmse: best.typical_rmse(),
+        cv_best_rmse: best.rmse(),
+        typical_rmse: chosen.typical_rmse(),
         cv_rmse: chosen.rmse(),
-        mse_excess,
-        mse_excess_paired_se,
+        log_excess,
+        log_excess_se,
+        pooled_excess: paired_difference(&chosen, pooled_best),
+        pooled_best: (pooled_best.rmse(), Shape::new(pooled_best.n, pooled_best.m)),
+        cv_limit_rmse: (pooled_best.mse + pooled_best.se).sqrt(),
         aicc_pick,
         joint_cost_pick,
         reduced: None,
@@ -834,12 +937,15 @@ pub fn ranked(scores: &[CvScore]) -> Vec<CvScore> {
     let (mut within, mut rest): (Vec<CvScore>, Vec<CvScore>) = scores
         .iter()
         .cloned()
-        .partition(|s| cand.contains(&s) && within_one_se(s, best));
-    within.sort_by(|a, b| a.nu.cmp(&b.nu).then(a.mse.total_cmp(&b.mse)));
+        .partition(|s| cand.contains(&s) && within_band(s, best));
+    within.sort_by(|a, b| {
+        a.nu.cmp(&b.nu)
+            .then(a.typical_mse.total_cmp(&b.typical_mse))
+    });
     rest.sort_by(|a, b| {
         (!a.admissible)
             .cmp(&!b.admissible)
-            .then(a.mse.total_cmp(&b.mse))
+            .then(a.typical_mse.total_cmp(&b.typical_mse))
     });
     within.extend(rest);
     within

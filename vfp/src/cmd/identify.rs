@@ -348,18 +348,25 @@ fn render_selection(sel: &Selection) -> String {
         BlockKind::TimeStretches => "stretches of the training samples (too few cycles)",
     };
     format!(
-        "  poly selection: {} — cross-validated RMSE {} kPa; lowest {} kPa at {}, excess MSE {:.3e} \
-         kPa2 within one paired SE {:.3e} (textbook one-SE limit {} kPa); {} blocks ({blocks}), {} folds\n  \
-         beside it: lowest training AICc {}; lowest joint cost J {}\n",
+        "  poly selection: {} — typical cross-validated RMSE {} kPa (pooled {} kPa); lowest {} kPa \
+         at {}, block errors {:.1} % above it (log ratio {:.3e} within one paired SE {:.3e}, \
+         typical RMSE at most {} x the lowest); {} blocks ({blocks}), {} folds\n  \
+         beside it: lowest pooled cross-validated RMSE {} kPa at {} (textbook one-SE limit {} kPa); \
+         lowest training AICc {}; lowest joint cost J {}\n",
         shape(&sel.selected),
+        num(sel.typical_rmse),
         num(sel.cv_rmse),
-        num(sel.cv_best_rmse),
+        num(sel.typical_best_rmse),
         shape(&sel.cv_best),
-        sel.mse_excess,
-        sel.mse_excess_paired_se,
-        num(sel.cv_limit_rmse),
+        100.0 * (sel.log_excess.exp() - 1.0),
+        sel.log_excess,
+        sel.log_excess_se,
+        sysid::select::MAX_RMSE_RATIO,
         sel.n_blocks,
         sel.folds,
+        num(sel.pooled_best.0),
+        shape(&sel.pooled_best.1),
+        num(sel.cv_limit_rmse),
         pick(&sel.aicc_pick),
         pick(&sel.joint_cost_pick),
     ) + &sel.reduced.as_ref().map_or(String::new(), render_reduction)
@@ -372,13 +379,22 @@ fn render_reduction(r: &Reduction) -> String {
     } else {
         r.dropped.join(", ")
     };
+    let why = if r.limited {
+        format!(
+            "the fewest within the band had more than {}; the best of at most {} instead",
+            sysid::select::MAX_PARAMS,
+            sysid::select::MAX_PARAMS
+        )
+    } else {
+        "fewest within the band".to_string()
+    };
     format!(
-        "  terms: {} of {} kept (fewest within one paired SE of the lowest cross-validated error, \
-         {} kPa): cross-validated RMSE {} kPa, held-out {} kPa; dropped {dropped}\n",
+        "  terms: {} of {} kept ({why}; lowest typical cross-validated RMSE {} kPa): typical \
+         cross-validated RMSE {} kPa, held-out {} kPa; dropped {dropped}\n",
         r.nu,
         r.active.len(),
-        num(r.cv_lowest_rmse),
-        num(r.cv_rmse),
+        num(r.typical_lowest_rmse),
+        num(r.typical_rmse),
         opt(r.rmse_heldout),
     )
 }
