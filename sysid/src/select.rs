@@ -183,6 +183,10 @@ pub struct CvScore {
     /// The floor added to each block's error, kPa² ([`ERROR_FLOOR`] × Var(P)).
     #[serde(skip)]
     pub floor: f64,
+    /// Compared with other shapes on log ratios of block errors (cycle blocks); otherwise on the
+    /// pooled difference (time stretches), and `typical_mse` is ē (module docs, step 5).
+    #[serde(skip)]
+    pub log_ratios: bool,
     /// Each block's SSE under the fold that left it out, kPa².
     #[serde(skip)]
     pub block_sse: Vec<f64>,
@@ -230,6 +234,7 @@ pub struct BlockMoments {
     scaling: Scaling,
     centre: f64,
     var_p: f64,
+    log_ratios: bool,
 }
 
 impl BlockMoments {
@@ -279,14 +284,28 @@ impl BlockMoments {
             scaling: *scaling,
             centre,
             var_p,
+            log_ratios: true,
         })
+    }
+
+    /// Compares shapes on the pooled difference instead of log ratios (time-stretch blocks,
+    /// module docs, step 5).
+    pub fn pooled(mut self) -> BlockMoments {
+        self.log_ratios = false;
+        self
     }
 
     /// Every (n, m) up to (`max_n`, `max_m`), row-major in n (see [`cv_sweep`]).
     pub fn sweep(&self, max_n: usize, max_m: usize) -> Vec<Result<CvScore, PolyError>> {
         crate::par::par_map(max_n * max_m, |k| {
             let (n, m) = (1 + k / max_m, 1 + k % max_m);
-            score_shape(&self.per_block, &self.fold_fits, n, m, self.var_p)
+            score_shape(
+                &self.per_block,
+                &self.fold_fits,
+                (n, m),
+                self.var_p,
+                self.log_ratios,
+            )
         })
     }
 }
@@ -323,6 +342,7 @@ impl BlockMoments {
                 block_sse,
                 block_n.clone(),
                 self.var_p,
+                self.log_ratios,
             ))
         };
         let full = score(&[]).ok_or(PolyError::Fit {
@@ -559,10 +579,11 @@ pub struct Reduction {
     pub typical_rmse: f64,
     /// The lowest typical block RMSE of the sweep and the elimination, kPa.
     pub typical_lowest_rmse: f64,
-    /// Mean log ratio of the reduced model's block errors to the lowest's.
-    pub log_excess: f64,
+    /// The reduced model's excess over the lowest ([`paired_excess`]: mean log ratio of block
+    /// errors on cycle blocks, pooled difference in kPa² on time stretches).
+    pub excess: f64,
     /// Its standard error across blocks.
-    pub log_excess_se: f64,
+    pub excess_se: f64,
     /// The fewest terms within the band were more than [`MAX_PARAMS`], and the best admissible
     /// step of at most [`MAX_PARAMS`] was taken instead.
     pub limited: bool,
@@ -584,7 +605,7 @@ impl Reduction {
         lowest: &CvScore,
     ) -> Reduction {
         let nu = (n + 1) * (m + 1);
-        let (log_excess, log_excess_se) = paired_log_ratio(&path[pick].1, lowest);
+        let (excess, excess_se) = paired_excess(&path[pick].1, lowest);
         let gone: Vec<usize> = path[1..=pick].iter().filter_map(|(t, _)| *t).collect();
         let name = |t: usize| poly::term_name(t / (m + 1), t % (m + 1));
         Reduction {
@@ -597,8 +618,8 @@ impl Reduction {
             cv_rmse: path[pick].1.rmse(),
             typical_rmse: path[pick].1.typical_rmse(),
             typical_lowest_rmse: lowest.typical_rmse(),
-            log_excess,
-            log_excess_se,
+            excess,
+            excess_se,
             limited: false,
             rmse_heldout: None,
             path: path
@@ -627,9 +648,9 @@ fn gather_blocks(train: Xy, sc: &Scaling, centre: f64, blocks: &[Range<usize>]) 
 fn score_shape(
     per_block: &[Moments],
     fold_fits: &[Moments],
-    n: usize,
-    m: usize,
+    (n, m): (usize, usize),
     var_p: f64,
+    log_ratios: bool,
 ) -> Result<CvScore, PolyError> {
     let folds = fold_fits.len();
     let coefs: Vec<_> = fold_fits
@@ -642,7 +663,15 @@ fn score_shape(
         .map(|(b, mb)| mb.sse(n, m, &coefs[b % folds]))
         .collect();
     let block_n = per_block.iter().map(|mb| mb.n).collect();
-    Ok(cv_score(n, m, (n + 1) * (m + 1), block_sse, block_n, var_p))
+    Ok(cv_score(
+        n,
+        m,
+        (n + 1) * (m + 1),
+        block_sse,
+        block_n,
+        var_p,
+        log_ratios,
+    ))
 }
 
 /// A [`CvScore`] of ν parameters from each block's SSE and samples: pooled ē, its standard
@@ -654,6 +683,7 @@ fn cv_score(
     block_sse: Vec<f64>,
     block_n: Vec<usize>,
     var_p: f64,
+    log_ratios: bool,
 ) -> CvScore {
     let errs: Vec<(f64, usize)> = block_sse
         .iter()
@@ -667,7 +697,11 @@ fn cv_score(
         .filter(|e| e.1 > 0)
         .map(|&(e, nb)| (e / nb as f64 + floor).ln())
         .collect();
-    let typical_mse = (logs.iter().sum::<f64>() / logs.len().max(1) as f64).exp();
+    let typical_mse = if log_ratios {
+        (logs.iter().sum::<f64>() / logs.len().max(1) as f64).exp()
+    } else {
+        mse
+    };
     CvScore {
         n,
         m,
@@ -679,6 +713,7 @@ fn cv_score(
             .all(|&(e, nb)| nb == 0 || e / nb as f64 <= var_p),
         typical_mse,
         floor,
+        log_ratios,
         block_sse,
         block_n,
     }
@@ -762,12 +797,23 @@ pub fn lowest(scores: &[CvScore]) -> Option<&CvScore> {
         .min_by(|a, b| a.typical_mse.total_cmp(&b.typical_mse))
 }
 
+/// `a`'s excess over `b` and its paired standard error, on `a`'s scale (module docs, step 5):
+/// the mean log ratio of block errors ([`paired_log_ratio`]) for cycle blocks, the pooled
+/// difference ē_a − ē_b, kPa² ([`paired_difference`]) for time stretches.
+pub fn paired_excess(a: &CvScore, b: &CvScore) -> (f64, f64) {
+    if a.log_ratios {
+        paired_log_ratio(a, b)
+    } else {
+        paired_difference(a, b)
+    }
+}
+
 /// Whether `s` is within the rule's band (module docs, step 5) of `best`, the lowest typical
-/// error: its log error ratio to `best` at most one paired standard error, and its typical RMSE
-/// at most [`MAX_RMSE_RATIO`] × best's.
+/// error: its excess over `best` at most one paired standard error, and its typical RMSE at most
+/// [`MAX_RMSE_RATIO`] × best's.
 fn within_band(s: &CvScore, best: &CvScore) -> bool {
-    let (d, se) = paired_log_ratio(s, best);
-    d <= se && d <= 2.0 * MAX_RMSE_RATIO.ln()
+    let (d, se) = paired_excess(s, best);
+    d <= se && s.typical_mse <= MAX_RMSE_RATIO * MAX_RMSE_RATIO * best.typical_mse
 }
 
 /// The rule's choice among `scores`: the fewest parameters within the band of the lowest typical
@@ -823,10 +869,11 @@ pub struct Selection {
     pub typical_rmse: f64,
     /// The selected shape's cross-validated RMSE (pooled over blocks), kPa.
     pub cv_rmse: f64,
-    /// Mean log ratio of the selected shape's block errors to the best's (module docs, step 5).
-    pub log_excess: f64,
+    /// The selected shape's excess over the best ([`paired_excess`]: mean log ratio of block
+    /// errors on cycle blocks, pooled difference in kPa² on time stretches; module docs, step 5).
+    pub excess: f64,
     /// Its standard error across blocks: the rule admits an excess up to this.
-    pub log_excess_se: f64,
+    pub excess_se: f64,
     /// The pooled rule's numbers (before issue 35), for comparison: ē_selected − ē_best, kPa²,
     /// and its standard error paired across blocks weighted by their samples, kPa².
     pub pooled_excess: (f64, f64),
@@ -873,6 +920,10 @@ pub fn block_moments(ds: &Dataset, scaling: &Scaling) -> Result<(Blocks, BlockMo
     let train = ds.train();
     let blocks = training_blocks(ds);
     let bm = BlockMoments::new(Xy::from(&train), &blocks.ranges, scaling)?;
+    let bm = match blocks.kind {
+        BlockKind::Cycles => bm,
+        BlockKind::TimeStretches => bm.pooled(),
+    };
     Ok((blocks, bm))
 }
 
@@ -889,7 +940,7 @@ pub fn selection(
     let pooled_best = candidates(scores)
         .into_iter()
         .min_by(|a, b| a.mse.total_cmp(&b.mse))?;
-    let (log_excess, log_excess_se) = paired_log_ratio(&chosen, best);
+    let (excess, excess_se) = paired_excess(&chosen, best);
     Some(Selection {
         rule: format!(
             "fewest parameters whose block errors exceed the lowest typical error's by at most one \
@@ -903,8 +954,8 @@ pub fn selection(
         cv_best_rmse: best.rmse(),
         typical_rmse: chosen.typical_rmse(),
         cv_rmse: chosen.rmse(),
-        log_excess,
-        log_excess_se,
+        excess,
+        excess_se,
         pooled_excess: paired_difference(&chosen, pooled_best),
         pooled_best: (pooled_best.rmse(), Shape::new(pooled_best.n, pooled_best.m)),
         cv_limit_rmse: (pooled_best.mse + pooled_best.se).sqrt(),

@@ -135,6 +135,7 @@ fn one_extreme_block_does_not_open_the_band() {
             admissible: true,
             typical_mse: typical,
             floor: 0.0,
+            log_ratios: true,
             block_sse: sse.to_vec(),
             block_n: n.clone(),
         }
