@@ -34,6 +34,7 @@
 #![forbid(unsafe_code)]
 
 pub mod board;
+pub mod breath_logs;
 pub mod law;
 pub mod plant;
 pub mod rigs;

@@ -161,8 +161,8 @@ pub fn model_for(
                 .flatten()
                 .collect();
             let ranked = crate::select::ranked(&ok);
-            let reduced = match (p, ranked.first(), crate::select::lowest(&ok)) {
-                (0, Some(first), Some(lowest)) => bm.reduce_terms(first.n, first.m, lowest).ok(),
+            let reduced = match (p, ranked.first()) {
+                (0, Some(first)) => bm.reduce_terms(first.n, first.m, &ok).ok(),
                 _ => None,
             };
             let mut skipped = String::new();

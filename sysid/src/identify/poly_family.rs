@@ -84,8 +84,7 @@ fn choose_poly(cx: &mut Sweep<'_>, sc: &poly::Scaling) -> Option<(usize, usize)>
     match select::selection(&blocks, &ok, aicc, cost, opt.weights) {
         Some(mut sel) => {
             let pick = (sel.selected.n, sel.selected.m);
-            let lowest = select::lowest(&ok).expect("a selection has a lowest score");
-            match bm.reduce_terms(pick.0, pick.1, lowest) {
+            match bm.reduce_terms(pick.0, pick.1, &ok) {
                 Ok(mut red) => {
                     red.rmse_heldout = bm.heldout_rmse(&red, Xy::from(&cx.held));
                     sel.reduced = Some(red);

@@ -24,3 +24,4 @@ mod residual_gen;
 mod residual_hostsim;
 mod residual_hostsim_shapes;
 mod residual_shapes;
+mod selection_other_rigs;

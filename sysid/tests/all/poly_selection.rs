@@ -201,8 +201,7 @@ fn term_elimination_errors_match_direct_refits() {
     let sc = poly::Scaling::from_data(&ds.v, &ds.vdot).unwrap();
     let (blocks, bm) = select::block_moments(&ds, &sc).unwrap();
     let scores: Vec<_> = bm.sweep(4, 3).into_iter().flatten().collect();
-    let lowest = select::lowest(&scores).unwrap();
-    let red = bm.reduce_terms(4, 3, lowest).unwrap();
+    let red = bm.reduce_terms(4, 3, &scores).unwrap();
     let train = ds.train();
     let folds = select::MAX_FOLDS.min(blocks.ranges.len());
     let mut dropped: Vec<String> = Vec::new();

@@ -169,7 +169,8 @@ pub fn render(r: &ChamberReport, file: &str, options: &Options) -> String {
     if let Some(sel) = &r.selected {
         let _ = writeln!(
             s,
-            "Selected: {} {} (nu = {}): RMSE {} kPa training, {} kPa held-out\n",
+            "Lowest joint cost J among the families' choices: {} {} (nu = {}): RMSE {} kPa \
+             training, {} kPa held-out",
             sel.family.name(),
             sel.shape(),
             sel.nu,
@@ -177,7 +178,33 @@ pub fn render(r: &ChamberReport, file: &str, options: &Options) -> String {
             opt(sel.rmse_heldout)
         );
     }
+    s.push_str(&render_model_used(r));
     s
+}
+
+/// The model `vfp export` and `vfp diagnose` use by default, and why: the polynomial family's
+/// selection (its reduced terms for export), whatever the joint cost ranks first.
+fn render_model_used(r: &ChamberReport) -> String {
+    let Some(sel) = &r.poly_selection else {
+        return "Model used by export and diagnose: none selected (the polynomial family did not \
+                run or could not be cross-validated; give --n/--m to export and diagnose)\n\n"
+            .into();
+    };
+    let (n, m) = (sel.selected.n, sel.selected.m);
+    let terms = sel.reduced.as_ref().map_or(String::new(), |red| {
+        format!(
+            ", {} of its {} terms kept (held-out RMSE {} kPa)",
+            red.nu,
+            red.active.len(),
+            opt(red.rmse_heldout)
+        )
+    });
+    format!(
+        "Model used by export and diagnose: poly ({n}, {m}){terms}. Why: the board evaluates the \
+         polynomial (the other families are reported for comparison, not exported by default), \
+         and its shape is the fewest parameters the training cycles support (see the poly \
+         selection above); `export` exports the reduced terms, `diagnose` starts from the shape\n\n"
+    )
 }
 
 /// Table I: the correlations and the PCA of the normalised [v, v̇, v̈, P].
@@ -343,23 +370,32 @@ fn render_coefficients(r: &ChamberReport, f: &sysid::poly::PolyFit) -> String {
 fn render_selection(sel: &Selection) -> String {
     let shape = |s: &Shape| format!("({}, {}) (nu = {})", s.n, s.m, s.nu);
     let pick = |s: &Option<Shape>| s.as_ref().map_or("-".into(), shape);
-    let blocks = match sel.blocks {
-        BlockKind::Cycles => "training cycles",
-        BlockKind::TimeStretches => "stretches of the training samples (too few cycles)",
+    let (blocks, compared) = match sel.blocks {
+        BlockKind::Cycles => ("training cycles", "(mean log ratio of block errors)"),
+        BlockKind::TimeStretches => (
+            "stretches of the training samples (too few cycles)",
+            "kPa2 (pooled difference)",
+        ),
     };
     format!(
-        "  poly selection: {} — cross-validated RMSE {} kPa; lowest {} kPa at {}, excess MSE {:.3e} \
-         kPa2 within one paired SE {:.3e} (textbook one-SE limit {} kPa); {} blocks ({blocks}), {} folds\n  \
-         beside it: lowest training AICc {}; lowest joint cost J {}\n",
+        "  poly selection: {} — typical cross-validated RMSE {} kPa (pooled {} kPa); lowest {} kPa \
+         at {}; excess {:.3e} {compared} within one paired SE {:.3e}, typical RMSE at most {} x \
+         the lowest; {} blocks ({blocks}), {} folds\n  \
+         beside it: lowest pooled cross-validated RMSE {} kPa at {} (textbook one-SE limit {} kPa); \
+         lowest training AICc {}; lowest joint cost J {}\n",
         shape(&sel.selected),
+        num(sel.typical_rmse),
         num(sel.cv_rmse),
-        num(sel.cv_best_rmse),
+        num(sel.typical_best_rmse),
         shape(&sel.cv_best),
-        sel.mse_excess,
-        sel.mse_excess_paired_se,
-        num(sel.cv_limit_rmse),
+        sel.excess,
+        sel.excess_se,
+        sysid::select::MAX_RMSE_RATIO,
         sel.n_blocks,
         sel.folds,
+        num(sel.pooled_best.0),
+        shape(&sel.pooled_best.1),
+        num(sel.cv_limit_rmse),
         pick(&sel.aicc_pick),
         pick(&sel.joint_cost_pick),
     ) + &sel.reduced.as_ref().map_or(String::new(), render_reduction)
@@ -372,13 +408,22 @@ fn render_reduction(r: &Reduction) -> String {
     } else {
         r.dropped.join(", ")
     };
+    let why = if r.limited {
+        format!(
+            "the fewest within the band had more than {}; the best of at most {} instead",
+            sysid::select::MAX_PARAMS,
+            sysid::select::MAX_PARAMS
+        )
+    } else {
+        "fewest within the band".to_string()
+    };
     format!(
-        "  terms: {} of {} kept (fewest within one paired SE of the lowest cross-validated error, \
-         {} kPa): cross-validated RMSE {} kPa, held-out {} kPa; dropped {dropped}\n",
+        "  terms: {} of {} kept ({why}; lowest typical cross-validated RMSE {} kPa): typical \
+         cross-validated RMSE {} kPa, held-out {} kPa; dropped {dropped}\n",
         r.nu,
         r.active.len(),
-        num(r.cv_lowest_rmse),
-        num(r.cv_rmse),
+        num(r.typical_lowest_rmse),
+        num(r.typical_rmse),
         opt(r.rmse_heldout),
     )
 }

@@ -50,3 +50,28 @@ fn nothing_fitted_is_an_error() {
         "{err}"
     );
 }
+
+/// `identify` names the model `export` and `diagnose` use, and it is the one they use: the
+/// shape and kept terms `vfp export` writes for the same log (issue 35: identify printed
+/// "Selected: nn (5, 8)" while export and diagnose used a polynomial).
+#[test]
+fn identify_names_the_model_export_uses() {
+    use crate::common::{ok, vfp};
+    let log = "data/real/bag-lung-pip15-peep5.csv";
+    let out = ok(vfp().args(["identify", log, "--family", "poly", "--family", "exp"]));
+    let text = String::from_utf8_lossy(&out.stdout);
+    let line = text
+        .lines()
+        .find(|l| l.starts_with("Model used by export and diagnose: poly ("))
+        .unwrap_or_else(|| panic!("no model line in:\n{text}"));
+    assert!(text.contains("Lowest joint cost J among the families' choices:"));
+    // "poly (5, 3), 16 of its 24 terms kept (…)" against export's "(n = 5, m = 3, 16 of 24 terms".
+    let shape = &line[line.find('(').unwrap() + 1..line.find(')').unwrap()];
+    let (n, m) = shape.split_once(", ").unwrap();
+    let kept: Vec<&str> = line.split(", ").nth(2).unwrap().split(' ').collect();
+    let (k, total) = (kept[0], kept[3]);
+    let export = ok(vfp().args(["export", log]));
+    let export = String::from_utf8_lossy(&export.stdout);
+    let expected = format!("(n = {n}, m = {m}, {k} of {total} terms");
+    assert!(export.contains(&expected), "{line}\n{expected}\n{export}");
+}
