@@ -514,6 +514,20 @@ impl Rig {
         }
     }
 
+    /// Run until the board reports every axis idle and no `run` going (`status`), polling every
+    /// virtual second for at most `limit`; whether it came to rest.
+    pub fn until_at_rest(&mut self, limit: Duration) -> Result<bool, RigError> {
+        let end = self.now_ns + limit.as_nanos() as u64;
+        while self.now_ns < end {
+            self.run_for(Duration::from_secs(1))?;
+            let status = self.command("status")?.unwrap_or_default();
+            if status.contains(" moving 0 run 0 ") {
+                return Ok(true);
+            }
+        }
+        Ok(false)
+    }
+
     /// End the run and return what the session saw.
     pub fn finish(mut self) -> Result<Outcome, RigError> {
         let _ = self.requests.send(Request::Finish);

@@ -57,16 +57,10 @@ fn a_log_recorded_from_the_binary_names_the_planted_hysteresis_as_host_sim_does(
     // The paper's protocol, one cycle at each of three flows (host-sim's `--cycles 1 --flows`).
     let run_cmd = format!("run all 0 550 1 200 {}", FLOWS.replace(',', " "));
     assert_eq!(rig.command(&run_cmd).unwrap().as_deref(), Some("ok"));
-    let mut done = false;
-    for _ in 0..200 {
-        rig.run_for(Duration::from_secs(1)).unwrap();
-        let status = rig.command("status").unwrap().unwrap_or_default();
-        if status.contains(" moving 0 run 0 ") {
-            done = true;
-            break;
-        }
-    }
-    assert!(done, "the protocol ended within 200 virtual seconds");
+    assert!(
+        rig.until_at_rest(Duration::from_secs(200)).unwrap(),
+        "the protocol ended within 200 virtual seconds"
+    );
     rig.run_for(Duration::from_secs(1)).unwrap();
     // Off again before the capture ends, as `vfp record --port` does: no packet cut in two.
     assert_eq!(rig.command("telemetry off").unwrap().as_deref(), Some("ok"));

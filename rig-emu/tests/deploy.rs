@@ -150,16 +150,10 @@ fn a_deployed_chain_runs_on_the_binary_as_vfp_replay_computes_it() {
         rig.command("run 0 0 550 1 200 60 100").unwrap().as_deref(),
         Some("ok")
     );
-    let mut done = false;
-    for _ in 0..60 {
-        rig.run_for(Duration::from_secs(1)).unwrap();
-        let status = rig.command("status").unwrap().unwrap_or_default();
-        if status.contains(" moving 0 run 0 ") {
-            done = true;
-            break;
-        }
-    }
-    assert!(done, "the run ended within 60 virtual seconds");
+    assert!(
+        rig.until_at_rest(Duration::from_secs(60)).unwrap(),
+        "the run ended within 60 virtual seconds"
+    );
     assert_eq!(rig.command("telemetry off").unwrap().as_deref(), Some("ok"));
     let (capture, items, flash, last_step_ns) = rig
         .with(move |s, b| {

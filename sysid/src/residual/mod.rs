@@ -518,6 +518,23 @@ pub struct Timings {
     pub rounds: Vec<RoundTiming>,
 }
 
+impl Timings {
+    /// The stages in the loop's order, each with its seconds and its name in the reports
+    /// (`vfp diagnose --timings`, `vfp bench-loop`); `total` not included.
+    pub fn stages(&self) -> [(&'static str, f64); 8] {
+        [
+            ("shape selection", self.shape_selection),
+            ("baseline fit", self.baseline),
+            ("candidate searches", self.searches),
+            ("re-tunes", self.retune),
+            ("single swaps", self.single_swaps),
+            ("pair trials", self.pair_trials),
+            ("applying swaps", self.apply_swaps),
+            ("residual analysis", self.residual_analysis),
+        ]
+    }
+}
+
 /// One round of forward selection's time ([`Timings::rounds`]).
 #[derive(Clone, Debug, Default, Serialize)]
 pub struct RoundTiming {

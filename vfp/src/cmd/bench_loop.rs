@@ -234,20 +234,11 @@ fn oracle(
 }
 
 fn stages(t: &Timings) -> BTreeMap<String, f64> {
-    [
-        ("shape selection", t.shape_selection),
-        ("baseline fit", t.baseline),
-        ("candidate searches", t.searches),
-        ("re-tunes", t.retune),
-        ("single swaps", t.single_swaps),
-        ("pair trials", t.pair_trials),
-        ("applying swaps", t.apply_swaps),
-        ("residual analysis", t.residual_analysis),
-        ("total", t.total),
-    ]
-    .into_iter()
-    .map(|(k, v)| (k.to_string(), v))
-    .collect()
+    t.stages()
+        .into_iter()
+        .chain([("total", t.total)])
+        .map(|(k, v)| (k.to_string(), v))
+        .collect()
 }
 
 /// Simulates, diagnoses and scores one rig; an `Err` is the reason the rig cannot be scored.

@@ -164,16 +164,7 @@ pub fn timings_report(t: &Timings) -> String {
         }
     };
     let _ = writeln!(s, "\ntimings (wall-clock s): total {:.2}", t.total);
-    for (what, x) in [
-        ("shape selection", t.shape_selection),
-        ("baseline fit", t.baseline),
-        ("candidate searches", t.searches),
-        ("re-tunes", t.retune),
-        ("single swaps", t.single_swaps),
-        ("pair trials", t.pair_trials),
-        ("applying swaps", t.apply_swaps),
-        ("residual analysis", t.residual_analysis),
-    ] {
+    for (what, x) in t.stages() {
         let _ = writeln!(s, "  {what:<20} {x:8.2}  ({:4.1} %)", share(x));
     }
     for (i, r) in t.rounds.iter().enumerate() {
