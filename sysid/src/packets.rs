@@ -45,10 +45,10 @@ fn is_text(bytes: &[u8]) -> bool {
         .all(|&b| matches!(b, 0x20..=0x7E | b'\t' | b'\r'))
 }
 
-/// Text, after any blank lines: what a `\n` ends as a line.
-fn is_line(chunk: &[u8]) -> bool {
+/// The text after any blank lines, when that is what a `\n` ends as a line.
+fn line_body(chunk: &[u8]) -> Option<&[u8]> {
     let body = &chunk[chunk.iter().take_while(|&&c| c == b'\n').count()..];
-    !body.is_empty() && is_text(body)
+    (!body.is_empty() && is_text(body)).then_some(body)
 }
 
 impl PacketReader {
@@ -62,24 +62,22 @@ impl PacketReader {
 
     /// Takes one byte; the item it completes, if any.
     pub fn push(&mut self, b: u8) -> Option<CaptureLine<'static>> {
-        match b {
-            0 => self.end_chunk(),
-            // A line end after text. Blank lines before it (`\n`s kept while the chunk could
-            // still have been a packet's start) are dropped.
-            b'\n' if is_line(&self.chunk) => {
-                let start = self.chunk.iter().take_while(|&&c| c == b'\n').count();
-                let line = classify(&self.chunk[start..]).into_owned();
+        if b == 0 {
+            return self.end_chunk();
+        }
+        // A line end after text. Blank lines before it (`\n`s kept while the chunk could still
+        // have been a packet's start) are dropped.
+        if b == b'\n' {
+            if let Some(line) = line_body(&self.chunk).map(|t| classify(t).into_owned()) {
                 self.chunk.clear();
-                Some(line)
+                return Some(line);
             }
-            _ => {
-                self.chunk.push(b);
-                if self.chunk.len() >= MAX_CHUNK {
-                    self.end_chunk()
-                } else {
-                    None
-                }
-            }
+        }
+        self.chunk.push(b);
+        if self.chunk.len() >= MAX_CHUNK {
+            self.end_chunk()
+        } else {
+            None
         }
     }
 
