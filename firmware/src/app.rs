@@ -1469,7 +1469,8 @@ pub struct Shared {
 }
 
 /// Longest reply line: the longest is `status` with every field at its widest, ≈ 230 bytes, and a
-/// HardFault's reset cause (`reset hardfault` and seven registers, 93 bytes); a test checks it.
+/// HardFault's reset cause (`reset hardfault`, seven registers and `stack-overflow`, 108 bytes); a
+/// test checks it.
 pub const REPLY_LEN: usize = 352;
 
 /// Longest the stepper task sleeps with nothing to do (its heartbeat for the watchdog), µs.

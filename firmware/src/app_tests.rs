@@ -1008,12 +1008,23 @@ fn status_ends_with_the_whole_reset_cause() {
         mmfar: 0xE000_EDF8,
         bfar: 0xE000_EDF8,
     };
+    // The longest cause: a stack overflow's (STKERR, bit 12), with its word.
+    let overflow = FaultFrame {
+        cfsr: 0x0000_9200,
+        ..frame
+    };
     for (cause, tail) in [
         (ResetCause::PowerOn, " reset power-on".to_string()),
         (
             ResetCause::HardFault(frame),
             " reset hardfault 0x08001234 0xfffffff9 0x61000000 0x00000400 0x40000000 0xe000edf8 \
              0xe000edf8"
+                .to_string(),
+        ),
+        (
+            ResetCause::HardFault(overflow),
+            " reset hardfault 0x08001234 0xfffffff9 0x61000000 0x00009200 0x40000000 0xe000edf8 \
+             0xe000edf8 stack-overflow"
                 .to_string(),
         ),
     ] {
@@ -1024,5 +1035,6 @@ fn status_ends_with_the_whole_reset_cause() {
         let out = send(&shared, "status");
         assert!(out.starts_with("ok flags "), "{out}");
         assert!(out.ends_with(&tail), "{out}");
+        assert!(out.trim_end().len() <= REPLY_LEN, "{out}");
     }
 }

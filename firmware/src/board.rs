@@ -216,6 +216,9 @@ pub mod device {
         pub iwdg: Peri<'static, IWDG>,
         /// Flash controller (the model store).
         pub flash: Peri<'static, FLASH>,
+        /// The Nucleo's user button B1 (PC13: external pull-up, low while pressed). Unused by
+        /// the firmware a lab flashes; the `fault-injection` build reads it.
+        pub user_button: Peri<'static, embassy_stm32::peripherals::PC13>,
     }
 
     /// Split the chip's peripherals by the pin map above: steppers (disabled), ADC, the rest.
@@ -252,6 +255,7 @@ pub mod device {
             rx_dma: p.DMA1_CH5,
             iwdg: p.IWDG,
             flash: p.FLASH,
+            user_button: p.PC13,
         };
         (steppers, adc, rest)
     }

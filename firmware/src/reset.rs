@@ -131,6 +131,23 @@ pub struct FaultFrame {
     pub bfar: u32,
 }
 
+impl FaultFrame {
+    /// CFSR.MSTKERR (bit 4): the MemManage unit refused the exception entry's stacking.
+    pub const MSTKERR: u32 = 1 << 4;
+    /// CFSR.STKERR (bit 12): the bus refused the exception entry's stacking.
+    pub const STKERR: u32 = 1 << 12;
+    /// What the handler records for the stacked PC, LR and xPSR when the frame's address is not
+    /// in RAM (no stacked PC is odd, so no real frame reads so).
+    pub const NO_FRAME: u32 = u32::MAX;
+
+    /// Whether the fault's exception frame lay outside RAM (the handler found the stack pointer
+    /// below it) or the core could not stack it (CFSR.STKERR, MSTKERR): under flip-link, whose
+    /// stack sits at the bottom of RAM, a stack overflow.
+    pub fn stack_overflow(&self) -> bool {
+        self.pc == Self::NO_FRAME || self.cfsr & (Self::STKERR | Self::MSTKERR) != 0
+    }
+}
+
 /// What the crash handlers record.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Crash {
@@ -309,7 +326,8 @@ impl ResetCause {
     }
 
     /// Write `<name> [<details>…]`: a panic adds `<file> <line> <column>`, a HardFault
-    /// `<pc> <lr> <xpsr> <cfsr> <hfsr> <mmfar> <bfar>` as `0x` and 8 hex digits.
+    /// `<pc> <lr> <xpsr> <cfsr> <hfsr> <mmfar> <bfar>` as `0x` and 8 hex digits, and
+    /// `stack-overflow` when the frame could not be stacked ([`FaultFrame::stack_overflow`]).
     pub fn encode(&self, out: &mut impl Write) -> fmt::Result {
         out.write_str(self.name())?;
         match self {
@@ -317,6 +335,9 @@ impl ResetCause {
             Self::HardFault(f) => {
                 for x in [f.pc, f.lr, f.xpsr, f.cfsr, f.hfsr, f.mmfar, f.bfar] {
                     write!(out, " {x:#010x}")?;
+                }
+                if f.stack_overflow() {
+                    out.write_str(" stack-overflow")?;
                 }
                 Ok(())
             }
@@ -354,7 +375,7 @@ impl ResetCause {
                     *x = hex(next()?)?;
                 }
                 let [pc, lr, xpsr, cfsr, hfsr, mmfar, bfar] = v;
-                Self::HardFault(FaultFrame {
+                let frame = FaultFrame {
                     pc,
                     lr,
                     xpsr,
@@ -362,7 +383,11 @@ impl ResetCause {
                     hfsr,
                     mmfar,
                     bfar,
-                })
+                };
+                if frame.stack_overflow() && next()? != "stack-overflow" {
+                    return None;
+                }
+                Self::HardFault(frame)
             }
             _ => return None,
         })
@@ -572,6 +597,54 @@ pub(crate) mod tests {
         let mut it = "hardfault 0x1 zz".split_ascii_whitespace();
         assert_eq!(ResetCause::decode(|| it.next()), None);
         let mut it = "panic a.rs 12".split_ascii_whitespace();
+        assert_eq!(ResetCause::decode(|| it.next()), None);
+    }
+
+    #[test]
+    fn a_fault_that_could_not_stack_its_frame_is_named_a_stack_overflow() {
+        // What the handler records after an overflow under flip-link on a board: no frame in
+        // RAM (PC, LR and xPSR all ones), CFSR with STKERR (bit 12) and PRECISERR + BFARVALID
+        // (bits 9, 15) for the push below 0x2000_0000, HFSR.FORCED.
+        let overflow = FaultFrame {
+            pc: FaultFrame::NO_FRAME,
+            lr: FaultFrame::NO_FRAME,
+            xpsr: FaultFrame::NO_FRAME,
+            cfsr: 0x0000_9200,
+            hfsr: 0x4000_0000,
+            mmfar: 0,
+            bfar: 0x1fff_fff8,
+        };
+        assert!(overflow.stack_overflow());
+        assert!(!frame().stack_overflow());
+        // Either sign alone: a frame outside RAM (an emulator whose unmapped stores land nowhere
+        // sets no STKERR), or STKERR with a frame the handler could still read.
+        assert!(FaultFrame {
+            cfsr: 0x0002_0000,
+            ..overflow
+        }
+        .stack_overflow());
+        assert!(FaultFrame {
+            pc: 0x0800_1234,
+            ..overflow
+        }
+        .stack_overflow());
+        let cause = ResetCause::HardFault(overflow);
+        let mut s = std::string::String::new();
+        cause.encode(&mut s).unwrap();
+        assert_eq!(
+            s,
+            "hardfault 0xffffffff 0xffffffff 0xffffffff 0x00009200 0x40000000 0x00000000 \
+             0x1ffffff8 stack-overflow"
+        );
+        let mut it = s.split_ascii_whitespace();
+        assert_eq!(ResetCause::decode(|| it.next()), Some(cause));
+        assert_eq!(it.next(), None);
+        // The word must match the registers: missing or another word is refused.
+        let registers = s.trim_end_matches(" stack-overflow");
+        let mut it = registers.split_ascii_whitespace();
+        assert_eq!(ResetCause::decode(|| it.next()), None);
+        let other = format!("{registers} stack");
+        let mut it = other.split_ascii_whitespace();
         assert_eq!(ResetCause::decode(|| it.next()), None);
     }
 }

@@ -48,7 +48,7 @@ pub const KIND_EVENT: u8 = b'E';
 /// Bytes of a frame's payload.
 pub const FRAME_PAYLOAD: usize = 4 + 8 + 4 + 4 + 3 * 7 * 4 + 4;
 /// Longest event text carried (the longest event line is shorter; see the tests).
-pub const MAX_EVENT_TEXT: usize = 128;
+pub const MAX_EVENT_TEXT: usize = 144;
 /// Longest packet before stuffing: header, payload, CRC.
 pub const MAX_RAW: usize = 2 + MAX_EVENT_TEXT + 4;
 /// Longest packet on the wire: stuffed, with both delimiters.

@@ -57,6 +57,8 @@ pub const STEP: [PinId; 3] = [pa(10), pb(3), pb(5)];
 pub const DIR: [PinId; 3] = [pb(4), pb(10), pa(8)];
 /// The drivers' shared enable (`firmware::board::ENABLE_PIN`: PA9), active low.
 pub const ENABLE: PinId = pa(9);
+/// The Nucleo's user button B1: PC13, pulled up on the board, low while pressed (UM1724 6.5).
+pub const USER_BUTTON: PinId = PinId { port: 2, pin: 13 };
 /// The sensors' ADC1 channels (`firmware::board::SENSOR_PINS`: PA0, PA1, PA4 = IN0, IN1, IN4).
 pub const SENSOR_CHANNELS: [u8; 3] = [0, 1, 4];
 
@@ -109,7 +111,19 @@ impl Nucleo {
             .drive_port(VirtualNanos(0), ENABLE.port, |gpio, registers, context| {
                 gpio.drive(en, Some(Level::Low), registers, context);
             });
+        board.press_user_button(VirtualNanos(0), false);
         Ok(board)
+    }
+
+    /// Press (`true`) or release the user button B1 at `at`. Only the `fault-injection` build
+    /// of the firmware reads it (`firmware/Cargo.toml`).
+    pub fn press_user_button(&mut self, at: VirtualNanos, pressed: bool) {
+        let pin = Pin::new(USER_BUTTON.pin).expect("a port has sixteen pins");
+        let level = if pressed { Level::Low } else { Level::High };
+        self.mcu
+            .drive_port(at, USER_BUTTON.port, |gpio, registers, context| {
+                gpio.drive(pin, Some(level), registers, context);
+            });
     }
 
     /// Put the voltage that reads `counts` (a 12-bit conversion result) on each sensor's pin.

@@ -19,5 +19,5 @@ pub mod rig;
 pub mod wire;
 
 pub use board::Nucleo;
-pub use rig::{default_elf, vfp, Bench, Rig, RigConfig, RigError, StepEvent};
+pub use rig::{default_elf, fault_injection_elf, vfp, Bench, Rig, RigConfig, RigError, StepEvent};
 pub use wire::{Received, Stream};

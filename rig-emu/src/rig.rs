@@ -587,3 +587,14 @@ pub fn default_elf() -> PathBuf {
     }
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../target/thumbv7em-none-eabihf/firmware/vfp-fw")
 }
+
+/// The `fault-injection` build of the firmware (its user button overflows the stack or panics):
+/// `VFP_FW_FAULTS_ELF`, or `vfp-fw-fault-injection` beside the default ELF, where `.ci/run` and
+/// the README's recipe put it (`cargo fw --features fault-injection`, then the copy).
+pub fn fault_injection_elf() -> PathBuf {
+    if let Some(p) = std::env::var_os("VFP_FW_FAULTS_ELF") {
+        return PathBuf::from(p);
+    }
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../target/thumbv7em-none-eabihf/firmware/vfp-fw-fault-injection")
+}

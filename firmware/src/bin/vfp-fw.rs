@@ -30,7 +30,9 @@
 //! Faults: the panic and HardFault handlers below drive the drivers' EN high (disabled) with
 //! one store to GPIOA's BSRR, leave a crash record in `.uninit` RAM ([`firmware::reset`]) and
 //! reset; nothing in them can block (no defmt: with probe-rs attached the RTT channel may be in
-//! blocking mode, and a panic inside a defmt print would re-enter its logger). The next boot
+//! blocking mode, and a panic inside a defmt print would re-enter its logger). HardFault enters
+//! through assembly that resets the stack pointer first, so a stack overflow (the stack below
+//! RAM, under flip-link) still ends in a record and the reset, not a lockup. The next boot
 //! reports the cause on its boot event and refuses motion until `origin`.
 //!
 //! Board settings: flash prefetch and both caches on after `embassy_stm32::init` (its F4 clock
@@ -45,7 +47,6 @@ mod device {
     use core::sync::atomic::{AtomicBool, Ordering};
 
     use cortex_m::peripheral::SCB;
-    use cortex_m_rt::{exception, ExceptionFrame};
     use embassy_embedded_hal::adapter::BlockingAsync;
     use embassy_executor::{InterruptExecutor, Spawner};
     use embassy_stm32::interrupt;
@@ -138,15 +139,58 @@ mod device {
         SCB::sys_reset()
     }
 
-    #[exception]
-    unsafe fn HardFault(ef: &ExceptionFrame) -> ! {
+    /// SRAM (SRAM1 and SRAM2, contiguous; `memory.x`'s RAM): where a stacked exception frame
+    /// can be read.
+    const RAM: core::ops::Range<u32> = 0x2000_0000..0x2002_0000;
+
+    // HardFault's entry, in assembly: no Rust may run on the stack the fault left. Under
+    // flip-link the stack sits at the bottom of RAM, so an overflow leaves SP below 0x2000_0000;
+    // the core then stacks the HardFault frame into no memory (CFSR.STKERR) and enters with SP
+    // there, and the first push of a Rust handler would fault again inside HardFault: a lockup,
+    // with no record and the drivers as they were (what cortex-m-rt's trampoline and a Rust
+    // handler do). So: take the frame's address (MSP or PSP, by EXC_RETURN bit 2) into r0, move
+    // MSP back to the stack's top (`_stack_start`, 8-byte aligned; nothing returns from here, so
+    // what the stack held is not needed), and only then enter the Rust handler.
+    core::arch::global_asm!(
+        ".section .HardFault.user,\"ax\"",
+        ".global HardFault",
+        ".type HardFault,%function",
+        ".thumb_func",
+        "HardFault:",
+        "tst lr, #4",
+        "ite eq",
+        "mrseq r0, msp",
+        "mrsne r0, psp",
+        "ldr r1, =_stack_start",
+        "bic r1, r1, #7",
+        "msr msp, r1",
+        "b vfp_hard_fault",
+        ".ltorg",
+    );
+
+    /// The HardFault handler proper, on the stack [`HardFault`'s entry](self) reset: drivers
+    /// off, the record, reset. The stacked PC, LR and xPSR are read only where the frame lies in
+    /// RAM; after a stack overflow it lies below, and they are recorded as
+    /// [`FaultFrame::NO_FRAME`] (the cause then reads `stack-overflow`).
+    #[no_mangle]
+    unsafe extern "C" fn vfp_hard_fault(frame: u32) -> ! {
         drivers_off();
         // SAFETY: reads of the System Control Block's fault status and address registers.
         let scb = unsafe { &*SCB::PTR };
+        let stacked = |word: u32| -> u32 {
+            let at = frame.wrapping_add(4 * word);
+            if frame.is_multiple_of(4) && RAM.contains(&frame) && RAM.contains(&(at + 3)) {
+                // SAFETY: an aligned word inside SRAM.
+                unsafe { core::ptr::read_volatile(at as *const u32) }
+            } else {
+                FaultFrame::NO_FRAME
+            }
+        };
+        // The exception frame: r0-r3, r12, lr, pc, xpsr.
         let frame = FaultFrame {
-            pc: ef.pc(),
-            lr: ef.lr(),
-            xpsr: ef.xpsr(),
+            pc: stacked(6),
+            lr: stacked(5),
+            xpsr: stacked(7),
             cfsr: scb.cfsr.read(),
             hfsr: scb.hfsr.read(),
             mmfar: scb.mmfar.read(),
@@ -154,6 +198,45 @@ mod device {
         };
         write_record(&Crash::HardFault(frame).encode());
         SCB::sys_reset()
+    }
+
+    // ------------------------------------------------------------------ fault injection
+
+    /// The `fault-injection` build's user button (B1, PC13, low while pressed): a press of a
+    /// second or more overflows the stack, a shorter one panics, so the virtual rig shows the
+    /// fault handlers of the binary at work. Never in the firmware a lab flashes.
+    #[cfg(feature = "fault-injection")]
+    #[embassy_executor::task]
+    async fn fault_injection(button: embassy_stm32::Peri<'static, peripherals::PC13>) {
+        use embassy_stm32::gpio::{Input, Pull};
+        use embassy_time::{Duration, Instant, Timer};
+        let button = Input::new(button, Pull::None);
+        loop {
+            while button.is_high() {
+                Timer::after_millis(10).await;
+            }
+            let pressed = Instant::now();
+            while button.is_low() {
+                Timer::after_millis(10).await;
+            }
+            if pressed.elapsed() >= Duration::from_secs(1) {
+                let depth = overflow(core::hint::black_box(0));
+                defmt::info!("recursion ended at {=u32}", depth);
+            } else {
+                panic!("fault injection: the user button");
+            }
+        }
+    }
+
+    /// Recursion with a 128-byte frame that ends only at `u32::MAX` levels: far past the stack.
+    #[cfg(feature = "fault-injection")]
+    #[inline(never)]
+    fn overflow(depth: u32) -> u32 {
+        let frame = core::hint::black_box([depth; 32]);
+        if core::hint::black_box(depth) == u32::MAX {
+            return 0;
+        }
+        overflow(depth + 1).wrapping_add(frame[depth as usize % 32])
     }
 
     // ------------------------------------------------------------------ board settings
@@ -437,6 +520,8 @@ mod device {
         )));
         spawner.spawn(defmt::unwrap!(command(shared, serial)));
         spawner.spawn(defmt::unwrap!(persist(shared, store)));
+        #[cfg(feature = "fault-injection")]
+        spawner.spawn(defmt::unwrap!(fault_injection(rest.user_button)));
     }
 }
 
