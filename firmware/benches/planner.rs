@@ -20,6 +20,7 @@ fn moving_state() -> Shared {
         ..Config::default()
     };
     let shared = Shared::new(cfg);
+    shared.declare_origin(0.0).unwrap();
     let mut sampler = Sampler::new(&cfg);
     // Take the (one-frame) pressure zero so motion commands are accepted.
     let mid = firmware::board::kpa_to_counts(0.0).round() as u16;

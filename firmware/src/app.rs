@@ -353,8 +353,10 @@ pub struct Control {
     /// Events lost to a full queue since the sampler last looked.
     lost_events: u32,
     stepper_seen_us: u64,
-    /// Axes whose position is unknown since a reset other than power-on (ORIGIN_NEEDED bits):
-    /// motion on them is refused until `origin`; `clear` does not lift them.
+    /// Axes whose position is unknown (ORIGIN_NEEDED bits): every axis after any reset, power-on
+    /// included (a power cut may have stopped a move anywhere, and a board cannot tell a cold
+    /// start from that), until `origin` declares it; motion on them is refused, and `clear` does
+    /// not lift them.
     origin_needed: u32,
     /// The estimator is taking the pressure zero (its state, posted here for the checks).
     zeroing: bool,
@@ -375,11 +377,7 @@ impl Control {
             } else {
                 0
             },
-            origin_needed: if cfg.reset_cause.positions_trusted() {
-                0
-            } else {
-                Flags::ORIGIN_NEEDED * 0b111
-            },
+            origin_needed: Flags::ORIGIN_NEEDED * 0b111,
             zeroing: true,
             zero_kpa: [0.0; AXES],
             last_kpa: [None; AXES],
@@ -739,11 +737,12 @@ impl Control {
         Ok(())
     }
 
+    /// Declare `axes` at `steps`; the step positions they had before.
     fn set_origin(
         &mut self,
         axes: AxisSet,
         steps: Result<i32, CommandError>,
-    ) -> Result<(), CommandError> {
+    ) -> Result<[i32; AXES], CommandError> {
         if self.protocol.is_some() || axes.iter().any(|a| !self.motion.is_idle(a)) {
             return Err(CommandError::Busy);
         }
@@ -751,11 +750,12 @@ impl Control {
         if axes.iter().any(|a| steps > self.cap_steps[a]) {
             return Err(CommandError::OutOfRange);
         }
+        let before = core::array::from_fn(|a| self.motion.position(a));
         for a in axes.iter() {
             self.motion.set_position(a, steps)?;
             self.origin_needed &= !Flags::channel(Flags::ORIGIN_NEEDED, a);
         }
-        Ok(())
+        Ok(before)
     }
 }
 
@@ -1498,6 +1498,16 @@ impl Shared {
         &self.cfg
     }
 
+    /// Declare every axis at `volume_mm3` without a command line, as `origin all <volume>` does
+    /// at boot: for a host that built the plant itself and so knows where the plungers are
+    /// (host-sim, the tests, the benches), before the tasks start. A board learns its positions
+    /// only from the host's `origin` (after every reset, power-on included).
+    pub fn declare_origin(&self, volume_mm3: f32) -> Result<(), CommandError> {
+        let steps = self.volume_target(volume_mm3);
+        self.with_control(|c| c.set_origin(AxisSet::ALL, steps))
+            .map(|_| ())
+    }
+
     /// Run `f` on the motion side under the critical section (interrupts off on the board).
     /// `f` must be O(1) and short: hand data over, compute outside.
     pub fn with_control<R>(&self, f: impl FnOnce(&mut Control) -> R) -> R {
@@ -1768,11 +1778,13 @@ impl Shared {
             }
             Command::Origin { axes, volume } => {
                 let steps = self.volume_target(*volume);
-                self.with_control(|c| c.set_origin(*axes, steps))?;
+                let before = self.with_control(|c| c.set_origin(*axes, steps))?;
+                let steps = steps?;
                 for a in axes.iter() {
                     est.chambers[a].hist.clear();
                     est.chambers[a].reset_chain(cfg.frame_dt());
-                    est.rest[a].forget();
+                    let dv = (steps - before[a]) as f32 * cfg.motion.mm3_per_step;
+                    est.rest[a].shift(dv);
                 }
             }
             Command::Model {

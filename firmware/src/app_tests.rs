@@ -33,9 +33,12 @@ struct S {
 }
 
 impl S {
+    /// A board whose host declared the plungers at volume 0 (`origin all 0`), as after any reset.
     fn new(cfg: Config) -> Self {
+        let shared = Shared::new(cfg);
+        shared.declare_origin(0.0).unwrap();
         Self {
-            shared: Shared::new(cfg),
+            shared,
             sampler: Sampler::new(&cfg),
             pulses: Pulses::default(),
         }
@@ -593,6 +596,47 @@ fn send(shared: &Shared, command: &str) -> String {
 }
 
 #[test]
+fn motion_waits_for_origin_after_every_reset_power_on_included() {
+    let origin_all = Flags::ORIGIN_NEEDED * 0b111;
+    for cause in [ResetCause::PowerOn, ResetCause::BrownOut, ResetCause::Pin] {
+        let cfg = Config {
+            reset_cause: cause,
+            ..Config::default()
+        };
+        // Booted as the binary boots: nothing declared.
+        let mut s = S {
+            shared: Shared::new(cfg),
+            sampler: Sampler::new(&cfg),
+            pulses: Pulses::default(),
+        };
+        let mut t = 0;
+        for _ in 0..25 * K {
+            t += DT;
+            s.on_oversample([code(0.0); 3], t);
+        }
+        assert!(!s.flags().has(Flags::NOT_ZEROED), "{cause:?}");
+        assert_eq!(s.flags().0 & origin_all, origin_all, "{cause:?}");
+        assert_eq!(
+            cmd(&mut s, "move 0 10", t),
+            Err(CommandError::OriginNeeded),
+            "{cause:?}"
+        );
+        assert_eq!(cmd(&mut s, "clear", t), Ok(String::new()));
+        assert_eq!(s.flags().0 & origin_all, origin_all, "clear lifts nothing");
+        // Axes 0 and 2 declared at 100 mm³: they move, axis 1 still waits.
+        cmd(&mut s, "origin 02 100", t).unwrap();
+        assert_eq!(s.flags().0 & origin_all, Flags::ORIGIN_NEEDED << 1);
+        assert_eq!(s.motion().volume(2), 100.0);
+        cmd(&mut s, "move 02 110 20", t).unwrap();
+        assert_eq!(
+            cmd(&mut s, "move 1 10", t),
+            Err(CommandError::OriginNeeded),
+            "{cause:?}"
+        );
+    }
+}
+
+#[test]
 fn command_lines_get_one_reply_each() {
     let shared = Shared::new(Config::default());
     let reply = |line: &str| send(&shared, line);
@@ -601,8 +645,8 @@ fn command_lines_get_one_reply_each() {
     assert_eq!(reply("move 0 10"), "err busy", "zero still being taken");
     assert_eq!(reply("stop"), "ok");
     assert!(
-        reply("status").starts_with("ok flags 69632 "),
-        "STOPPED | NOT_ZEROED"
+        reply("status").starts_with("ok flags 469831680 "),
+        "STOPPED | NOT_ZEROED | ORIGIN_NEEDED on all three axes (bits 12, 16, 26-28)"
     );
 }
 

@@ -292,14 +292,6 @@ impl ResetCause {
         }
     }
 
-    /// Whether the step counts can be trusted after this reset: only after power-on or a
-    /// brown-out, when the rig is set up at its boot volume. After any other reset the
-    /// syringes may be anywhere (the reset can have cut a move short), so motion waits for
-    /// `origin`.
-    pub fn positions_trusted(&self) -> bool {
-        matches!(self, Self::PowerOn | Self::BrownOut)
-    }
-
     /// Whether the reset was the firmware failing (watchdog, panic, HardFault): flag 13,
     /// latched until `clear`.
     pub fn is_fault(&self) -> bool {
@@ -553,7 +545,7 @@ pub(crate) mod tests {
     }
 
     #[test]
-    fn trust_and_fault_classes() {
+    fn fault_classes_and_round_trips() {
         let all = [
             ResetCause::PowerOn,
             ResetCause::BrownOut,
@@ -566,8 +558,6 @@ pub(crate) mod tests {
             ResetCause::HardFault(frame()),
             ResetCause::Unknown,
         ];
-        let trusted: std::vec::Vec<_> = all.iter().filter(|c| c.positions_trusted()).collect();
-        assert_eq!(trusted, [&ResetCause::PowerOn, &ResetCause::BrownOut]);
         let faults: std::vec::Vec<_> = all
             .iter()
             .filter(|c| c.is_fault())

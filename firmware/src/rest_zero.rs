@@ -24,9 +24,10 @@
 //! What it costs: a load of at most `max_step_kpa` (0.5 kPa, 11 mN per chamber) held at the zero's
 //! volume through a whole settle and window is taken for drift, once per stay; a load that stays
 //! for many stays can walk the zero by that much per stay, and a load during the reference stay
-//! is taken into `r₀` (the zero itself must be taken unloaded anyway). `origin` forgets the zero's
-//! volume (the step count restarts), so the correction waits for the next `zero`; a model load
-//! takes a new reference at the next stay. Online RLS (`rls <ch> on`) moves P̂ between stays, and
+//! is taken into `r₀` (the zero itself must be taken unloaded anyway). `origin` renames the
+//! volumes (the step count restarts at the declared volume): the anchor moves with them, so it
+//! stays the same plunger position, and the next stay there takes a new reference (P̂ at the
+//! anchor's new volume differs); a model load also takes a new reference at the next stay. Online RLS (`rls <ch> on`) moves P̂ between stays, and
 //! that move is taken for drift too (bounded the same way). Set
 //! [`Config::rest_zero`](crate::app::Config) to `None` to turn it off.
 
@@ -97,9 +98,13 @@ impl RestZero {
         self.reference = None;
     }
 
-    /// The step count restarted (`origin`): the anchor means nothing any more.
-    pub fn forget(&mut self) {
-        *self = Self::default();
+    /// The step count restarted (`origin`) `dv_mm3` above where it was: the anchor, the same
+    /// plunger position, is now `dv_mm3` higher, and the next stay there gives a new reference.
+    pub fn shift(&mut self, dv_mm3: f32) {
+        *self = Self {
+            anchor: self.anchor.map(|a| a + dv_mm3),
+            ..Self::default()
+        };
     }
 
     /// One frame of the chamber: its volume (mm³), commanded flow (mm³/s) and residual (kPa,
@@ -226,15 +231,19 @@ mod tests {
             run(&mut z, 30, 0.0, 0.0, 0.125),
             (RestOutcome::Reference(0.125), 4)
         );
-        // After origin there is neither anchor nor reference.
-        z.forget();
+        // After `origin` declared the plunger 100 mm³ higher than counted, the anchor is at
+        // 100: a stay at the old volume 0 is away from it, a stay at 100 gives a new reference.
+        z.shift(100.0);
         away(&mut z);
         assert_eq!(run(&mut z, 30, 0.0, 0.0, 0.25).0, RestOutcome::Pending);
-        z.anchor(0.0);
         assert_eq!(
-            run(&mut z, 30, 0.0, 0.0, 0.25).0,
+            run(&mut z, 30, 100.0, 0.0, 0.25).0,
             RestOutcome::Reference(0.25)
         );
+        // No zero yet: nothing to move.
+        let mut fresh = RestZero::default();
+        fresh.shift(100.0);
+        assert_eq!(fresh, RestZero::default());
     }
 
     #[test]

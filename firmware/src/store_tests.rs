@@ -403,10 +403,13 @@ struct App {
 }
 
 impl App {
+    /// A board whose host declared the plungers at volume 0 (`origin all 0`).
     fn new() -> Self {
         let cfg = Config::default();
+        let shared = Shared::new(cfg);
+        shared.declare_origin(0.0).unwrap();
         Self {
-            shared: Shared::new(cfg),
+            shared,
             sampler: Sampler::new(&cfg),
         }
     }

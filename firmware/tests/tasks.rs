@@ -90,6 +90,8 @@ impl hal::Watchdog for Wdg {
 fn tasks_step_on_plan_report_every_frame_and_stop_on_fault() {
     let rig = Rc::new(Rig::default());
     let shared = Shared::new(Config::default());
+    // The host's `origin all 0`: the plungers start at volume 0.
+    shared.declare_origin(0.0).unwrap();
     let tasks = join3(
         stepper_task(&shared, Steppers(rig.clone())),
         sampler_task(

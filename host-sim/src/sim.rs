@@ -26,6 +26,7 @@ use std::task::Context;
 
 use embassy_time::{Duration, Instant, MockDriver};
 use firmware::app::{self, Config, Shared};
+use firmware::reset::ResetCause;
 use firmware::telemetry::{Event, EventKind, Frame};
 use futures::stream::{FuturesUnordered, StreamExt};
 use futures::task::ArcWake;
@@ -157,6 +158,15 @@ pub fn simulate_with(scenario: &Scenario, fw: Config) -> Result<SimRun, SimError
         .map(|st| (to_us(st.start_s), to_us(st.start_s + st.duration_s)))
         .collect();
     let shared = Shared::new(fw);
+    // The plant starts with its plungers at volume 0, and after a power-on or a brown-out the
+    // simulated lab declares so (`origin all 0`), as a lab does at its bench before the first move.
+    // After any other reset it has not: the firmware then refuses motion until a scenario's
+    // own `origin`, as a board does.
+    if matches!(fw.reset_cause, ResetCause::PowerOn | ResetCause::BrownOut) {
+        shared
+            .declare_origin(0.0)
+            .map_err(|e| SimError::Internal(format!("origin at volume 0: {e}")))?;
+    }
 
     let tasks: FuturesUnordered<Task<'_>> = FuturesUnordered::new();
     {

@@ -514,6 +514,21 @@ impl Rig {
         }
     }
 
+    /// [`Rig::until_zeroed`], then declare the plungers at volume 0 (`origin all 0`), as a lab
+    /// does after every reset before the first move; the status after it.
+    pub fn ready(&mut self) -> Result<String, RigError> {
+        self.until_zeroed()?;
+        match self.command("origin all 0")? {
+            Some(reply) if reply == "ok" => {}
+            other => {
+                return Err(RigError::Stopped(format!(
+                    "`origin all 0` answered {other:?}"
+                )))
+            }
+        }
+        Ok(self.command("status")?.unwrap_or_default())
+    }
+
     /// Run until the board reports every axis idle and no `run` going (`status`), polling every
     /// virtual second for at most `limit`; whether it came to rest.
     pub fn until_at_rest(&mut self, limit: Duration) -> Result<bool, RigError> {

@@ -17,8 +17,20 @@ const RCC_DCKCFGR2: &str = "at=0x40023894 ";
 fn boots_answers_status_with_the_reset_cause_and_keeps_running() {
     let mut rig = rig();
     let status = rig.until_zeroed().unwrap();
-    assert!(status.starts_with("ok flags 0 "), "{status}");
+    // After power-on the positions are unknown (flags 26-28) until the host declares them.
+    let origin_needed = firmware::telemetry::Flags::ORIGIN_NEEDED * 0b111;
+    assert!(
+        status.starts_with(&format!("ok flags {origin_needed} ")),
+        "{status}"
+    );
     assert!(status.ends_with(" reset power-on"), "{status}");
+    assert_eq!(
+        rig.command("move 0 10 50").unwrap().as_deref(),
+        Some("err origin-needed")
+    );
+    assert_eq!(rig.command("origin all 0").unwrap().as_deref(), Some("ok"));
+    let status = rig.command("status").unwrap().expect("a reply");
+    assert!(status.starts_with("ok flags 0 "), "{status}");
     // Two virtual seconds more: the watchdog is fed (no reset), the frames go on.
     rig.run_for(Duration::from_secs(2)).unwrap();
     let status = rig.command("status").unwrap().expect("a reply");

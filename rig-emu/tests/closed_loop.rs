@@ -49,7 +49,7 @@ fn a_log_recorded_from_the_binary_names_the_planted_hysteresis_as_host_sim_does(
         seed: SEED,
     })
     .expect("the virtual rig starts");
-    rig.until_zeroed().unwrap();
+    rig.ready().unwrap();
     let from = rig
         .with(|s, _| s.board_mut().host().received_bytes().len())
         .unwrap();

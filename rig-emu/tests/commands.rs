@@ -109,7 +109,7 @@ fn words_arriving_with_noise_reject_their_line_and_nothing_else() {
 #[test]
 fn stop_is_obeyed_plain_while_checksums_are_required() {
     let mut rig = Rig::start(&RigConfig::new(default_elf())).expect("the virtual rig starts");
-    rig.until_zeroed().unwrap();
+    rig.ready().unwrap();
     // Required from boot: a plain line is refused.
     assert_eq!(
         rig.command("checksum").unwrap().as_deref(),
@@ -157,7 +157,7 @@ fn without_seq(status: &str) -> String {
 #[test]
 fn a_plain_command_is_refused_from_boot_and_changes_nothing() {
     let mut rig = Rig::start(&RigConfig::new(default_elf())).expect("the virtual rig starts");
-    rig.until_zeroed().unwrap();
+    rig.ready().unwrap();
     let seen = |rig: &mut Rig| {
         [
             without_seq(&rig.command("status").unwrap().expect("status")),
@@ -201,6 +201,8 @@ fn the_guides_terminal_line_allows_plain_lines_until_a_reset() {
             .expect("a reply")
     };
     assert_eq!(typed(&mut rig, "status"), "err checksum-required");
+    // The guide's checksummed `origin all 0`, the first thing after a reset.
+    assert_eq!(typed(&mut rig, "*0CBA origin all 0"), "ok");
     assert_eq!(typed(&mut rig, "*1104 checksum optional"), "ok");
     assert_eq!(typed(&mut rig, "checksum"), "ok optional");
     assert_eq!(typed(&mut rig, "origin 0 50"), "ok");

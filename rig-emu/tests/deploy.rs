@@ -114,7 +114,7 @@ fn a_deployed_chain_runs_on_the_binary_as_vfp_replay_computes_it() {
         seed: 5,
     })
     .expect("the virtual rig starts");
-    rig.until_zeroed().unwrap();
+    rig.ready().unwrap();
     // The stream on before the deploy, so the frames around the model's load are recorded: the
     // deploy reads its replies between the packets, as from a board left streaming.
     let capture_from = rig

@@ -9,7 +9,7 @@ use rig_emu::{default_elf, Rig, RigConfig, StepEvent};
 #[test]
 fn a_three_axis_move_takes_the_planners_steps_at_the_planners_instants() {
     let mut rig = Rig::start(&RigConfig::new(default_elf())).expect("the virtual rig starts");
-    let status = rig.until_zeroed().unwrap();
+    let status = rig.ready().unwrap();
     assert!(status.starts_with("ok flags 0 "), "{status}");
     assert_eq!(rig.command("telemetry on").unwrap().as_deref(), Some("ok"));
     // 20 mm³ at 50 mm³/s with 500 mm³/s²: 500 steps of 0.04 mm³ per axis, on all three at once.

@@ -16,7 +16,7 @@ fn seconds() -> u64 {
 #[test]
 fn frames_at_25_hz_with_none_lost_while_commands_arrive() {
     let mut rig = Rig::start(&RigConfig::new(default_elf())).expect("the virtual rig starts");
-    rig.until_zeroed().unwrap();
+    rig.ready().unwrap();
     assert_eq!(rig.command("telemetry on").unwrap().as_deref(), Some("ok"));
     let secs = seconds();
     let mut replies = 0;

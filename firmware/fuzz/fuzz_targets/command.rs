@@ -11,6 +11,8 @@ fuzz_target!(|data: &[u8]| {
     let _ = LinkState::default().check(data);
     let mut asm = LineAssembler::new();
     let shared = Shared::new(Config::default());
+    // Positions declared (`origin all 0`), so that motion commands get past the origin check.
+    let _ = shared.declare_origin(0.0);
     let mut reply = String::new();
     // Plain lines accepted, so that the fuzzer's lines reach the parser and the commands
     // (at boot only checksummed lines do).

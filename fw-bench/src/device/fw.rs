@@ -22,7 +22,7 @@
 //!   above, `app::Shared::command_raw` (checksum rules, parse, execute, reply) and the `\r\n`.
 //!
 //! Set-up and bookkeeping, never measured: `app::Config::default()` (fields `drift_window`,
-//! `drift_frac`, `rls_min_flow`), `app::Shared::new`, `app::Sampler::{new, period_us, drops}`,
+//! `drift_frac`, `rls_min_flow`), `app::Shared::new`, `app::Shared::declare_origin`, `app::Sampler::{new, period_us, drops}`,
 //! `app::Shared::with_control` with `app::Control::{motion, latched}`,
 //! `motion::Motion::{volume, next_batch, all_idle}`, `telemetry::parse_line` (the bench reads
 //! the telemetry channel back the way the host does), `command::write_checksummed` (the bench
@@ -160,6 +160,11 @@ impl Board {
         };
         // The binary serial stream on (`telemetry on`), so every frame takes that path too.
         board.shared.serial_telemetry().set(true);
+        // The plungers at volume 0, as the host's `origin all 0` declares them after a reset.
+        board
+            .shared
+            .declare_origin(0.0)
+            .expect("volume 0 is in range");
         board
     }
 
