@@ -35,8 +35,9 @@ pub struct Args {
     #[arg(long = "effect", value_parser = effect_parser())]
     pub effects: Vec<EffectKind>,
     /// Another log of the same rig: the models fitted on LOG (baseline, after each kept effect,
-    /// final) are evaluated on all of its rows, same chamber, nothing refitted (JSON:
-    /// `validation`).
+    /// final) are evaluated on all of its rows, same chamber, nothing refitted; and each kept
+    /// effect's carry-over: that log's own polynomial refitted with and without it, scored on its
+    /// held-out cycles (JSON: `validation`, `validation.carry_over`).
     #[arg(long, value_name = "OTHER.csv")]
     pub validate: Option<PathBuf>,
     /// The rig the log comes from, which names the effects: `syringe` (this project's pumps:
@@ -221,6 +222,33 @@ fn validation_report(v: &Validation) -> String {
             "  {} follow the log's own clock: evaluated from the other log's start, they claim the same drift or phase there",
             v.clock_bound.join(", ")
         );
+    }
+    if let Some(note) = &v.carry_over_note {
+        let _ = writeln!(s, "{note}");
+    }
+    if let Some(first) = v.carry_over.first() {
+        let _ = writeln!(
+            s,
+            "carry-over: each effect at this log's parameters, on that log's own polynomial and the other effects that hold\n  there, refitted with and without it on its training cycles; held-out RMSE over its held-out cycles, paired z\n  over {} pieces of them; carries: gain > 0 and z >= {}; `all`: every effect against the polynomial alone:",
+            first.units,
+            sysid::residual::validate::CARRY_Z
+        );
+        for c in &v.carry_over {
+            let _ = writeln!(
+                s,
+                "  {:<18} {:.4} -> {:.4} kPa  gain {:>6.2} %  z {:>6.2}  {}",
+                c.effect,
+                c.without_rmse,
+                c.with_rmse,
+                100.0 * c.gain,
+                c.z,
+                if c.carries {
+                    "carries"
+                } else {
+                    "does not carry"
+                }
+            );
+        }
     }
     s
 }

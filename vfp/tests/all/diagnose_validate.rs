@@ -2,7 +2,9 @@
 //!
 //! Truths: an identity (validating on A itself reproduces the loop's own train and held-out
 //! errors), and host-sim plants (the same wall hysteresis on another run of the rig lowers B's
-//! error as it lowered A's; a rig without it gains nothing from it).
+//! error as it lowered A's; a rig without it gains nothing from it; an air pocket found on A does
+//! not carry to a rig without air, while the rig's own delivery lag, which every host-sim rig
+//! has, does).
 
 use crate::common;
 
@@ -87,6 +89,8 @@ fn an_effect_of_the_rig_holds_on_another_run_and_not_on_another_rig() {
     // The same rig: the error falls on B as on A's held-out cycles, to near A's final error.
     assert!(fin < 0.5 * base, "same rig: {base} -> {fin}");
     assert!(fin < 2.0 * f(&d, &["final", "rmse_heldout"]), "{d}");
+    // And the hysteresis carries over: B's own polynomial gains from it.
+    assert_eq!(carries(v, "hysteresis"), Some(true), "{v}");
     // Another rig (no wall hysteresis): the hysteresis step gains it next to nothing.
     let d = diagnose(&a, &other, &[]);
     let v = &d["validation"];
@@ -96,6 +100,47 @@ fn an_effect_of_the_rig_holds_on_another_run_and_not_on_another_rig() {
         (base - hyst).abs() < 0.02 * base,
         "another rig: hysteresis moves {base} -> {hyst}"
     );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Whether `effect`'s carry-over in validation `v` says it carries (`None`: not listed).
+fn carries(v: &serde_json::Value, effect: &str) -> Option<bool> {
+    v["carry_over"]
+        .as_array()?
+        .iter()
+        .find(|c| c["effect"] == effect)
+        .map(|c| c["carries"].as_bool().unwrap())
+}
+
+#[test]
+fn an_air_pocket_does_not_carry_to_a_rig_without_air() {
+    let dir = scratch("validate", "carry");
+    let a = simulate(&dir, "air.csv", "effect:air", 3, 4);
+    let other = simulate(&dir, "other.csv", "paper", 2, 3);
+    let d = diagnose(&a, &other, &[]);
+    let names: Vec<&str> = d["effects"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|e| e["name"].as_str().unwrap())
+        .collect();
+    assert!(names.contains(&"air_compliance"), "{names:?}");
+    let v = &d["validation"];
+    assert_eq!(carries(v, "air_compliance"), Some(false), "{v}");
+    // A's whole model does not hold there either, while each effect that carries lowers B's
+    // held-out error beside the others.
+    let all = v["carry_over"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|c| c["effect"] == "all")
+        .expect("all");
+    assert_eq!(all["carries"], false, "{v}");
+    for c in v["carry_over"].as_array().unwrap() {
+        if c["carries"] == true {
+            assert!(f(c, &["with_rmse"]) < f(c, &["without_rmse"]), "{c}");
+        }
+    }
     let _ = std::fs::remove_dir_all(&dir);
 }
 
