@@ -94,7 +94,8 @@ pub const MAX_EFFECT_PARAMS: usize = 3;
 /// Atmospheric pressure, kPa (the air pocket's isothermal reference).
 pub const P_ATM_KPA: f32 = 101.325;
 
-/// The effects the board can run.
+/// The effects the board can run; each has one row in the table of [`crate::spec`] (wire name,
+/// stored code, parameters with units and bounds, stage).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
 pub enum EffectKind {
     /// Rate-independent direction memory (Duhem hysteron) times a gap linear in volume.
@@ -131,62 +132,10 @@ impl EffectKind {
         EffectKind::SensorLag,
     ];
 
-    /// The residual loop's name (`sysid::residual::EffectKind::name`), used by the protocol.
-    pub fn name(self) -> &'static str {
-        match self {
-            EffectKind::Hysteresis => "hysteresis",
-            EffectKind::SensorLag => "sensor_lag",
-            EffectKind::DeliveryLag => "delivery_lag",
-            EffectKind::TransportDelay => "transport_delay",
-            EffectKind::Backlash => "backlash",
-            EffectKind::Inertance => "inertance",
-            EffectKind::PumpRipple => "pump_ripple",
-            EffectKind::AirCompliance => "air_compliance",
-            EffectKind::Leak => "leak",
-        }
-    }
-
-    /// The kind called `name`.
-    pub fn from_name(name: &str) -> Option<Self> {
-        Self::ALL.into_iter().find(|k| k.name() == name)
-    }
-
     /// Position in [`ALL`](Self::ALL): the evaluation order. Not stored anywhere: a kind may
     /// move in the order without changing what a board has kept (that is [`code`](Self::code)).
     pub fn rank(self) -> u8 {
         Self::ALL.iter().position(|&k| k == self).unwrap_or(0) as u8
-    }
-
-    /// The kind's code in a stored or transmitted model (`firmware::store`'s serialised chain).
-    /// Fixed forever: a board keeps models across firmware updates, so a code never changes and
-    /// is never reused; a new kind takes the next free one (9). The first nine are the ranks
-    /// the evaluation order had when codes were split from it, so stores written before decode
-    /// as they were.
-    pub fn code(self) -> u8 {
-        match self {
-            EffectKind::DeliveryLag => 0,
-            EffectKind::TransportDelay => 1,
-            EffectKind::Backlash => 2,
-            EffectKind::Leak => 3,
-            EffectKind::AirCompliance => 4,
-            EffectKind::Hysteresis => 5,
-            EffectKind::Inertance => 6,
-            EffectKind::PumpRipple => 7,
-            EffectKind::SensorLag => 8,
-        }
-    }
-
-    /// The kind stored as `code` ([`code`](Self::code)); `None` for a code no kind has.
-    pub fn from_code(code: u8) -> Option<Self> {
-        Self::ALL.into_iter().find(|k| k.code() == code)
-    }
-
-    /// Number of parameters (see the module table).
-    pub fn params(self) -> usize {
-        match self {
-            EffectKind::Hysteresis | EffectKind::PumpRipple => 3,
-            _ => 1,
-        }
     }
 }
 
@@ -198,23 +147,19 @@ pub struct Effect {
 }
 
 impl Effect {
-    /// A checked effect: `BadLength` unless `params` has [`EffectKind::params`] values,
-    /// `NonFinite` for NaN/∞, `BadParameter` for a width or period ≤ 0 or a negative time
-    /// constant, delay, play, air volume or leak conductance.
+    /// A checked effect against its row of the table ([`EffectKind::spec`]): `BadLength`
+    /// unless `params` has [`EffectKind::params`] values, `NonFinite` for NaN/∞,
+    /// `BadParameter` for a value outside its range (a width or period ≤ 0; a negative time
+    /// constant, delay, play, air volume or leak conductance; a delay over [`MAX_DELAY_S`]).
     pub fn new(kind: EffectKind, params: &[f32]) -> Result<Self, ModelError> {
-        if params.len() != kind.params() {
+        let spec = kind.spec();
+        if params.len() != spec.params.len() {
             return Err(ModelError::BadLength);
         }
         if params.iter().any(|p| !p.is_finite()) {
             return Err(ModelError::NonFinite);
         }
-        let first = params[0];
-        let ok = match kind {
-            EffectKind::Hysteresis | EffectKind::PumpRipple => first > 0.0,
-            EffectKind::Inertance => true,
-            _ => first >= 0.0,
-        };
-        if !ok {
+        if !spec.params.iter().zip(params).all(|(s, &x)| s.admits(x)) {
             return Err(ModelError::BadParameter);
         }
         let mut p = [0.0; MAX_EFFECT_PARAMS];
@@ -374,7 +319,13 @@ impl Derived {
                 w = [a, w0, w1, m0 * dtf, m1 * dtf, 0.0, 0.0, 0.0].map(|x| x as f32);
             }
             EffectKind::TransportDelay => return delay_weights(dt, e.params[0]),
-            _ => {}
+            // No per-frame constants.
+            EffectKind::Hysteresis
+            | EffectKind::Backlash
+            | EffectKind::Inertance
+            | EffectKind::PumpRipple
+            | EffectKind::AirCompliance
+            | EffectKind::Leak => {}
         }
         Derived { w, n: 0 }
     }
@@ -537,8 +488,8 @@ impl Chain {
     }
 
     /// Adds an effect in its place in the evaluation order: `BadLength` when the chain is full,
-    /// `BadParameter` when it already has one of that kind or a transport delay is longer than
-    /// [`MAX_DELAY_S`].
+    /// `BadParameter` when it already has one of that kind (its parameters were checked by
+    /// [`Effect::new`], a transport delay's against [`MAX_DELAY_S`] among them).
     pub fn push(&mut self, e: Effect) -> Result<(), ModelError> {
         let len = self.len as usize;
         if self.effects().iter().any(|x| x.kind == e.kind) {
@@ -546,9 +497,6 @@ impl Chain {
         }
         if len == MAX_EFFECTS {
             return Err(ModelError::BadLength);
-        }
-        if e.kind == EffectKind::TransportDelay && e.params[0] > MAX_DELAY_S {
-            return Err(ModelError::BadParameter);
         }
         let at = self
             .effects()
@@ -711,7 +659,13 @@ impl Chain {
                     k += dk;
                     c += dc;
                 }
-                _ => {}
+                // Input transforms and output filters: no added term.
+                EffectKind::DeliveryLag
+                | EffectKind::TransportDelay
+                | EffectKind::Backlash
+                | EffectKind::Leak
+                | EffectKind::AirCompliance
+                | EffectKind::SensorLag => {}
             }
         }
         (p, k, c)
@@ -812,7 +766,11 @@ impl Chain {
                     let pt = finite(inp.p)?.max(-0.9 * P_ATM_KPA);
                     v -= p0 * pt / (P_ATM_KPA + pt);
                 }
-                _ => {}
+                // Added terms and output filters: no input transform.
+                EffectKind::Hysteresis
+                | EffectKind::Inertance
+                | EffectKind::PumpRipple
+                | EffectKind::SensorLag => {}
             }
         }
         Ok((v, f, gain))
