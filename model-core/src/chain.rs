@@ -94,44 +94,50 @@ pub const MAX_EFFECT_PARAMS: usize = 3;
 /// Atmospheric pressure, kPa (the air pocket's isothermal reference).
 pub const P_ATM_KPA: f32 = 101.325;
 
-/// The effects the board can run; each has one row in the table of [`crate::spec`] (wire name,
-/// stored code, parameters with units and bounds, stage).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
-pub enum EffectKind {
-    /// Rate-independent direction memory (Duhem hysteron) times a gap linear in volume.
-    Hysteresis,
-    /// First-order lag of the pressure sensor.
-    SensorLag,
-    /// Volume and flow through a critically damped (two-stage) lag.
-    DeliveryLag,
-    /// Volume and flow delayed by a fixed time.
-    TransportDelay,
-    /// Play between lead-screw nut and plunger.
-    Backlash,
-    /// Fluid inertance of the line, `L·v̈`.
-    Inertance,
-    /// Lead-screw pitch error, periodic in volume.
-    PumpRipple,
-    /// Trapped air (Boyle's law) with its pressure-scheduled lag.
-    AirCompliance,
-    /// Volume lost at a rate proportional to pressure.
-    Leak,
+/// Declares [`EffectKind`] and [`EffectKind::ALL`] from one list, so that a new kind is in the
+/// evaluation order by construction (the list's order is that order).
+macro_rules! effect_kinds {
+    ($(#[$m:meta])* pub enum EffectKind { $($(#[$vm:meta])* $v:ident,)+ }) => {
+        $(#[$m])*
+        pub enum EffectKind {
+            $($(#[$vm])* $v,)+
+        }
+
+        impl EffectKind {
+            /// Every kind, in the order they are evaluated (inputs, added terms, output
+            /// filters): the order of the enum's declaration.
+            pub const ALL: [EffectKind; [$(EffectKind::$v),+].len()] = [$(EffectKind::$v),+];
+        }
+    };
+}
+
+effect_kinds! {
+    /// The effects the board can run, in their evaluation order; each has one row in the table
+    /// of [`crate::spec`] (wire name, stored code, parameters with units and bounds, stage).
+    #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
+    pub enum EffectKind {
+        /// Volume and flow through a critically damped (two-stage) lag.
+        DeliveryLag,
+        /// Volume and flow delayed by a fixed time.
+        TransportDelay,
+        /// Play between lead-screw nut and plunger.
+        Backlash,
+        /// Volume lost at a rate proportional to pressure.
+        Leak,
+        /// Trapped air (Boyle's law) with its pressure-scheduled lag.
+        AirCompliance,
+        /// Rate-independent direction memory (Duhem hysteron) times a gap linear in volume.
+        Hysteresis,
+        /// Fluid inertance of the line, `L·v̈`.
+        Inertance,
+        /// Lead-screw pitch error, periodic in volume.
+        PumpRipple,
+        /// First-order lag of the pressure sensor.
+        SensorLag,
+    }
 }
 
 impl EffectKind {
-    /// Every kind, in the order they are evaluated (inputs, added terms, output filters).
-    pub const ALL: [EffectKind; 9] = [
-        EffectKind::DeliveryLag,
-        EffectKind::TransportDelay,
-        EffectKind::Backlash,
-        EffectKind::Leak,
-        EffectKind::AirCompliance,
-        EffectKind::Hysteresis,
-        EffectKind::Inertance,
-        EffectKind::PumpRipple,
-        EffectKind::SensorLag,
-    ];
-
     /// Position in [`ALL`](Self::ALL): the evaluation order. Not stored anywhere: a kind may
     /// move in the order without changing what a board has kept (that is [`code`](Self::code)).
     pub fn rank(self) -> u8 {
@@ -587,13 +593,29 @@ impl Chain {
         };
         let (mut p, mut k, c) = self.added(&mut slot, primed, inp, model, e, (v_in, f_in, gain));
         let mut k_air = 0.0f32;
-        // The output filters, after every added term: air's lag, then the sensor's.
-        if let Some((i, pt, spring, _)) = air {
-            k_air = spring;
-            p = self.air_lag(&mut slot[i], primed, inp.dt, c_air.max(0.0) * spring, p, pt);
-        }
-        if let Some(i) = self.position(EffectKind::SensorLag) {
-            p = sensor_lag(&state.derived[i].w, &mut slot[i], primed, inp.dt, p);
+        // The output filters, after every added term, in the chain's order: air's lag, then
+        // the sensor's.
+        for (i, eff) in self.effects().iter().enumerate() {
+            match eff.kind {
+                EffectKind::AirCompliance => {
+                    if let Some((_, pt, spring, _)) = air {
+                        k_air = spring;
+                        let tau = c_air.max(0.0) * spring;
+                        p = self.air_lag(&mut slot[i], primed, inp.dt, tau, p, pt);
+                    }
+                }
+                EffectKind::SensorLag => {
+                    p = sensor_lag(&state.derived[i].w, &mut slot[i], primed, inp.dt, p);
+                }
+                // No output filter.
+                EffectKind::DeliveryLag
+                | EffectKind::TransportDelay
+                | EffectKind::Backlash
+                | EffectKind::Leak
+                | EffectKind::Hysteresis
+                | EffectKind::Inertance
+                | EffectKind::PumpRipple => {}
+            }
         }
         if k_air != 0.0 {
             // The gas spring in series with the chamber's own stiffness.

@@ -1053,6 +1053,20 @@ fn stored_effect_codes_never_change() {
 #[test]
 fn spec_stages_and_bounds() {
     use EffectKind::*;
+    assert_eq!(
+        EffectKind::ALL,
+        [
+            DeliveryLag,
+            TransportDelay,
+            Backlash,
+            Leak,
+            AirCompliance,
+            Hysteresis,
+            Inertance,
+            PumpRipple,
+            SensorLag
+        ]
+    );
     let stages: Vec<Stage> = EffectKind::ALL.iter().map(|k| k.stage()).collect();
     assert!(stages.windows(2).all(|w| w[0] <= w[1]), "{stages:?}");
     for (kind, at_edge, below) in [
