@@ -21,10 +21,14 @@
 //! (`model-core/tests/chain.rs`) pins every code and every parameter layout.
 //!
 //! # Adding a device effect
-//! A variant of [`EffectKind`], its row here (the compiler asks for it: the match has no
-//! wildcard arm), its place in [`EffectKind::ALL`] and its evaluation in `chain.rs` (the
-//! evaluation's matches have no wildcard arm either, so the compiler names each stage that must
-//! say what the new kind does there).
+//! A variant of [`EffectKind`] (its place in the declaration is its place in the evaluation
+//! order, [`EffectKind::ALL`]), its row here (the compiler asks for it: the match has no
+//! wildcard arm), its evaluation in `chain.rs` (the evaluation's four matches over the kinds
+//! have no wildcard arm either, so the compiler names each stage that must say what the new kind
+//! does there), and on the host its effect's own file (`sysid::residual::effects`, whose
+//! `device_kind` names the variant). The pinned table of `stored_effect_codes_never_change` then
+//! fails until the new row is appended to it. CONTRIBUTING.md, "Add a device effect", lists the
+//! steps.
 
 use crate::chain::EffectKind;
 

@@ -284,19 +284,18 @@ pub fn from_diagnosis(
     let (n, m) = (diagnosis.baseline.n, diagnosis.baseline.m);
     let (carry, chain, dropped) = sort_for_device(&diagnosis);
     let device = device_model_with(series, n, m, &carry, &chain)?;
-    let folded = carry.first().and_then(|k| Some((k, k.device_kind()?)));
     let mut carried: Vec<Carried> = device
         .host
         .inertance
-        .zip(folded)
-        .map(|(l, (kind, device_kind))| Carried {
+        .zip(carry.first())
+        .map(|(l, kind)| Carried {
             name: kind.name(),
             how: format!(
                 "L·v̈ with v̈ = (v̇(t) − v̇(t−1))/Δt, Δt = {:.4} s: an AR(1) flow coefficient plus a change of the v̇ coefficient",
                 device.host.dt
             ),
             value: l,
-            unit: device_unit(device_kind),
+            unit: kind.device_kind().map_or("1", device_unit),
         })
         .into_iter()
         .collect();
