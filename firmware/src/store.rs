@@ -16,7 +16,12 @@
 //! | 4..20 | v_offset, v_scale, f_offset, f_scale (`f32` little-endian) |
 //! | then | the (n+1)(m+1) scaled coefficients b_ij, index i·(m+1)+j (`f32` LE) |
 //! | then | the 2p flattened AR coefficients b₁₁ b₁₂ b₂₁ … (`f32` LE) |
-//! | version 2 only | the number of effects e (1..=4), then per effect, in the chain's evaluation order (`model_core::chain::EffectKind::ALL`): its stored code (`EffectKind::code`, one byte, fixed forever and independent of that order) and its parameters (`f32` LE, as many as the kind takes) |
+//! | version 2 only | the number of effects e (1..=4), then per effect, in the chain's evaluation order (`model_core::chain::EffectKind::ALL`): its stored code (`EffectKind::code`, one byte, fixed forever, never reused and independent of that order: the table of `model_core::spec`) and its parameters (`f32` LE, as many as the kind's row lists, in its order) |
+//!
+//! An effect code this firmware does not know is refused ([`DecodeError::UnknownEffect`]; the
+//! channel boots on the default and says `store <ch> invalid`), never read as another kind. The
+//! images of `store_tests.rs`' `stored_images_of_format_2_decode_as_written` are byte for byte
+//! what this format is: a change that fails them would misread models boards hold.
 //!
 //! A model without effects serialises exactly as before the chain existed, so its CRC is
 //! unchanged. The model's CRC ([`model_crc`], [`crc`]) is the CRC-32/ISO-HDLC (zlib's CRC-32) of
@@ -146,8 +151,13 @@ pub enum DecodeError {
     Version(u8),
     /// Too short, too long, or a shape past model-core's limits.
     Length,
-    /// model-core refused the values (a scale ≤ 0, a non-finite coefficient).
+    /// model-core refused the values (a scale ≤ 0, a non-finite coefficient, an effect's
+    /// parameter outside its range, two effects of one kind).
     Model,
+    /// An effect stored under a code no kind of this firmware has (`model_core::spec`: codes
+    /// are never reused, so this is a kind from a newer firmware, or corrupt bytes): the model
+    /// is refused, never read as another effect.
+    UnknownEffect(u8),
 }
 
 /// Parse what [`encode_model`] or [`encode`] wrote, keeping only the polynomial.
@@ -203,7 +213,7 @@ fn decode_chain(b: &[u8]) -> Result<Chain, DecodeError> {
     let mut chain = Chain::new();
     for _ in 0..count {
         let (&code, tail) = rest.split_first().ok_or(DecodeError::Length)?;
-        let kind = EffectKind::from_code(code).ok_or(DecodeError::Model)?;
+        let kind = EffectKind::from_code(code).ok_or(DecodeError::UnknownEffect(code))?;
         let n = kind.params();
         let bytes = tail.get(..4 * n).ok_or(DecodeError::Length)?;
         let mut params = [0.0f32; MAX_EFFECT_PARAMS];

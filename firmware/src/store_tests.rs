@@ -129,7 +129,7 @@ fn serialised_chain_by_hand() {
     assert_eq!(decode(&zero[..n]), Err(DecodeError::Length));
     let mut code = b;
     code[poly + 14] = 9;
-    assert_eq!(decode(&code[..n]), Err(DecodeError::Model));
+    assert_eq!(decode(&code[..n]), Err(DecodeError::UnknownEffect(9)));
     let mut neg = b;
     neg[poly + 15..poly + 19].copy_from_slice(&(-1.0f32).to_le_bytes());
     assert_eq!(decode(&neg[..n]), Err(DecodeError::Model));
@@ -319,6 +319,19 @@ fn a_power_cut_at_any_byte_leaves_the_old_or_the_new_model() {
     assert!(checked > 30 * 80, "only {checked} cut points");
 }
 
+/// Bytes stored as they are (an item another firmware wrote).
+struct Raw<'a>(&'a [u8]);
+
+impl<'a> Value<'a> for Raw<'a> {
+    fn serialize_into(&self, buffer: &mut [u8]) -> Result<usize, SerializationError> {
+        buffer[..self.0.len()].copy_from_slice(self.0);
+        Ok(self.0.len())
+    }
+    fn deserialize_from(buffer: &'a [u8]) -> Result<(Self, usize), SerializationError> {
+        Ok((Raw(buffer), buffer.len()))
+    }
+}
+
 #[test]
 fn a_corrupt_or_foreign_store_boots_on_the_default() {
     // Garbage where the store should be (old code, a different layout): no panic, defaults,
@@ -338,16 +351,6 @@ fn a_corrupt_or_foreign_store_boots_on_the_default() {
     }
 
     // A stored item whose bytes are not a model (a future version): invalid, default.
-    struct Raw<'a>(&'a [u8]);
-    impl<'a> Value<'a> for Raw<'a> {
-        fn serialize_into(&self, buffer: &mut [u8]) -> Result<usize, SerializationError> {
-            buffer[..self.0.len()].copy_from_slice(self.0);
-            Ok(self.0.len())
-        }
-        fn deserialize_from(buffer: &'a [u8]) -> Result<(Self, usize), SerializationError> {
-            Ok((Raw(buffer), buffer.len()))
-        }
-    }
     let mut b = [0u8; MODEL_BYTES];
     let n = encode_model(&ar_model(), &mut b);
     b[0] = 2;
@@ -582,4 +585,171 @@ fn the_persist_task_writes_the_committed_model_to_flash() {
     let mut st = store(st.into_flash());
     assert_eq!(block_on(st.load(2)), Ok(Model::default_model()));
     assert_eq!(block_on(st.load(0)), Err(Loaded::Empty));
+}
+
+/// Stored images of the current format (versions 1 and 2) as boards hold them, written down byte
+/// by byte from the format table (the `f32` little-endian bytes by Python's `struct.pack('<f')`,
+/// the CRCs by `zlib.crc32`), not produced by [`encode`]. Every effect code appears once across
+/// the three chain images. A firmware that reads them otherwise would misread the models boards
+/// keep across an update: never edit these bytes to make a test pass.
+mod images {
+    /// The polynomial shared by the images after its version byte: n = m = p = 1, scaling
+    /// (250, 250, −5, 80), coefficients (1.5, −2.25, 0.125, 3), AR (0.5, −0.25).
+    #[rustfmt::skip]
+    pub const V1: [u8; 44] = [
+        0x01, 0x01, 0x01, 0x01,                                 // version 1, n, m, p
+        0x00, 0x00, 0x7a, 0x43, 0x00, 0x00, 0x7a, 0x43,         // v_offset 250, v_scale 250
+        0x00, 0x00, 0xa0, 0xc0, 0x00, 0x00, 0xa0, 0x42,         // f_offset −5, f_scale 80
+        0x00, 0x00, 0xc0, 0x3f, 0x00, 0x00, 0x10, 0xc0,         // b00 1.5, b01 −2.25
+        0x00, 0x00, 0x00, 0x3e, 0x00, 0x00, 0x40, 0x40,         // b10 0.125, b11 3
+        0x00, 0x00, 0x00, 0x3f, 0x00, 0x00, 0x80, 0xbe,         // AR 0.5, −0.25
+    ];
+    /// Codes 0, 3, 5, 8.
+    #[rustfmt::skip]
+    pub const LAGS_LEAK_HYSTERESIS: [u8; 73] = [
+        0x02, 0x01, 0x01, 0x01,                                 // version 2, n, m, p
+        0x00, 0x00, 0x7a, 0x43, 0x00, 0x00, 0x7a, 0x43,
+        0x00, 0x00, 0xa0, 0xc0, 0x00, 0x00, 0xa0, 0x42,
+        0x00, 0x00, 0xc0, 0x3f, 0x00, 0x00, 0x10, 0xc0,
+        0x00, 0x00, 0x00, 0x3e, 0x00, 0x00, 0x40, 0x40,
+        0x00, 0x00, 0x00, 0x3f, 0x00, 0x00, 0x80, 0xbe,
+        0x04,                                                   // four effects
+        0x00, 0x00, 0x00, 0x80, 0x3d,                           // delivery_lag 0.0625 s
+        0x03, 0x0a, 0xd7, 0x23, 0x3c,                           // leak 0.01
+        0x05, 0x00, 0x00, 0xc0, 0x40, 0x00, 0x00, 0x00, 0x3f,   // hysteresis 6, 0.5,
+        0x00, 0x00, 0x00, 0xbe,                                 //   −0.125
+        0x08, 0x00, 0x00, 0x80, 0x3e,                           // sensor_lag 0.25 s
+    ];
+    /// Codes 1, 2, 4, 6.
+    #[rustfmt::skip]
+    pub const DELAY_PLAY_AIR_INERTANCE: [u8; 65] = [
+        0x02, 0x01, 0x01, 0x01,
+        0x00, 0x00, 0x7a, 0x43, 0x00, 0x00, 0x7a, 0x43,
+        0x00, 0x00, 0xa0, 0xc0, 0x00, 0x00, 0xa0, 0x42,
+        0x00, 0x00, 0xc0, 0x3f, 0x00, 0x00, 0x10, 0xc0,
+        0x00, 0x00, 0x00, 0x3e, 0x00, 0x00, 0x40, 0x40,
+        0x00, 0x00, 0x00, 0x3f, 0x00, 0x00, 0x80, 0xbe,
+        0x04,
+        0x01, 0x00, 0x00, 0xc0, 0x3e,                           // transport_delay 0.375 s
+        0x02, 0x00, 0x00, 0xa0, 0x3f,                           // backlash 1.25 mm³
+        0x04, 0x00, 0x00, 0x60, 0x40,                           // air_compliance 3.5 mm³
+        0x06, 0x17, 0xb7, 0xd1, 0xb8,                           // inertance −1e-4
+    ];
+    /// Code 7.
+    #[rustfmt::skip]
+    pub const PUMP_RIPPLE: [u8; 58] = [
+        0x02, 0x01, 0x01, 0x01,
+        0x00, 0x00, 0x7a, 0x43, 0x00, 0x00, 0x7a, 0x43,
+        0x00, 0x00, 0xa0, 0xc0, 0x00, 0x00, 0xa0, 0x42,
+        0x00, 0x00, 0xc0, 0x3f, 0x00, 0x00, 0x10, 0xc0,
+        0x00, 0x00, 0x00, 0x3e, 0x00, 0x00, 0x40, 0x40,
+        0x00, 0x00, 0x00, 0x3f, 0x00, 0x00, 0x80, 0xbe,
+        0x01,
+        0x07, 0x00, 0x00, 0x00, 0x41, 0x00, 0x00, 0x00, 0x3e,   // pump_ripple 8, 0.125,
+        0x00, 0x00, 0x80, 0xbd,                                 //   −0.0625
+    ];
+}
+
+/// The images' polynomial, built from its numbers.
+fn image_poly() -> PolyModel {
+    let shape = Shape::new(1, 1, 1).unwrap();
+    let scaling = Scaling::new(250.0, 250.0, -5.0, 80.0).unwrap();
+    PolyModel::from_scaled(shape, &[1.5, -2.25, 0.125, 3.0], &[[0.5, -0.25]], scaling).unwrap()
+}
+
+#[test]
+fn stored_images_of_format_2_decode_as_written() {
+    use EffectKind::*;
+    // (image, its effects in evaluation order, its CRC-32).
+    type Case = (&'static [u8], &'static [(EffectKind, &'static [f32])], u32);
+    let cases: [Case; 4] = [
+        (&images::V1, &[], 0x4b2f_0062),
+        (
+            &images::LAGS_LEAK_HYSTERESIS,
+            &[
+                (DeliveryLag, &[0.0625]),
+                (Leak, &[0.01]),
+                (Hysteresis, &[6.0, 0.5, -0.125]),
+                (SensorLag, &[0.25]),
+            ],
+            0x178a_6921,
+        ),
+        (
+            &images::DELAY_PLAY_AIR_INERTANCE,
+            &[
+                (TransportDelay, &[0.375]),
+                (Backlash, &[1.25]),
+                (AirCompliance, &[3.5]),
+                (Inertance, &[-1.0e-4]),
+            ],
+            0xc6c8_7d9a,
+        ),
+        (
+            &images::PUMP_RIPPLE,
+            &[(PumpRipple, &[8.0, 0.125, -0.0625])],
+            0x455a_5923,
+        ),
+    ];
+    for (image, effects, crc32) in cases {
+        let m = decode(image).expect("a stored image decodes");
+        assert_eq!(m.poly, image_poly());
+        let got: Vec<(EffectKind, Vec<f32>)> = m
+            .chain
+            .effects()
+            .iter()
+            .map(|e| (e.kind(), e.params().to_vec()))
+            .collect();
+        let want: Vec<(EffectKind, Vec<f32>)> =
+            effects.iter().map(|(k, p)| (*k, p.to_vec())).collect();
+        assert_eq!(got, want);
+        // What `status` reports for it, and the bytes the encoder writes back.
+        assert_eq!(crc(&m), crc32);
+        let mut b = [0u8; MODEL_BYTES];
+        let n = encode(&m, &mut b);
+        assert_eq!(&b[..n], image);
+    }
+}
+
+#[test]
+fn an_unknown_effect_code_is_refused_not_read_as_another() {
+    // The leak's code (byte 50) replaced by each code no kind has: refused with that code, at
+    // the next free code (a kind of a newer firmware) as at 255.
+    let at = 44 + 1 + 5;
+    assert_eq!(images::LAGS_LEAK_HYSTERESIS[at], 3);
+    for code in [model_core::spec::NEXT_FREE_CODE, 42, 255] {
+        let mut b = images::LAGS_LEAK_HYSTERESIS;
+        b[at] = code;
+        assert_eq!(decode(&b), Err(DecodeError::UnknownEffect(code)));
+    }
+    // A known code of another layout in its place is refused too (hysteresis takes three
+    // parameters, which run into the next effect's bytes and leave too few behind).
+    let mut b = images::LAGS_LEAK_HYSTERESIS;
+    b[at] = 5;
+    assert!(decode(&b).is_err());
+    // On the board, as another firmware left them in flash: the images load as written, and
+    // the channel holding the unknown code boots on the default and says the store is invalid.
+    let mut st = store(flash());
+    let mut buf = [0u8; 512];
+    let mut unknown = images::DELAY_PLAY_AIR_INERTANCE;
+    unknown[45] = model_core::spec::NEXT_FREE_CODE;
+    for (ch, image) in [
+        (0u8, &images::LAGS_LEAK_HYSTERESIS[..]),
+        (1, &images::PUMP_RIPPLE[..]),
+        (2, &unknown[..]),
+    ] {
+        block_on(st.map.store_item(&mut buf, &ch, &Raw(image))).unwrap();
+    }
+    let boot = block_on(st.load_all());
+    assert_eq!(
+        boot[0],
+        (
+            decode(&images::LAGS_LEAK_HYSTERESIS).unwrap(),
+            Loaded::Stored
+        )
+    );
+    assert_eq!(
+        boot[1],
+        (decode(&images::PUMP_RIPPLE).unwrap(), Loaded::Stored)
+    );
+    assert_eq!(boot[2], (Model::default_model(), Loaded::Invalid));
 }

@@ -94,99 +94,54 @@ pub const MAX_EFFECT_PARAMS: usize = 3;
 /// Atmospheric pressure, kPa (the air pocket's isothermal reference).
 pub const P_ATM_KPA: f32 = 101.325;
 
-/// The effects the board can run.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
-pub enum EffectKind {
-    /// Rate-independent direction memory (Duhem hysteron) times a gap linear in volume.
-    Hysteresis,
-    /// First-order lag of the pressure sensor.
-    SensorLag,
-    /// Volume and flow through a critically damped (two-stage) lag.
-    DeliveryLag,
-    /// Volume and flow delayed by a fixed time.
-    TransportDelay,
-    /// Play between lead-screw nut and plunger.
-    Backlash,
-    /// Fluid inertance of the line, `L·v̈`.
-    Inertance,
-    /// Lead-screw pitch error, periodic in volume.
-    PumpRipple,
-    /// Trapped air (Boyle's law) with its pressure-scheduled lag.
-    AirCompliance,
-    /// Volume lost at a rate proportional to pressure.
-    Leak,
+/// Declares [`EffectKind`] and [`EffectKind::ALL`] from one list, so that a new kind is in the
+/// evaluation order by construction (the list's order is that order).
+macro_rules! effect_kinds {
+    ($(#[$m:meta])* pub enum EffectKind { $($(#[$vm:meta])* $v:ident,)+ }) => {
+        $(#[$m])*
+        pub enum EffectKind {
+            $($(#[$vm])* $v,)+
+        }
+
+        impl EffectKind {
+            /// Every kind, in the order they are evaluated (inputs, added terms, output
+            /// filters): the order of the enum's declaration.
+            pub const ALL: [EffectKind; [$(EffectKind::$v),+].len()] = [$(EffectKind::$v),+];
+        }
+    };
+}
+
+effect_kinds! {
+    /// The effects the board can run, in their evaluation order; each has one row in the table
+    /// of [`crate::spec`] (wire name, stored code, parameters with units and bounds, stage).
+    #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
+    pub enum EffectKind {
+        /// Volume and flow through a critically damped (two-stage) lag.
+        DeliveryLag,
+        /// Volume and flow delayed by a fixed time.
+        TransportDelay,
+        /// Play between lead-screw nut and plunger.
+        Backlash,
+        /// Volume lost at a rate proportional to pressure.
+        Leak,
+        /// Trapped air (Boyle's law) with its pressure-scheduled lag.
+        AirCompliance,
+        /// Rate-independent direction memory (Duhem hysteron) times a gap linear in volume.
+        Hysteresis,
+        /// Fluid inertance of the line, `L·v̈`.
+        Inertance,
+        /// Lead-screw pitch error, periodic in volume.
+        PumpRipple,
+        /// First-order lag of the pressure sensor.
+        SensorLag,
+    }
 }
 
 impl EffectKind {
-    /// Every kind, in the order they are evaluated (inputs, added terms, output filters).
-    pub const ALL: [EffectKind; 9] = [
-        EffectKind::DeliveryLag,
-        EffectKind::TransportDelay,
-        EffectKind::Backlash,
-        EffectKind::Leak,
-        EffectKind::AirCompliance,
-        EffectKind::Hysteresis,
-        EffectKind::Inertance,
-        EffectKind::PumpRipple,
-        EffectKind::SensorLag,
-    ];
-
-    /// The residual loop's name (`sysid::residual::EffectKind::name`), used by the protocol.
-    pub fn name(self) -> &'static str {
-        match self {
-            EffectKind::Hysteresis => "hysteresis",
-            EffectKind::SensorLag => "sensor_lag",
-            EffectKind::DeliveryLag => "delivery_lag",
-            EffectKind::TransportDelay => "transport_delay",
-            EffectKind::Backlash => "backlash",
-            EffectKind::Inertance => "inertance",
-            EffectKind::PumpRipple => "pump_ripple",
-            EffectKind::AirCompliance => "air_compliance",
-            EffectKind::Leak => "leak",
-        }
-    }
-
-    /// The kind called `name`.
-    pub fn from_name(name: &str) -> Option<Self> {
-        Self::ALL.into_iter().find(|k| k.name() == name)
-    }
-
     /// Position in [`ALL`](Self::ALL): the evaluation order. Not stored anywhere: a kind may
     /// move in the order without changing what a board has kept (that is [`code`](Self::code)).
     pub fn rank(self) -> u8 {
         Self::ALL.iter().position(|&k| k == self).unwrap_or(0) as u8
-    }
-
-    /// The kind's code in a stored or transmitted model (`firmware::store`'s serialised chain).
-    /// Fixed forever: a board keeps models across firmware updates, so a code never changes and
-    /// is never reused; a new kind takes the next free one (9). The first nine are the ranks
-    /// the evaluation order had when codes were split from it, so stores written before decode
-    /// as they were.
-    pub fn code(self) -> u8 {
-        match self {
-            EffectKind::DeliveryLag => 0,
-            EffectKind::TransportDelay => 1,
-            EffectKind::Backlash => 2,
-            EffectKind::Leak => 3,
-            EffectKind::AirCompliance => 4,
-            EffectKind::Hysteresis => 5,
-            EffectKind::Inertance => 6,
-            EffectKind::PumpRipple => 7,
-            EffectKind::SensorLag => 8,
-        }
-    }
-
-    /// The kind stored as `code` ([`code`](Self::code)); `None` for a code no kind has.
-    pub fn from_code(code: u8) -> Option<Self> {
-        Self::ALL.into_iter().find(|k| k.code() == code)
-    }
-
-    /// Number of parameters (see the module table).
-    pub fn params(self) -> usize {
-        match self {
-            EffectKind::Hysteresis | EffectKind::PumpRipple => 3,
-            _ => 1,
-        }
     }
 }
 
@@ -198,23 +153,19 @@ pub struct Effect {
 }
 
 impl Effect {
-    /// A checked effect: `BadLength` unless `params` has [`EffectKind::params`] values,
-    /// `NonFinite` for NaN/∞, `BadParameter` for a width or period ≤ 0 or a negative time
-    /// constant, delay, play, air volume or leak conductance.
+    /// A checked effect against its row of the table ([`EffectKind::spec`]): `BadLength`
+    /// unless `params` has [`EffectKind::params`] values, `NonFinite` for NaN/∞,
+    /// `BadParameter` for a value outside its range (a width or period ≤ 0; a negative time
+    /// constant, delay, play, air volume or leak conductance; a delay over [`MAX_DELAY_S`]).
     pub fn new(kind: EffectKind, params: &[f32]) -> Result<Self, ModelError> {
-        if params.len() != kind.params() {
+        let spec = kind.spec();
+        if params.len() != spec.params.len() {
             return Err(ModelError::BadLength);
         }
         if params.iter().any(|p| !p.is_finite()) {
             return Err(ModelError::NonFinite);
         }
-        let first = params[0];
-        let ok = match kind {
-            EffectKind::Hysteresis | EffectKind::PumpRipple => first > 0.0,
-            EffectKind::Inertance => true,
-            _ => first >= 0.0,
-        };
-        if !ok {
+        if !spec.params.iter().zip(params).all(|(s, &x)| s.admits(x)) {
             return Err(ModelError::BadParameter);
         }
         let mut p = [0.0; MAX_EFFECT_PARAMS];
@@ -374,7 +325,13 @@ impl Derived {
                 w = [a, w0, w1, m0 * dtf, m1 * dtf, 0.0, 0.0, 0.0].map(|x| x as f32);
             }
             EffectKind::TransportDelay => return delay_weights(dt, e.params[0]),
-            _ => {}
+            // No per-frame constants.
+            EffectKind::Hysteresis
+            | EffectKind::Backlash
+            | EffectKind::Inertance
+            | EffectKind::PumpRipple
+            | EffectKind::AirCompliance
+            | EffectKind::Leak => {}
         }
         Derived { w, n: 0 }
     }
@@ -537,8 +494,8 @@ impl Chain {
     }
 
     /// Adds an effect in its place in the evaluation order: `BadLength` when the chain is full,
-    /// `BadParameter` when it already has one of that kind or a transport delay is longer than
-    /// [`MAX_DELAY_S`].
+    /// `BadParameter` when it already has one of that kind (its parameters were checked by
+    /// [`Effect::new`], a transport delay's against [`MAX_DELAY_S`] among them).
     pub fn push(&mut self, e: Effect) -> Result<(), ModelError> {
         let len = self.len as usize;
         if self.effects().iter().any(|x| x.kind == e.kind) {
@@ -546,9 +503,6 @@ impl Chain {
         }
         if len == MAX_EFFECTS {
             return Err(ModelError::BadLength);
-        }
-        if e.kind == EffectKind::TransportDelay && e.params[0] > MAX_DELAY_S {
-            return Err(ModelError::BadParameter);
         }
         let at = self
             .effects()
@@ -639,13 +593,29 @@ impl Chain {
         };
         let (mut p, mut k, c) = self.added(&mut slot, primed, inp, model, e, (v_in, f_in, gain));
         let mut k_air = 0.0f32;
-        // The output filters, after every added term: air's lag, then the sensor's.
-        if let Some((i, pt, spring, _)) = air {
-            k_air = spring;
-            p = self.air_lag(&mut slot[i], primed, inp.dt, c_air.max(0.0) * spring, p, pt);
-        }
-        if let Some(i) = self.position(EffectKind::SensorLag) {
-            p = sensor_lag(&state.derived[i].w, &mut slot[i], primed, inp.dt, p);
+        // The output filters, after every added term, in the chain's order: air's lag, then
+        // the sensor's.
+        for (i, eff) in self.effects().iter().enumerate() {
+            match eff.kind {
+                EffectKind::AirCompliance => {
+                    if let Some((_, pt, spring, _)) = air {
+                        k_air = spring;
+                        let tau = c_air.max(0.0) * spring;
+                        p = self.air_lag(&mut slot[i], primed, inp.dt, tau, p, pt);
+                    }
+                }
+                EffectKind::SensorLag => {
+                    p = sensor_lag(&state.derived[i].w, &mut slot[i], primed, inp.dt, p);
+                }
+                // No output filter.
+                EffectKind::DeliveryLag
+                | EffectKind::TransportDelay
+                | EffectKind::Backlash
+                | EffectKind::Leak
+                | EffectKind::Hysteresis
+                | EffectKind::Inertance
+                | EffectKind::PumpRipple => {}
+            }
         }
         if k_air != 0.0 {
             // The gas spring in series with the chamber's own stiffness.
@@ -711,7 +681,13 @@ impl Chain {
                     k += dk;
                     c += dc;
                 }
-                _ => {}
+                // Input transforms and output filters: no added term.
+                EffectKind::DeliveryLag
+                | EffectKind::TransportDelay
+                | EffectKind::Backlash
+                | EffectKind::Leak
+                | EffectKind::AirCompliance
+                | EffectKind::SensorLag => {}
             }
         }
         (p, k, c)
@@ -812,7 +788,11 @@ impl Chain {
                     let pt = finite(inp.p)?.max(-0.9 * P_ATM_KPA);
                     v -= p0 * pt / (P_ATM_KPA + pt);
                 }
-                _ => {}
+                // Added terms and output filters: no input transform.
+                EffectKind::Hysteresis
+                | EffectKind::Inertance
+                | EffectKind::PumpRipple
+                | EffectKind::SensorLag => {}
             }
         }
         Ok((v, f, gain))

@@ -8,6 +8,8 @@
 //!   C·v̇ + K split, regressors, and the paper's SBA1 model.
 //! - [`chain`]: the effect chain (hysteresis, lags, delay, backlash, inertance, pump ripple, air,
 //!   leak) evaluated around the polynomial once per frame.
+//! - [`spec`]: one row per device effect (wire name, stored code, parameters, units, bounds,
+//!   stage), the table the chain, the protocol, the store and the host's export read.
 //! - [`exp`]: the physics-inspired exponential model.
 //! - [`rls`]: online identification (U-D factored recursive least squares with forgetting).
 //! - [`force`]: external force from pressure residuals.
@@ -56,6 +58,7 @@ pub mod exp;
 pub mod force;
 pub mod poly;
 pub mod rls;
+pub mod spec;
 pub mod stats;
 
 pub use error::ModelError;

@@ -13,9 +13,11 @@ mod common;
 
 use common::{c_raw, k_raw, p_raw};
 use model_core::chain::{
-    Chain, ChainInput, ChainState, Effect, EffectKind, MAX_DELAY_FRAMES, MAX_EFFECTS, P_ATM_KPA,
+    Chain, ChainInput, ChainState, Effect, EffectKind, MAX_DELAY_FRAMES, MAX_DELAY_S, MAX_EFFECTS,
+    MAX_EFFECT_PARAMS, P_ATM_KPA,
 };
 use model_core::poly::{sba1, ArHistory, PolyModel, Scaling, Shape, SBA1_RAW};
+use model_core::spec::{self, Stage};
 use model_core::ModelError;
 use proptest::prelude::*;
 
@@ -737,9 +739,13 @@ fn bad_effects_are_refused() {
     );
     let too_long = (MAX_DELAY_FRAMES - 1) as f32 * DT;
     assert_eq!(
-        c.push(Effect::new(TransportDelay, &[too_long]).unwrap()),
+        Effect::new(TransportDelay, &[too_long]),
         Err(ModelError::BadParameter)
     );
+    assert!(Effect::new(TransportDelay, &[MAX_DELAY_S]).is_ok());
+    assert!(Effect::new(Leak, &[0.0]).is_ok());
+    assert_eq!(Effect::new(Leak, &[-1e-9]), Err(ModelError::BadParameter));
+    assert_eq!(Effect::new(Leak, &[0.1, 0.2]), Err(ModelError::BadLength));
     for k in [SensorLag, Backlash, Inertance] {
         c.push(Effect::new(k, &[0.0]).unwrap()).unwrap();
     }
@@ -931,30 +937,163 @@ fn the_load_pressure_undoes_the_sensor_lag_on_the_residual() {
     assert_eq!(Chain::new().load_pressure(&mut st, 0.7, dt), 0.7);
 }
 
-/// The stored codes of the effect kinds, pinned: boards keep models across firmware updates, so
-/// a code that changed would decode every stored chain holding it as another effect. A failure
-/// here means a code moved: give the kind its old code back (`EffectKind::code`), never change
-/// this table; a new kind is added with the next free code.
+/// The stored codes of the effect kinds and their parameter layouts, pinned (the table of
+/// `model_core::spec`): boards keep models across firmware updates, so a code that changed would
+/// decode every stored chain holding it as another effect, and a parameter moved or added would
+/// read another kind's bytes. A failure here means a row of the table moved: give the kind its
+/// old code and layout back, never change this table; a new kind is added with the next free
+/// code (`spec::NEXT_FREE_CODE`), and a code is never reused.
 #[test]
 fn stored_effect_codes_never_change() {
     use EffectKind::*;
-    let pinned = [
-        (DeliveryLag, 0),
-        (TransportDelay, 1),
-        (Backlash, 2),
-        (Leak, 3),
-        (AirCompliance, 4),
-        (Hysteresis, 5),
-        (Inertance, 6),
-        (PumpRipple, 7),
-        (SensorLag, 8),
+    // (kind, wire name, code, [(parameter, unit)], stage), written down by hand.
+    type Row = (
+        EffectKind,
+        &'static str,
+        u8,
+        &'static [(&'static str, &'static str)],
+        Stage,
+    );
+    let pinned: [Row; 9] = [
+        (
+            DeliveryLag,
+            "delivery_lag",
+            0,
+            &[("time_constant", "s")],
+            Stage::Input,
+        ),
+        (
+            TransportDelay,
+            "transport_delay",
+            1,
+            &[("delay", "s")],
+            Stage::Input,
+        ),
+        (Backlash, "backlash", 2, &[("play", "mm3")], Stage::Input),
+        (
+            Leak,
+            "leak",
+            3,
+            &[("conductance", "mm3/(kPa*s)")],
+            Stage::Input,
+        ),
+        (
+            AirCompliance,
+            "air_compliance",
+            4,
+            &[("air_volume", "mm3")],
+            Stage::Input,
+        ),
+        (
+            Hysteresis,
+            "hysteresis",
+            5,
+            &[("width", "mm3"), ("gap_h0", "kPa"), ("gap_h1", "kPa")],
+            Stage::Added,
+        ),
+        (
+            Inertance,
+            "inertance",
+            6,
+            &[("inertance", "kPa*s^2/mm3")],
+            Stage::Added,
+        ),
+        (
+            PumpRipple,
+            "pump_ripple",
+            7,
+            &[
+                ("period", "mm3"),
+                ("sin_amplitude", "mm3"),
+                ("cos_amplitude", "mm3"),
+            ],
+            Stage::Added,
+        ),
+        (
+            SensorLag,
+            "sensor_lag",
+            8,
+            &[("time_constant", "s")],
+            Stage::Output,
+        ),
     ];
     assert_eq!(
         pinned.len(),
         EffectKind::ALL.len(),
         "a kind without a pinned code"
     );
-    for (kind, code) in pinned {
-        assert_eq!(kind.code(), code, "{kind:?}");
+    for (kind, name, code, params, stage) in pinned {
+        let spec = kind.spec();
+        assert_eq!((kind.code(), spec.code), (code, code), "{kind:?}");
+        assert_eq!(kind.name(), name, "{kind:?}");
+        assert_eq!(kind.stage(), stage, "{kind:?}");
+        let layout: Vec<(&str, &str)> = spec.params.iter().map(|p| (p.name, p.unit)).collect();
+        assert_eq!(layout, params, "{kind:?}");
+        assert_eq!(kind.params(), params.len());
+        assert!(kind.params() <= MAX_EFFECT_PARAMS);
+        assert!(code < spec::NEXT_FREE_CODE, "{kind:?}");
     }
+    // Every code below the next free one is taken, none twice; the rest decode as nothing.
+    for code in 0..=u8::MAX {
+        let holders = EffectKind::ALL.iter().filter(|k| k.code() == code).count();
+        assert_eq!(
+            holders,
+            usize::from(code < spec::NEXT_FREE_CODE),
+            "code {code}"
+        );
+        assert_eq!(
+            EffectKind::from_code(code).map(|k| k.code()),
+            (code < spec::NEXT_FREE_CODE).then_some(code)
+        );
+    }
+}
+
+/// The evaluation order runs the stages in order (inputs, added terms, output filters) and is
+/// not the stored code's order; each parameter's range as the table states it, at its edges.
+#[test]
+fn spec_stages_and_bounds() {
+    use EffectKind::*;
+    assert_eq!(
+        EffectKind::ALL,
+        [
+            DeliveryLag,
+            TransportDelay,
+            Backlash,
+            Leak,
+            AirCompliance,
+            Hysteresis,
+            Inertance,
+            PumpRipple,
+            SensorLag
+        ]
+    );
+    let stages: Vec<Stage> = EffectKind::ALL.iter().map(|k| k.stage()).collect();
+    assert!(stages.windows(2).all(|w| w[0] <= w[1]), "{stages:?}");
+    for (kind, at_edge, below) in [
+        (SensorLag, 0.0f32, -1e-30f32),
+        (DeliveryLag, 0.0, -1e-30),
+        (Backlash, 0.0, -1e-30),
+        (AirCompliance, 0.0, -1e-30),
+        (Leak, 0.0, -1e-30),
+        (TransportDelay, 0.0, -1e-30),
+    ] {
+        assert!(Effect::new(kind, &[at_edge]).is_ok(), "{kind:?}");
+        assert_eq!(
+            Effect::new(kind, &[below]),
+            Err(ModelError::BadParameter),
+            "{kind:?}"
+        );
+    }
+    assert_eq!(
+        Effect::new(TransportDelay, &[1.5000001]),
+        Err(ModelError::BadParameter)
+    );
+    for kind in [Hysteresis, PumpRipple] {
+        assert!(Effect::new(kind, &[1e-30, -5.0, 5.0]).is_ok(), "{kind:?}");
+        assert_eq!(
+            Effect::new(kind, &[0.0, 1.0, 1.0]),
+            Err(ModelError::BadParameter)
+        );
+    }
+    assert!(Effect::new(Inertance, &[-3.0e5]).is_ok());
 }

@@ -56,11 +56,9 @@
 
 use model_core::poly::PolyModel;
 
-use super::effects::{Effect, Inertance, Prepared};
+use super::effects::{Effect, Prepared};
 use super::select::{brent, fit_stage, sse_of, Stage};
-use super::{
-    diagnose, Config, DiagnoseError, Diagnosis, EffectKind, EffectModel, PolyBasis, Series,
-};
+use super::{diagnose, Config, DiagnoseError, Diagnosis, EffectKind, PolyBasis, Series};
 
 /// Why an augmented export failed.
 #[derive(Debug, thiserror::Error)]
@@ -198,18 +196,25 @@ pub fn median_dt(t: &[f64]) -> f64 {
     d.get(d.len() / 2).copied().unwrap_or(f64::NAN)
 }
 
-/// Whether this exporter can fold `kind` into a [`PolyModel`] (see the module docs).
+/// Whether this exporter can fold `kind` into a [`PolyModel`] (see the module docs): the effect
+/// says so ([`super::EffectModel::folds_into_polynomial`]).
 pub fn foldable(kind: EffectKind) -> bool {
-    kind == EffectKind(&Inertance) && kind.device_support().runs_on_device
+    kind.folds_into_polynomial() && kind.device_support().runs_on_device
 }
 
-/// The board's chain effect of the same name as `kind`, when `kind` runs on the board as one
-/// (not folded into the polynomial).
+/// The board's chain effect `kind` exports to, when `kind` runs on the board as one (not folded
+/// into the polynomial): the effect says which ([`super::EffectModel::device_kind`]).
 pub fn chain_kind(kind: EffectKind) -> Option<model_core::chain::EffectKind> {
     if !kind.device_support().runs_on_device {
         return None;
     }
-    model_core::chain::EffectKind::from_name(kind.name())
+    kind.device_kind()
+}
+
+/// Unit of the first parameter of the board's chain effect `kind` (a [`Carried`]'s `value`),
+/// from its row in `model_core::spec`.
+fn device_unit(kind: model_core::chain::EffectKind) -> &'static str {
+    kind.spec().params[0].unit
 }
 
 /// Runs the residual loop on `series` and exports what it ends with (see the module docs).
@@ -282,14 +287,15 @@ pub fn from_diagnosis(
     let mut carried: Vec<Carried> = device
         .host
         .inertance
-        .map(|l| Carried {
-            name: Inertance.name(),
+        .zip(carry.first())
+        .map(|(l, kind)| Carried {
+            name: kind.name(),
             how: format!(
                 "L·v̈ with v̈ = (v̇(t) − v̇(t−1))/Δt, Δt = {:.4} s: an AR(1) flow coefficient plus a change of the v̇ coefficient",
                 device.host.dt
             ),
             value: l,
-            unit: "kPa*s^2/mm3",
+            unit: kind.device_kind().map_or("1", device_unit),
         })
         .into_iter()
         .collect();
@@ -303,7 +309,7 @@ pub fn from_diagnosis(
                 vals.join(" ")
             ),
             value: f64::from(e.params()[0]),
-            unit: chain_unit(e.kind()),
+            unit: device_unit(e.kind()),
         }
     }));
     let (f32_rmse, device_samples) = device_rmse(&device.board_model(), series);
@@ -321,17 +327,6 @@ pub fn from_diagnosis(
         device,
         rmse,
     })
-}
-
-/// Unit of a chain effect's first parameter (the `value` of its [`Carried`]).
-fn chain_unit(kind: model_core::chain::EffectKind) -> &'static str {
-    use model_core::chain::EffectKind as K;
-    match kind {
-        K::SensorLag | K::DeliveryLag | K::TransportDelay => "s",
-        K::Leak => "mm3/(kPa*s)",
-        K::Inertance => "kPa*s^2/mm3",
-        _ => "mm3",
-    }
 }
 
 /// Refits the baseline polynomial of shape (n, m) plus the effects in `carry` in the device's form
@@ -362,12 +357,17 @@ pub fn device_model_with(
         return Err(ExportError::NotFoldable(e.kind.name()));
     }
     let dt = median_dt(&series.t);
-    let inertance = carry.contains(&EffectKind(&Inertance));
+    // The folded effect (at most one: its column is the flow's backward difference).
+    let folded = carry.first().copied();
+    if carry.len() > 1 {
+        return Err(ExportError::NotFoldable(carry[1].name()));
+    }
+    let folds = folded.is_some();
     // With an AR term the first sample has no predecessor: it is left out of the refit, as the
     // firmware reports no estimate before its history holds one frame.
-    let first_row = usize::from(inertance);
+    let first_row = usize::from(folds);
     let k0 = first_row;
-    let prep = device_prepared(series, n, m, k0, inertance.then_some(dt))?;
+    let prep = device_prepared(series, n, m, k0, folds.then_some(dt))?;
     let mut effects: Vec<Effect> = carry.iter().map(|&k| Effect::new(k, 0.0)).collect();
     effects.extend(chain.iter().map(|e| from_row(e, k0)));
     device_form(&prep, &mut effects, carry.len());
@@ -379,11 +379,9 @@ pub fn device_model_with(
     })?;
     let nb = prep.basis.len();
     let beta = refit.fit.beta[..nb].to_vec();
-    let l = inertance.then(|| {
+    let l = folds.then(|| {
         let col = (0..refit.design.owner.len())
-            .find(|&c| {
-                refit.design.owner[c].is_some_and(|i| effects[i].kind == EffectKind(&Inertance))
-            })
+            .find(|&c| refit.design.owner[c].is_some_and(|i| Some(effects[i].kind) == folded))
             .unwrap_or(nb);
         refit.fit.beta[col]
     });
@@ -449,12 +447,6 @@ fn device_prepared(
     Ok(Prepared::new(dev, basis))
 }
 
-/// The chain effects whose θ the export searches again in the board's form: the lags, whose
-/// causal form trails further than the loop's at the same τ. (The play and the delay are the
-/// loop's own point-sample forms; the play's error is discontinuous in its width, and a search
-/// would put the width on an edge where f32 and f64 may fall on different sides.)
-const RETUNED: [&str; 3] = ["sensor_lag", "delivery_lag", "air_compliance"];
-
 /// Puts the chain effects `effects[first..]` in the board's form and re-tunes the lags' θ there.
 ///
 /// The board has only the past: its sensor and air lags run on the cubic between frames with
@@ -462,15 +454,18 @@ const RETUNED: [&str; 3] = ["sensor_lag", "delivery_lag", "air_compliance"];
 /// next frames), the delivery lag's flow on the cubic whose slopes are the causal accelerations
 /// (`signal::acceleration_causal`, also inertance's v̈), its play operator on each frame's motion
 /// rebuilt from that frame alone ([`Effect::board_form`]), its delay on the volume's cubic Hermite
-/// ([`Effect::point_sampled`], the form the loop also fits point samples in). The loop may have kept the frame-mean form, whose τ is not the best
-/// device τ, so each lag's τ ([`RETUNED`]) is searched again in the device form around the
-/// loop's (Brent's method on ln τ over a factor e² either side, within the effect's search
-/// range), minimising the training SSE with the polynomial refitted at each trial; a trial is
-/// kept only if it lowers that SSE, so the device-form refit never fits worse than at the loop's
-/// θ. The air pocket's damping schedule is taken from the device-form refit, at the chamber's
-/// volume and the flow midway between the pump's and the chamber's ([`device_damping`]), as the
-/// board takes it from its own polynomial (`model_core::chain`), before and after
-/// the search. Every θ is finally rounded to the `f32` the board stores.
+/// ([`Effect::point_sampled`], the form the loop also fits point samples in). The loop may have
+/// kept the frame-mean form, whose τ is not the best device τ, so the τ of each effect whose
+/// [`super::EffectModel::device_retune`] says so (the lags, whose causal form trails further
+/// than the loop's at the same τ; the play and the delay are the loop's own point-sample forms,
+/// and the play's error is discontinuous in its width, so a search would put the width on an
+/// edge where f32 and f64 may fall on different sides) is searched again in the device form
+/// around the loop's (Brent's method on ln τ over a factor e² either side, within the effect's
+/// search range), minimising the training SSE with the polynomial refitted at each trial; a
+/// trial is kept only if it lowers that SSE, so the device-form refit never fits worse than at
+/// the loop's θ. A damping schedule (the air pocket's) is taken from the device-form refit as
+/// the effect says the board takes it from its own polynomial ([`device_damping`]), before and
+/// after the search. Every θ is finally rounded to the `f32` the board stores.
 fn device_form(prep: &Prepared, effects: &mut [Effect], first: usize) {
     for e in &mut effects[first..] {
         e.point_sampled = true;
@@ -479,7 +474,7 @@ fn device_form(prep: &Prepared, effects: &mut [Effect], first: usize) {
     for i in first..effects.len() {
         let kind = effects[i].kind;
         let th = effects[i].theta;
-        if RETUNED.contains(&kind.name()) && th > 0.0 {
+        if kind.device_retune() && th > 0.0 {
             set_damping(prep, effects, i);
             let (lo, hi) = match kind.search(&prep.scales) {
                 super::effects::Search::Log(lo, hi) => (lo.ln(), hi.ln()),
@@ -536,13 +531,9 @@ fn set_damping(prep: &Prepared, effects: &mut [Effect], i: usize) {
     }
 }
 
-/// The damping `c = ∂P/∂v̇` per sample of the polynomial refitted with `effects`, at the
-/// chamber's volume `v − V_a·p̃/(P_atm + p̃)` of the air pocket `effects[i]` and the flow midway
-/// between the pump's and the chamber's, `v̇ − ẋ/2`, `ẋ = x′(p̃)·Ṗ`, `x′(p̃) = V_a·P_atm/(P_atm + p̃)²`
-/// (the board's schedule of its air lag, from its own polynomial, `model_core::chain`). The board
-/// has only the past: Ṗ is the backward difference `(p̃_k − p̃_{k−1})/(t_k − t_{k−1})` (0 at
-/// k = 0), p̃ the scheduled pressure floored at −0.9 P_atm; the loop's form
-/// (`AirCompliance::refine`) takes Akima's slopes.
+/// The damping per sample of the polynomial refitted with `effects`, as the board schedules it
+/// for `effects[i]` ([`super::EffectModel::device_damping`], the air pocket's in its own file);
+/// `None` when the refit fails or the effect keeps the loop's schedule.
 fn device_damping(
     prep: &Prepared,
     effects: &[Effect],
@@ -550,24 +541,7 @@ fn device_damping(
 ) -> Option<std::sync::Arc<Vec<f64>>> {
     let stage = fit_stage(prep, effects)?;
     let beta = &stage.fit.beta[..prep.basis.len()];
-    let (se, va) = (&prep.series, effects[i].theta);
-    let p_atm = super::effects::P_ATM_KPA;
-    let pt = |k: usize| prep.p_sched[k].max(-0.9 * p_atm);
-    Some(std::sync::Arc::new(
-        (0..se.len())
-            .map(|k| {
-                let p = pt(k);
-                let v = se.v[k] - va * p / (p_atm + p);
-                let pdot = if k == 0 {
-                    0.0
-                } else {
-                    (p - pt(k - 1)) / (se.t[k] - se.t[k - 1])
-                };
-                let xdot = va * p_atm / (p_atm + p).powi(2) * pdot;
-                prep.basis.damping(beta, v, se.vdot[k] - 0.5 * xdot)
-            })
-            .collect(),
-    ))
+    effects[i].kind.device_damping(prep, beta, &effects[i])
 }
 
 /// `e` on the rows of a series from `k0` on (its per-sample data cut to match).

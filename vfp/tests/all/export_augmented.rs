@@ -236,6 +236,89 @@ fn device_form_recovers_the_known_plant() {
     assert!(device_model(&series, 3, 2, &[EffectKind(&Hysteresis)]).is_err());
 }
 
+/// A device-runnable effect written in its own file (here, outside the crate): the host form
+/// (one added column, the volume's acceleration as the board computes it) and its device form
+/// (the board's `inertance` row of `model_core::spec`). Nothing else is written for it: the
+/// export asks the effect for its device form and the table for the rest.
+struct LineMass;
+
+impl sysid::residual::EffectModel for LineMass {
+    fn name(&self) -> &'static str {
+        "line_mass"
+    }
+    fn story(&self) -> &'static str {
+        "The water in a long line has mass, so accelerating the flow takes a pressure."
+    }
+    fn columns(
+        &self,
+        _e: &sysid::residual::effects::Effect,
+        prep: &sysid::residual::effects::Prepared,
+        _v: &[f64],
+    ) -> Vec<sysid::residual::effects::Column> {
+        let se = &prep.series;
+        let acc = causal_acceleration(&se.t, &se.v, &se.vdot);
+        vec![sysid::residual::effects::Column::new(
+            acc,
+            "line mass vddot",
+        )]
+    }
+    fn device_kind(&self) -> Option<model_core::chain::EffectKind> {
+        Some(model_core::chain::EffectKind::Inertance)
+    }
+    fn device_params(
+        &self,
+        _e: &sysid::residual::effects::Effect,
+        coefs: &[f64],
+    ) -> Option<Vec<f64>> {
+        Some(vec![coefs[0]])
+    }
+    fn device_support(&self) -> sysid::residual::DeviceSupport {
+        sysid::residual::DeviceSupport::on_device("the board's chain adds L·v̈")
+    }
+}
+
+/// The end slope of the volume's cubic over the last frame (`model_core::chain`'s table:
+/// `v̈_k = (−6(v_k − v_{k−1}) + 2Δt v̇_{k−1} + 4Δt v̇_k)/Δt²`, 0 on the first frame), written
+/// here from the formula.
+fn causal_acceleration(t: &[f64], v: &[f64], f: &[f64]) -> Vec<f64> {
+    (0..t.len())
+        .map(|k| {
+            if k == 0 {
+                return 0.0;
+            }
+            let dt = t[k] - t[k - 1];
+            (-6.0 * (v[k] - v[k - 1]) + 2.0 * dt * f[k - 1] + 4.0 * dt * f[k]) / (dt * dt)
+        })
+        .collect()
+}
+
+#[test]
+fn a_device_effect_in_its_own_file_reaches_the_board_unchanged() {
+    // SBA1 plus L·v̈ (v̈ as the board computes it) plus noise of σ.
+    const L: f64 = 1.5e-3;
+    let mut s = synthetic(0.0, 0.0, 23);
+    let acc = causal_acceleration(&s.t, &s.v, &s.vdot);
+    for (p, a) in s.p.iter_mut().zip(&acc) {
+        *p += L * a;
+    }
+    let series = series_of(&s);
+    let e = sysid::residual::effects::Effect::new(EffectKind(&LineMass), 0.0);
+    let dm = sysid::residual::export::device_model_with(&series, 3, 2, &[], &[e]).expect("fit");
+    // The board's chain carries it as the spec row says: one `inertance` with L.
+    let fx = dm.chain.effects();
+    assert_eq!(fx.len(), 1);
+    assert_eq!(fx[0].kind(), model_core::chain::EffectKind::Inertance);
+    let l = f64::from(fx[0].params()[0]);
+    assert!((l - L).abs() < 0.05 * L, "L {l:.4e}, planted {L:.1e}");
+    // And the firmware's own estimator, running that chain, predicts to the noise.
+    let (rmse, n) = sysid::residual::export::device_rmse(&dm.board_model(), &series);
+    eprintln!(
+        "line_mass on the board: L {l:.4e} (planted {L:.1e}), RMSE {rmse:.4} kPa over {n} frames"
+    );
+    assert!(n > 500, "{n} held-out frames");
+    assert!(rmse < 1.15 * SIGMA, "board RMSE {rmse:.4} kPa, σ {SIGMA}");
+}
+
 /// One short host-sim run of the paper's protocol on SBA1 with `effects`, as a parsed log.
 fn host_sim_log(effects: Effects, seed: u64) -> sysid::log::Log {
     let protocol = Protocol {

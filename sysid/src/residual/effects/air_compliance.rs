@@ -208,6 +208,41 @@ impl EffectModel for AirCompliance {
         ]
     }
 
+    fn device_kind(&self) -> Option<model_core::chain::EffectKind> {
+        Some(model_core::chain::EffectKind::AirCompliance)
+    }
+
+    fn device_retune(&self) -> bool {
+        // The board's causal lag trails further than the loop's at the same time constant.
+        true
+    }
+
+    /// The damping `c = ∂P/∂v̇` per sample of the polynomial `beta`, at the chamber's volume
+    /// `v − V_a·p̃/(P_atm + p̃)` and the flow midway between the pump's and the chamber's,
+    /// `v̇ − ẋ/2`, `ẋ = x′(p̃)·Ṗ`, `x′(p̃) = V_a·P_atm/(P_atm + p̃)²` (the board's schedule of its
+    /// air lag, from its own polynomial, `model_core::chain`). The board has only the past: Ṗ is
+    /// the backward difference `(p̃_k − p̃_{k−1})/(t_k − t_{k−1})` (0 at k = 0), p̃ the scheduled
+    /// pressure floored at −0.9 P_atm; the loop's form ([`Self::refine`]) takes Akima's slopes.
+    fn device_damping(&self, prep: &Prepared, beta: &[f64], e: &Effect) -> Option<Arc<Vec<f64>>> {
+        let (se, va) = (&prep.series, e.theta);
+        let pt = |k: usize| prep.p_sched[k].max(-0.9 * P_ATM_KPA);
+        Some(Arc::new(
+            (0..se.len())
+                .map(|k| {
+                    let p = pt(k);
+                    let v = se.v[k] - va * p / (P_ATM_KPA + p);
+                    let pdot = if k == 0 {
+                        0.0
+                    } else {
+                        (p - pt(k - 1)) / (se.t[k] - se.t[k - 1])
+                    };
+                    let xdot = va * P_ATM_KPA / (P_ATM_KPA + p).powi(2) * pdot;
+                    prep.basis.damping(beta, v, se.vdot[k] - 0.5 * xdot)
+                })
+                .collect(),
+        ))
+    }
+
     fn device_params(&self, e: &Effect, coefs: &[f64]) -> Option<Vec<f64>> {
         let _ = coefs;
         Some(vec![e.theta])

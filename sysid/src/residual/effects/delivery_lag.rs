@@ -87,6 +87,15 @@ impl EffectModel for DeliveryLag {
         ]
     }
 
+    fn device_kind(&self) -> Option<model_core::chain::EffectKind> {
+        Some(model_core::chain::EffectKind::DeliveryLag)
+    }
+
+    fn device_retune(&self) -> bool {
+        // The board's causal lag trails further than the loop's at the same time constant.
+        true
+    }
+
     fn device_params(&self, e: &Effect, coefs: &[f64]) -> Option<Vec<f64>> {
         let _ = coefs;
         Some(vec![e.theta])

@@ -77,6 +77,10 @@ impl EffectModel for Hysteresis {
         ]
     }
 
+    fn device_kind(&self) -> Option<model_core::chain::EffectKind> {
+        Some(model_core::chain::EffectKind::Hysteresis)
+    }
+
     fn device_params(&self, e: &Effect, coefs: &[f64]) -> Option<Vec<f64>> {
         // Width, then the columns' coefficients H₀ (on h) and H₁ (on h·x), x in the model's scaling.
         let [h0, h1] = coefs[..] else { return None };

@@ -28,6 +28,14 @@ impl EffectModel for Inertance {
         vec![Column::new(acc, "inertance vddot")]
     }
 
+    fn device_kind(&self) -> Option<model_core::chain::EffectKind> {
+        Some(model_core::chain::EffectKind::Inertance)
+    }
+
+    fn folds_into_polynomial(&self) -> bool {
+        true
+    }
+
     fn device_params(&self, _e: &Effect, coefs: &[f64]) -> Option<Vec<f64>> {
         Some(vec![*coefs.first()?])
     }

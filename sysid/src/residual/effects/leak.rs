@@ -83,6 +83,10 @@ impl EffectModel for Leak {
         ]
     }
 
+    fn device_kind(&self) -> Option<model_core::chain::EffectKind> {
+        Some(model_core::chain::EffectKind::Leak)
+    }
+
     fn device_params(&self, e: &Effect, coefs: &[f64]) -> Option<Vec<f64>> {
         let _ = coefs;
         Some(vec![e.theta])

@@ -440,12 +440,45 @@ pub trait EffectModel: Send + Sync {
             .collect()
     }
 
-    /// The effect's parameters in the board's effect chain (`model_core::chain`: the effect of the
-    /// same name, its parameters in the order and units of the table there) from θ and the
-    /// coefficients of its columns, when the board runs it as a chain effect (default: it does
-    /// not). The one place each effect is mapped to its device form (`vfp export --augmented`).
+    /// The board's chain effect this effect exports to (its row in `model_core::spec` gives the
+    /// wire name, the stored code, the parameters' order, units and bounds), when the board runs
+    /// it as a chain effect (default: it does not). With [`Self::device_params`] the one place
+    /// each effect is mapped to its device form (`vfp export --augmented`).
+    fn device_kind(&self) -> Option<model_core::chain::EffectKind> {
+        None
+    }
+
+    /// The effect's parameters in the board's chain effect [`Self::device_kind`] (in the order of
+    /// its row in `model_core::spec`) from θ and the coefficients of its columns (default: none).
     fn device_params(&self, _e: &Effect, _coefs: &[f64]) -> Option<Vec<f64>> {
         None
+    }
+
+    /// Whether the export searches θ again in the board's form (`residual::export`'s
+    /// `device_form`): an effect whose causal board form trails further than the loop's at the
+    /// same θ, a lag's (default: no; the loop's θ is kept, rounded to `f32`).
+    fn device_retune(&self) -> bool {
+        false
+    }
+
+    /// For an effect whose trial carries the model's damping ([`Self::needs`]): that damping as
+    /// the board schedules it from the polynomial it runs, per sample, given the polynomial's
+    /// Chebyshev coefficients `beta` (in `prep.basis`) fitted with `e` (default: none; the
+    /// loop's schedule is kept).
+    fn device_damping(
+        &self,
+        _prep: &Prepared,
+        _beta: &[f64],
+        _e: &Effect,
+    ) -> Option<std::sync::Arc<Vec<f64>>> {
+        None
+    }
+
+    /// Whether `residual::export::device_model` can fold the effect into the polynomial itself,
+    /// its one column `θ·v̈` taken as the backward difference of the flow at the frame interval:
+    /// an AR(1) flow coefficient plus a change of the v̇ coefficient (default: no).
+    fn folds_into_polynomial(&self) -> bool {
+        false
     }
 
     /// Whether `model_core::poly::PolyModel` (polynomial plus linear AR terms on v(t−k), v̇(t−k))
@@ -514,5 +547,45 @@ mod tests {
         assert!(REGISTRY
             .iter()
             .all(|k| EffectKind::named(k.name()) == Some(*k)));
+    }
+
+    /// Each effect's device form agrees with its row of `model_core::spec`: the same wire name,
+    /// runnable on the board, and as many parameters as the row has (θ, when searched, then one
+    /// per column), which the board's checks accept.
+    #[test]
+    fn device_forms_match_the_spec_table() {
+        let mut exported = Vec::new();
+        for k in REGISTRY {
+            let Some(dk) = k.device_kind() else {
+                continue;
+            };
+            let spec = dk.spec();
+            assert_eq!(k.name(), spec.name);
+            assert!(k.device_support().runs_on_device, "{}", k.name());
+            let coefs = vec![0.25; spec.params.len() - usize::from(k.has_nonlinear())];
+            let p = k.device_params(&Effect::new(*k, 1.0), &coefs).unwrap();
+            assert_eq!(p.len(), spec.params.len(), "{}", k.name());
+            let p32: Vec<f32> = p.iter().map(|&x| x as f32).collect();
+            model_core::chain::Effect::new(dk, &p32).unwrap();
+            exported.push(dk);
+        }
+        // Every board kind but pump ripple (whose loop form the board cannot run) has one.
+        use model_core::chain::EffectKind as K;
+        exported.sort();
+        let mut expect: Vec<K> = K::ALL.into_iter().filter(|&k| k != K::PumpRipple).collect();
+        expect.sort();
+        assert_eq!(exported, expect);
+        let retuned: Vec<&str> = REGISTRY
+            .iter()
+            .filter(|k| k.device_retune())
+            .map(|k| k.name())
+            .collect();
+        assert_eq!(retuned, ["air_compliance", "sensor_lag", "delivery_lag"]);
+        let folded: Vec<&str> = REGISTRY
+            .iter()
+            .filter(|k| k.folds_into_polynomial())
+            .map(|k| k.name())
+            .collect();
+        assert_eq!(folded, ["inertance"]);
     }
 }

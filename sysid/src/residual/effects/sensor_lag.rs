@@ -101,6 +101,15 @@ impl EffectModel for SensorLag {
         vec![param("time_constant", f.effect.theta, f.theta_se, "s")]
     }
 
+    fn device_kind(&self) -> Option<model_core::chain::EffectKind> {
+        Some(model_core::chain::EffectKind::SensorLag)
+    }
+
+    fn device_retune(&self) -> bool {
+        // The board's causal lag trails further than the loop's at the same time constant.
+        true
+    }
+
     fn device_params(&self, e: &Effect, coefs: &[f64]) -> Option<Vec<f64>> {
         let _ = coefs;
         Some(vec![e.theta])
