@@ -344,11 +344,13 @@ impl<'a> Trials<'a> {
         }
         let effects = with(&self.cur.effects, self.make(theta));
         // Behind the model's output filters, a candidate that only adds columns has only its own
-        // columns filtered at each trial, the model's filtered once per search.
+        // columns filtered at each trial, the model's filtered once per search. Whether it moves
+        // the inputs is the effect's own answer: a pump ripple is searched by its columns alone
+        // (its input transform is applied only once they have been fitted, in its refinement).
         let base = self.base.get_or_init(|| {
             let k = self.kind;
             let adds_only = k.filter_stage().is_none()
-                && k.input_stage().is_none()
+                && !k.transforms_inputs(&self.make(theta))
                 && !k.uses_measured_pressure();
             adds_only
                 .then(|| super::effects::design::filtered_base(self.prep, &self.cur.effects))

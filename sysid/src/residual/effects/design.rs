@@ -164,6 +164,9 @@ pub struct Prepared {
     sub_motion: std::sync::Arc<std::sync::OnceLock<SubMotion>>,
     /// The last inputs an effect's transform made from the logged motion ([`Prepared::memo_inputs`]).
     input_memo: std::sync::Arc<std::sync::Mutex<Vec<InputMemo>>>,
+    /// The last pump ripple columns and inputs made ([`Prepared::memo_ripple`]); a clone starts
+    /// with none.
+    ripple_memo: RippleMemo,
     /// The speeds the log dwells at ([`cruise_speeds`]), where a pump ripple's count lag is fitted.
     pub cruise_speeds: std::sync::Arc<Vec<f64>>,
     /// Training row indices.
@@ -179,6 +182,40 @@ type InputMemo = ((&'static str, u64), std::sync::Arc<(Vec<f64>, Vec<f64>)>);
 
 /// Inputs [`Prepared::memo_inputs`] keeps (each two numbers per sample).
 const INPUT_MEMOS: usize = 2;
+
+/// One pair of series [`Prepared::memo_ripple`] made: its key (the parameters' bits), the
+/// per-sample data it was made from (held, so that the identity of each stays unique while the
+/// entry lives), the inputs it was made from (compared bit for bit), and the pair.
+struct RippleEntry {
+    key: Vec<u64>,
+    pins: Vec<std::sync::Arc<Vec<f64>>>,
+    from: Option<(Vec<f64>, Vec<f64>)>,
+    made: std::sync::Arc<(Vec<f64>, Vec<f64>)>,
+}
+
+/// Pairs [`Prepared::memo_ripple`] keeps (each two numbers per sample, four with the inputs).
+const RIPPLE_MEMOS: usize = 3;
+
+/// The memo of [`Prepared::memo_ripple`], its own per [`Prepared`] (a clone starts empty).
+#[derive(Default)]
+struct RippleMemo(std::sync::Mutex<Vec<RippleEntry>>);
+
+impl Clone for RippleMemo {
+    fn clone(&self) -> Self {
+        Self::default()
+    }
+}
+
+impl std::fmt::Debug for RippleMemo {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("RippleMemo")
+    }
+}
+
+/// Whether two series are the same bit for bit.
+fn same_bits(a: &[f64], b: &[f64]) -> bool {
+    a.len() == b.len() && a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits())
+}
 
 impl Prepared {
     /// The logged motion rebuilt at the instants each frame averages, with the fewest corners of
@@ -220,6 +257,57 @@ impl Prepared {
         made
     }
 
+    /// A pump ripple's pair of series (its two columns, or the volume and flow its transform
+    /// makes) for parameters `key` (their bits), per-sample data `pins` (by identity) and inputs
+    /// `from` (by value): `make()` the first time, after that (while it is among the last
+    /// [`RIPPLE_MEMOS`]) the same numbers again. Each makes a sine and a cosine at every instant
+    /// inside every frame; once a ripple is in the model, every design built for the other
+    /// effects' searches and re-tunes makes them again with the ripple unchanged.
+    pub fn memo_ripple(
+        &self,
+        key: Vec<u64>,
+        pins: &[&std::sync::Arc<Vec<f64>>],
+        from: Option<(&[f64], &[f64])>,
+        make: impl FnOnce() -> (Vec<f64>, Vec<f64>),
+    ) -> std::sync::Arc<(Vec<f64>, Vec<f64>)> {
+        let lock = || {
+            self.ripple_memo
+                .0
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner)
+        };
+        let matches = |e: &RippleEntry| {
+            e.key == key
+                && e.pins.len() == pins.len()
+                && e.pins
+                    .iter()
+                    .zip(pins)
+                    .all(|(a, b)| std::sync::Arc::ptr_eq(a, b))
+                && match (&e.from, from) {
+                    (None, None) => true,
+                    (Some((v, f)), Some((v2, f2))) => same_bits(v, v2) && same_bits(f, f2),
+                    _ => false,
+                }
+        };
+        if let Some(e) = lock().iter().find(|e| matches(e)) {
+            return e.made.clone();
+        }
+        let made = std::sync::Arc::new(make());
+        let mut memo = lock();
+        memo.retain(|e| !matches(e));
+        memo.insert(
+            0,
+            RippleEntry {
+                key,
+                pins: pins.iter().map(|&p| p.clone()).collect(),
+                from: from.map(|(v, f)| (v.to_vec(), f.to_vec())),
+                made: made.clone(),
+            },
+        );
+        memo.truncate(RIPPLE_MEMOS);
+        made
+    }
+
     /// Baseline columns on the raw inputs. Computed afresh each time (products of Chebyshev
     /// values, as cheap as copying them): a cached copy would hold another (n+1)(m+1) numbers per
     /// sample for the whole run.
@@ -254,6 +342,7 @@ impl Prepared {
             subframe,
             sub_motion: Default::default(),
             input_memo: Default::default(),
+            ripple_memo: Default::default(),
             cruise_speeds: std::sync::Arc::new(cruise_speeds(&series.vdot)),
             basis,
             p_sched,

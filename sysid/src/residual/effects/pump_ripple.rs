@@ -73,21 +73,33 @@ impl EffectModel for PumpRipple {
     }
 
     fn transform_inputs(&self, e: &Effect, prep: &Prepared, inputs: &mut Inputs) {
-        let fresh;
-        let sub = if inputs.raw {
-            &prep.subframe
-        } else {
-            fresh = signal::frame_instants(&prep.series.t, &inputs.v, &inputs.f);
-            &fresh
-        };
-        (inputs.v, inputs.f) = pump_ripple_inputs(sub, e.theta, e.ripple_offset, &e.count_lag);
+        let mut key = memo_key(e);
+        key.push(u64::from(inputs.raw));
+        let made = prep.memo_ripple(key, &[], Some((&inputs.v, &inputs.f)), || {
+            let fresh;
+            let sub = if inputs.raw {
+                &prep.subframe
+            } else {
+                fresh = signal::frame_instants(&prep.series.t, &inputs.v, &inputs.f);
+                &fresh
+            };
+            pump_ripple_inputs(sub, e.theta, e.ripple_offset, &e.count_lag)
+        });
+        (inputs.v, inputs.f) = (made.0.clone(), made.1.clone());
     }
 
     fn columns(&self, e: &Effect, prep: &Prepared, _v: &[f64]) -> Vec<Column> {
         let zero = Arc::new(vec![0.0; prep.series.len()]);
         let k = e.stiffness.as_ref().unwrap_or(&zero);
         let c = e.damping.as_ref().unwrap_or(&zero);
-        let (a, b) = pump_ripple_columns(&prep.subframe, k, c, e.theta, &e.count_lag);
+        let make = || pump_ripple_columns(&prep.subframe, k, c, e.theta, &e.count_lag);
+        let (a, b) = match (&e.stiffness, &e.damping) {
+            (Some(k), Some(c)) => {
+                let made = prep.memo_ripple(memo_key(e), &[k, c], None, make);
+                (made.0.clone(), made.1.clone())
+            }
+            _ => make(),
+        };
         vec![
             Column::new(a, "pump ripple in phase"),
             Column::new(b, "pump ripple quadrature"),
@@ -115,6 +127,21 @@ impl EffectModel for PumpRipple {
     fn device_support(&self) -> DeviceSupport {
         DeviceSupport::host_only("the loop's form needs the exact volume transform and a count lag per cruise speed; the board's chain has only the first-order ripple at the step count, which on host-sim's ripple preset fitted 0.61 kPa held out against the loop's 0.17 (baseline 0.25)")
     }
+}
+
+/// What a pump ripple's columns and input transform are made from, besides the data: its period,
+/// the volume error already applied, and its count lag (speeds and lags), as bits
+/// ([`Prepared::memo_ripple`]).
+fn memo_key(e: &Effect) -> Vec<u64> {
+    let lag = &e.count_lag;
+    let mut key = vec![
+        e.theta.to_bits(),
+        e.ripple_offset.0.to_bits(),
+        e.ripple_offset.1.to_bits(),
+        lag.speeds.len() as u64,
+    ];
+    key.extend(lag.speeds.iter().chain(&lag.lags).map(|x| x.to_bits()));
+    key
 }
 
 /// The volume error `(a, b)` (mm³) of the pump ripple at `idx` of `stage`: what is applied
