@@ -29,6 +29,7 @@ mod basis;
 pub mod effects;
 pub mod export;
 pub(crate) mod inframe;
+pub mod interval;
 mod lsq;
 pub mod select;
 pub(crate) mod signal;
@@ -1115,6 +1116,11 @@ fn verdict(r: &Ranked) -> Rejected {
 
 /// Each kept effect's report, its parameters from the final model.
 fn effect_reports(prep: &effects::Prepared, sel: &Selection) -> Vec<EffectReport> {
+    let jc = if sel.kept.is_empty() {
+        None
+    } else {
+        interval::joint_cov(prep, &sel.model)
+    };
     sel.kept
         .iter()
         .enumerate()
@@ -1122,7 +1128,7 @@ fn effect_reports(prep: &effects::Prepared, sel: &Selection) -> Vec<EffectReport
             kind: step.kind,
             name: neutral(prep, sel, i).map_or(step.kind.name(), |n| n.0),
             story: neutral(prep, sel, i).map_or(step.kind.story(), |n| n.1),
-            params: select::effect_params(prep, &sel.model, i),
+            params: select::effect_params_ci(prep, &sel.model, i, jc.as_ref()),
             rmse_heldout_before: step.heldout_before,
             rmse_heldout_after: step.heldout_after,
             rmse_train_before: step.train_before,

@@ -440,6 +440,19 @@ pub trait EffectModel: Send + Sync {
             .collect()
     }
 
+    /// Whether the parameter called `name` cannot be negative, so that its 95 % interval is
+    /// clipped at 0 ([`crate::residual::interval`]). A positive searched θ and whatever is derived
+    /// from it alone are known to be so without this (default: no other).
+    fn nonnegative(&self, _name: &str) -> bool {
+        false
+    }
+
+    /// The parameter whose value 0 means the effect is absent (a gap, a time constant, a
+    /// volume, an amplitude), if any (default: none).
+    fn presence(&self) -> Option<&'static str> {
+        None
+    }
+
     /// The effect's parameters in the board's effect chain (`model_core::chain`: the effect of the
     /// same name, its parameters in the order and units of the table there) from θ and the
     /// coefficients of its columns, when the board runs it as a chain effect (default: it does
