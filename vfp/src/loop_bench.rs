@@ -36,6 +36,9 @@ pub struct ParamCompare {
     pub truth: f64,
     /// The loop's value (absent when the effect was not named).
     pub named: Option<f64>,
+    /// The loop's 95 % interval (absent when not named or without an interval).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub ci95: Option<[f64; 2]>,
 }
 
 impl ParamCompare {
@@ -77,6 +80,9 @@ pub struct NamedResult {
     pub name: String,
     /// Parameters (name, value).
     pub params: Vec<(String, f64)>,
+    /// Whether the 95 % interval of the effect's presence parameter (its gap, time constant,
+    /// volume, amplitude: `EffectModel::presence`) reaches the value that means "absent", 0.
+    pub reaches_absent: bool,
 }
 
 /// One rig's outcome.
@@ -155,6 +161,45 @@ pub struct ParamErrors {
     pub median_abs_relative: f64,
     /// Largest |relative error|.
     pub worst_abs_relative: f64,
+}
+
+/// Coverage of the 95 % intervals of one parameter (or of all: `param` = `all`) over the named
+/// effects whose kind was planted.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct Coverage {
+    /// Planted kind (`all` for the total).
+    pub kind: String,
+    /// The loop's parameter.
+    pub param: String,
+    /// Named effects with an interval on it.
+    pub n: usize,
+    /// Of them, intervals containing the planted value.
+    pub covered: usize,
+}
+
+impl Coverage {
+    /// covered / n.
+    pub fn share(&self) -> f64 {
+        ratio(self.covered, self.n)
+    }
+}
+
+/// Precision and recall had every named effect whose presence interval reaches 0 not been named
+/// (`NamedResult::reaches_absent`; issue 34's rule, measured here, not applied by the loop).
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct AbsentRule {
+    /// Named effects the rule would drop, and of them right.
+    pub dropped: (usize, usize),
+    /// Precision with the rule.
+    pub precision: f64,
+    /// Named, named right with the rule.
+    pub named: (usize, usize),
+    /// Recall over planted effects with oracle gain ≥ 5 % with the rule: (planted, found).
+    pub gain_5pct: (usize, usize),
+    /// Recall over all planted effects with the rule: (planted, found).
+    pub all: (usize, usize),
+    /// Clean rigs with a named effect left.
+    pub false_alarm_rigs: usize,
 }
 
 /// Planted kind × named kind.
@@ -243,8 +288,46 @@ pub struct Summary {
     pub confusion: Confusion,
     /// Parameter errors.
     pub params: Vec<ParamErrors>,
+    /// Coverage of the 95 % intervals by planted kind and parameter, then over all (last).
+    pub coverage: Vec<Coverage>,
+    /// The rule "an effect whose interval reaches its absent value is not named", as it would
+    /// have scored.
+    pub absent_rule: AbsentRule,
     /// CPU.
     pub cpu: CpuSummary,
+}
+
+/// [`AbsentRule`] over the scored rigs.
+fn absent_rule(ok: &[&RigResult]) -> AbsentRule {
+    let mut r = AbsentRule::default();
+    let (mut named, mut right) = (0, 0);
+    for rig in ok {
+        let kept: Vec<&NamedResult> = rig.named.iter().filter(|n| !n.reaches_absent).collect();
+        for n in rig.named.iter().filter(|n| n.reaches_absent) {
+            r.dropped.0 += 1;
+            r.dropped.1 += usize::from(rig.planted.iter().any(|p| p.expects == n.name));
+        }
+        named += kept.len();
+        right += kept
+            .iter()
+            .filter(|n| rig.planted.iter().any(|p| p.expects == n.name))
+            .count();
+        if rig.planted.is_empty() && !kept.is_empty() {
+            r.false_alarm_rigs += 1;
+        }
+        for p in &rig.planted {
+            let found = p.found && kept.iter().any(|n| n.name == p.expects);
+            r.all.0 += 1;
+            r.all.1 += usize::from(found);
+            if p.oracle_gain >= 0.05 {
+                r.gain_5pct.0 += 1;
+                r.gain_5pct.1 += usize::from(found);
+            }
+        }
+    }
+    r.named = (named, right);
+    r.precision = ratio(right, named);
+    r
 }
 
 fn ratio(a: usize, b: usize) -> f64 {
@@ -386,6 +469,33 @@ pub fn summarise(results: &[RigResult]) -> Summary {
         })
         .collect();
 
+    let mut cov: BTreeMap<(String, String), (usize, usize)> = BTreeMap::new();
+    for p in ok.iter().flat_map(|r| &r.planted) {
+        for c in &p.params {
+            if let (Some(_), Some([lo, hi])) = (c.named, c.ci95) {
+                let e = cov.entry((p.kind.clone(), c.name.clone())).or_default();
+                e.0 += 1;
+                e.1 += usize::from(lo <= c.truth && c.truth <= hi);
+            }
+        }
+    }
+    let mut coverage: Vec<Coverage> = cov
+        .into_iter()
+        .map(|((kind, param), (n, covered))| Coverage {
+            kind,
+            param,
+            n,
+            covered,
+        })
+        .collect();
+    coverage.push(Coverage {
+        kind: "all".into(),
+        param: "all".into(),
+        n: coverage.iter().map(|c| c.n).sum(),
+        covered: coverage.iter().map(|c| c.covered).sum(),
+    });
+    let absent_rule = absent_rule(&ok);
+
     let mut cpu: Vec<f64> = ok.iter().filter_map(|r| r.cpu_s).collect();
     let mut stages: BTreeMap<String, f64> = BTreeMap::new();
     for r in &ok {
@@ -420,6 +530,8 @@ pub fn summarise(results: &[RigResult]) -> Summary {
         oracle_within_1_10: ratio(oracle_within, ok.len()),
         confusion: Confusion { rows, cols, counts },
         params,
+        coverage,
+        absent_rule,
         cpu: CpuSummary {
             rigs: cpu.len(),
             worst_s: cpu.iter().copied().fold(f64::NAN, f64::max),
@@ -637,6 +749,40 @@ pub fn markdown(command: &str, s: &Summary, results: &[RigResult]) -> String {
 
     let _ = writeln!(
         o,
+        "\n## Interval coverage (named effects whose kind was planted: the planted value inside the 95 % interval)\n\n| planted | parameter | n | covered | coverage |\n|---|---|---|---|---|"
+    );
+    for c in &s.coverage {
+        let _ = writeln!(
+            o,
+            "| {} | {} | {} | {} | {} ± {} |",
+            c.kind,
+            c.param,
+            c.n,
+            c.covered,
+            pct(c.share()),
+            pct(binomial_se(c.covered, c.n))
+        );
+    }
+    let a = &s.absent_rule;
+    let _ = writeln!(
+        o,
+        "\nHad no effect been named whose presence interval (gap, time constant, volume, amplitude) reaches 0: {} named effects dropped ({} of them right); precision {:.3} ({} / {}), recall at oracle gain ≥ 5 % {:.3} ({} / {}), recall {:.3} ({} / {}), {} clean rigs with a false alarm.",
+        a.dropped.0,
+        a.dropped.1,
+        a.precision,
+        a.named.1,
+        a.named.0,
+        ratio(a.gain_5pct.1, a.gain_5pct.0),
+        a.gain_5pct.1,
+        a.gain_5pct.0,
+        ratio(a.all.1, a.all.0),
+        a.all.1,
+        a.all.0,
+        a.false_alarm_rigs
+    );
+
+    let _ = writeln!(
+        o,
         "\n## Where the loop's time went (wall-clock s summed over the rigs)\n\n| stage | s |\n|---|---|"
     );
     for (k, v) in &s.cpu.stages_wall_s {
@@ -711,6 +857,7 @@ mod tests {
             .map(|n| NamedResult {
                 name: (*n).into(),
                 params: Vec::new(),
+                reaches_absent: false,
             })
             .collect()
     }
@@ -864,17 +1011,20 @@ mod tests {
             name: "air_volume_at_atmospheric_pressure".into(),
             truth: 20.0,
             named: Some(22.0),
+            ci95: Some([19.0, 25.0]),
         }];
         r[3].planted[0].params = vec![ParamCompare {
             name: "width".into(),
             truth: 20.0,
             named: Some(15.0),
+            ci95: Some([14.0, 16.0]),
         }];
         // Not named: no error to count.
         r[4].planted[0].params = vec![ParamCompare {
             name: "play".into(),
             truth: 0.4,
             named: None,
+            ci95: None,
         }];
         let s = summarise(&r);
         assert_eq!(s.params.len(), 2);
@@ -884,6 +1034,44 @@ mod tests {
         let w = &s.params[1];
         assert!((w.median_relative + 0.25).abs() < 1e-12);
         assert!((w.worst_abs_relative - 0.25).abs() < 1e-12);
+        // Coverage: the air's interval holds its truth, the width's does not; the total last.
+        let cov: Vec<(&str, usize, usize)> = s
+            .coverage
+            .iter()
+            .map(|c| (c.param.as_str(), c.n, c.covered))
+            .collect();
+        assert_eq!(
+            cov,
+            vec![
+                ("air_volume_at_atmospheric_pressure", 1, 1),
+                ("width", 1, 0),
+                ("all", 2, 1)
+            ]
+        );
+    }
+
+    /// The rule "not named when the presence interval reaches 0", scored by hand: dropping a
+    /// right name lowers recall, dropping a wrong one raises precision.
+    #[test]
+    fn the_absent_rule_by_hand() {
+        let mut r = rigs();
+        let before = summarise(&r);
+        assert_eq!(before.absent_rule.dropped, (0, 0));
+        assert_eq!(before.absent_rule.named, (before.named, before.named_right));
+        // Rig 0 named air_compliance rightly: the rule drops it.
+        let i = r[0]
+            .named
+            .iter()
+            .position(|n| n.name == "air_compliance")
+            .unwrap();
+        r[0].named[i].reaches_absent = true;
+        let s = summarise(&r);
+        assert_eq!(s.absent_rule.dropped, (1, 1));
+        assert_eq!(
+            s.absent_rule.named,
+            (before.named - 1, before.named_right - 1)
+        );
+        assert_eq!(s.absent_rule.all.1, before.found - 1);
     }
 
     #[test]

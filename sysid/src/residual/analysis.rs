@@ -463,7 +463,8 @@ fn spectrum(resid: &[f64], mask: &[bool], dt: f64) -> Spectrum {
 /// sentence, and for programs the numbers it names.
 #[derive(Clone, Debug, Default, Serialize)]
 pub struct Signature {
-    /// `autocorrelation`, `follows_input`, `periodic`, `direction` or `unphysical_fit`.
+    /// `autocorrelation`, `follows_input`, `periodic`, `direction`, `unphysical_fit` or
+    /// `indistinct_from_absent` (an effect the test kept whose interval reaches its absent value).
     pub kind: &'static str,
     /// One plain sentence.
     pub description: String,

@@ -29,6 +29,7 @@ mod basis;
 pub mod effects;
 pub mod export;
 pub(crate) mod inframe;
+pub mod interval;
 mod lsq;
 pub mod select;
 pub(crate) mod signal;
@@ -596,6 +597,9 @@ struct Selection {
     swaps: Vec<SwapReport>,
     /// Where the time went so far.
     timing: Timings,
+    /// The final model's joint covariance ([`interval::joint_cov`]), once [`drop_absent`] formed
+    /// it.
+    final_cov: Option<interval::JointCov>,
 }
 
 /// One searched candidate of a round, judged against the model it would extend.
@@ -631,6 +635,7 @@ pub fn diagnose(series: Series, cfg: &Config) -> Result<Diagnosis, DiagnoseError
     let baseline_s = secs(started);
     let mut selection = select_effects(&prep, &baseline, cfg);
     selection.timing.baseline = baseline_s;
+    drop_absent(&prep, cfg, &mut selection);
     say("residual analysis");
     let t = std::time::Instant::now();
     let mut d = report(&prep, cfg, &baseline, selection);
@@ -653,6 +658,7 @@ fn select_effects(prep: &effects::Prepared, baseline: &Stage, cfg: &Config) -> S
         unphysical: Vec::new(),
         swaps: Vec::new(),
         timing: Timings::default(),
+        final_cov: None,
     };
     // Each candidate's search time in the previous round, to schedule the next (`search_all`).
     let mut costs = std::collections::HashMap::new();
@@ -1113,8 +1119,85 @@ fn verdict(r: &Ranked) -> Rejected {
     }
 }
 
+/// The final check of issue 34: an effect whose 95 % interval on its presence parameter
+/// ([`EffectModel::presence`]: a gap, time constant, volume, amplitude) reaches 0, the value that
+/// means it is absent, is not named, unless the model without it (the others refitted, their θ as
+/// they were) loses at least `min_gain` of held-out RMSE: then the interval is wide because the
+/// effect trades against another (a volume drift against an offset drift), not because the data
+/// cannot tell it from nothing, and by the loop's own rule it still earns its place. Effects are
+/// taken out one at a time, the one whose removal costs least first; what an effect taken out
+/// followed is reported in `remaining` (`indistinct_from_absent`). Leaves the final model's
+/// covariance in `sel.final_cov`.
+fn drop_absent(prep: &effects::Prepared, cfg: &Config, sel: &mut Selection) {
+    while !sel.kept.is_empty() {
+        let Some(jc) = interval::joint_cov(prep, &sel.model) else {
+            return;
+        };
+        let with = sel.model.rmse_heldout;
+        let mut best: Option<(usize, Param, Stage)> = None;
+        for i in 0..sel.model.effects.len() {
+            let Some(name) = sel.model.effects[i].kind.presence() else {
+                continue;
+            };
+            let params = select::effect_params_ci(prep, &sel.model, i, Some(&jc));
+            let Some(p) = params.into_iter().find(|p| p.name == name) else {
+                continue;
+            };
+            let Some([lo, hi]) = p.ci95 else {
+                continue;
+            };
+            if !(lo <= 0.0 && 0.0 <= hi) {
+                continue;
+            }
+            let mut rest = sel.model.effects.clone();
+            rest.remove(i);
+            let Some(model) = select::fit_stage(prep, &rest) else {
+                continue;
+            };
+            let gain = 1.0 - with / model.rmse_heldout;
+            let better = best
+                .as_ref()
+                .is_none_or(|b| model.rmse_heldout < b.2.rmse_heldout);
+            if gain < cfg.min_gain && better {
+                best = Some((i, p, model));
+            }
+        }
+        let Some((i, p, model)) = best else {
+            sel.final_cov = Some(jc);
+            return;
+        };
+        let name = prep
+            .scales
+            .rig
+            .effect_name(sel.model.effects[i].kind.name());
+        let [lo, hi] = p.ci95.unwrap_or([f64::NAN; 2]);
+        sel.unphysical.push(Signature {
+            kind: "indistinct_from_absent",
+            description: format!(
+                "{name} was kept by the test, but the 95 % interval of its {} ({lo:.3e} to {hi:.3e} {}) reaches 0, where it is absent, and the model without it does as well on held-out data ({:.4} kPa with it, {:.4} kPa without): not named",
+                p.name, p.unit, with, model.rmse_heldout
+            ),
+            ..Signature::default()
+        });
+        sel.kept.remove(i);
+        sel.model = model;
+        if let Some(last) = sel.kept.last_mut() {
+            last.model = validate::FittedModel::of(&sel.model);
+        }
+    }
+}
+
 /// Each kept effect's report, its parameters from the final model.
 fn effect_reports(prep: &effects::Prepared, sel: &Selection) -> Vec<EffectReport> {
+    let formed;
+    let jc = match &sel.final_cov {
+        Some(jc) => Some(jc),
+        None if sel.kept.is_empty() => None,
+        None => {
+            formed = interval::joint_cov(prep, &sel.model);
+            formed.as_ref()
+        }
+    };
     sel.kept
         .iter()
         .enumerate()
@@ -1122,7 +1205,7 @@ fn effect_reports(prep: &effects::Prepared, sel: &Selection) -> Vec<EffectReport
             kind: step.kind,
             name: neutral(prep, sel, i).map_or(step.kind.name(), |n| n.0),
             story: neutral(prep, sel, i).map_or(step.kind.story(), |n| n.1),
-            params: select::effect_params(prep, &sel.model, i),
+            params: select::effect_params_ci(prep, &sel.model, i, jc),
             rmse_heldout_before: step.heldout_before,
             rmse_heldout_after: step.heldout_after,
             rmse_train_before: step.train_before,

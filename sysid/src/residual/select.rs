@@ -30,7 +30,9 @@
 //! not added however much it helps; the loop reports it with the structure it would have absorbed.
 //!
 //! Uncertainties: linear coefficients `σ̂²(XᵀX)⁻¹·N/N_eff`; a searched parameter from the curvature
-//! of the profile SSE, `var θ = 2σ̂²/SSE''(θ)·N/N_eff` (Gaussian profile likelihood).
+//! of the profile SSE, `var θ = 2σ̂²/SSE''(θ)·N/N_eff` (Gaussian profile likelihood). The 95 %
+//! intervals come from the joint cluster-robust covariance of the final model
+//! ([`super::interval`]).
 
 use std::sync::Arc;
 
@@ -854,6 +856,15 @@ pub struct Param {
     pub std_err: Option<f64>,
     /// Unit.
     pub unit: &'static str,
+    /// 95 % interval `[lo, hi]` from the final model's joint cluster-robust covariance
+    /// ([`super::interval`]); absent where the parameter has no standard error (a degree, a form)
+    /// or the covariance could not be formed.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub ci95: Option<[f64; 2]>,
+    /// Whether [`Self::ci95`] was clipped at the parameter's physical bound (0: a time constant,
+    /// width, volume or amplitude cannot be negative); present only when it was.
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub ci95_clipped: bool,
 }
 
 /// A parameter; a non-finite standard error is reported as `null`.
@@ -863,6 +874,8 @@ pub fn param(name: &str, value: f64, se: f64, unit: &'static str) -> Param {
         value,
         std_err: se.is_finite().then_some(se),
         unit,
+        ci95: None,
+        ci95_clipped: false,
     }
 }
 
@@ -897,6 +910,17 @@ fn theta_se(prep: &Prepared, stage: &Stage, i: usize, inflate: f64) -> f64 {
 /// Physical parameters of effect `i` of a fitted stage, with uncertainties
 /// ([`super::effects::EffectModel::params`]).
 pub fn effect_params(prep: &Prepared, stage: &Stage, i: usize) -> Vec<Param> {
+    effect_params_ci(prep, stage, i, None)
+}
+
+/// [`effect_params`] with each 95 % interval from `jc`, the final model's joint covariance
+/// ([`super::interval::joint_cov`]).
+pub fn effect_params_ci(
+    prep: &Prepared,
+    stage: &Stage,
+    i: usize,
+    jc: Option<&super::interval::JointCov>,
+) -> Vec<Param> {
     let n = prep.train_rows.len();
     let rho = lag1(&stage.resid, &prep.series.train);
     let inflate = n as f64 / n_eff(n, rho).max(1.0);
@@ -909,7 +933,11 @@ pub fn effect_params(prep: &Prepared, stage: &Stage, i: usize) -> Vec<Param> {
         theta_se: theta_se(prep, stage, i, inflate),
         s2: stage.fit.sigma2() * inflate,
     };
-    e.kind.params(&fitted)
+    let mut params = e.kind.params(&fitted);
+    if let Some(jc) = jc {
+        super::interval::attach(jc, prep, stage, i, &fitted, &mut params);
+    }
+    params
 }
 
 #[cfg(test)]

@@ -280,6 +280,13 @@ fn run_rig(spec: &RigSpec, keep: Option<&Path>, result: &mut RigResult) -> Resul
         .map(|e| NamedResult {
             name: e.name.to_string(),
             params: e.params.iter().map(|p| (p.name.clone(), p.value)).collect(),
+            reaches_absent: e.kind.presence().is_some_and(|name| {
+                e.params
+                    .iter()
+                    .find(|p| p.name == name)
+                    .and_then(|p| p.ci95)
+                    .is_some_and(|[lo, hi]| lo <= 0.0 && 0.0 <= hi)
+            }),
         })
         .collect();
 
@@ -374,6 +381,12 @@ fn run_rig(spec: &RigSpec, keep: Option<&Path>, result: &mut RigResult) -> Resul
                         truth,
                         named: named.and_then(|e| {
                             e.params.iter().find(|q| q.name == name).map(|q| q.value)
+                        }),
+                        ci95: named.and_then(|e| {
+                            e.params
+                                .iter()
+                                .find(|q| q.name == name)
+                                .and_then(|q| q.ci95)
                         }),
                     })
                     .collect(),

@@ -254,10 +254,15 @@ fn validation_report(v: &Validation) -> String {
 }
 
 fn fmt_param(p: &Param) -> String {
-    match p.std_err {
+    let mut s = match p.std_err {
         Some(se) => format!("{} = {:.4e} ± {:.2e} {}", p.name, p.value, se, p.unit),
         None => format!("{} = {:.4e} {}", p.name, p.value, p.unit),
+    };
+    if let Some([lo, hi]) = p.ci95 {
+        let bound = if p.ci95_clipped { ", clipped at 0" } else { "" };
+        s.push_str(&format!(" (95 % {lo:.3e} to {hi:.3e}{bound})"));
     }
+    s
 }
 
 /// The text report for a person.

@@ -186,6 +186,9 @@ impl EffectModel for AirCompliance {
         true
     }
 
+    fn presence(&self) -> Option<&'static str> {
+        Some("air_volume_at_atmospheric_pressure")
+    }
     fn params(&self, f: &Fitted) -> Vec<Param> {
         let e = f.effect;
         let cbar = e

@@ -86,6 +86,9 @@ impl EffectModel for Backlash {
         }
     }
 
+    fn presence(&self) -> Option<&'static str> {
+        Some("play")
+    }
     fn params(&self, f: &Fitted) -> Vec<Param> {
         vec![
             param("play", f.effect.theta, f.theta_se, "mm3"),

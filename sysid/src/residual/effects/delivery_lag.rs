@@ -75,6 +75,9 @@ impl EffectModel for DeliveryLag {
         }
     }
 
+    fn presence(&self) -> Option<&'static str> {
+        Some("time_constant")
+    }
     fn params(&self, f: &Fitted) -> Vec<Param> {
         vec![
             param("time_constant", f.effect.theta, f.theta_se, "s"),

@@ -48,6 +48,12 @@ impl EffectModel for GatedRipple {
         cols
     }
 
+    fn nonnegative(&self, name: &str) -> bool {
+        name == "amplitude"
+    }
+    fn presence(&self) -> Option<&'static str> {
+        Some("amplitude")
+    }
     fn params(&self, f: &Fitted) -> Vec<Param> {
         Ripple.params(f)
     }

@@ -58,6 +58,12 @@ impl EffectModel for Hysteresis {
         })
     }
 
+    fn nonnegative(&self, name: &str) -> bool {
+        name == "gap_at_mid_volume"
+    }
+    fn presence(&self) -> Option<&'static str> {
+        Some("gap_at_mid_volume")
+    }
     fn params(&self, f: &Fitted) -> Vec<Param> {
         vec![
             // Volume over which 63 % of the switch happens after a reversal.

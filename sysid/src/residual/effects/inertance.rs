@@ -47,6 +47,12 @@ impl EffectModel for Inertance {
         })
     }
 
+    fn nonnegative(&self, name: &str) -> bool {
+        name == "inertance"
+    }
+    fn presence(&self) -> Option<&'static str> {
+        Some("inertance")
+    }
     fn params(&self, f: &Fitted) -> Vec<Param> {
         vec![param("inertance", f.coef(0), f.coef_se(0), "kPa*s^2/mm3")]
     }

@@ -75,6 +75,9 @@ impl EffectModel for Leak {
         true
     }
 
+    fn presence(&self) -> Option<&'static str> {
+        Some("conductance")
+    }
     fn params(&self, f: &Fitted) -> Vec<Param> {
         let (e, pi) = (f.effect, f.prep.scales.p_integral);
         vec![

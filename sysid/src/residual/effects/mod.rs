@@ -440,6 +440,19 @@ pub trait EffectModel: Send + Sync {
             .collect()
     }
 
+    /// Whether the parameter called `name` cannot be negative, so that its 95 % interval is
+    /// clipped at 0 ([`crate::residual::interval`]). A positive searched θ and whatever is derived
+    /// from it alone are known to be so without this (default: no other).
+    fn nonnegative(&self, _name: &str) -> bool {
+        false
+    }
+
+    /// The parameter whose value 0 means the effect is absent (a gap, a time constant, a
+    /// volume, an amplitude), if any (default: none).
+    fn presence(&self) -> Option<&'static str> {
+        None
+    }
+
     /// The board's chain effect this effect exports to (its row in `model_core::spec` gives the
     /// wire name, the stored code, the parameters' order, units and bounds), when the board runs
     /// it as a chain effect (default: it does not). With [`Self::device_params`] the one place

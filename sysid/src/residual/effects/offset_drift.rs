@@ -31,6 +31,9 @@ impl EffectModel for OffsetDrift {
             .collect()
     }
 
+    fn presence(&self) -> Option<&'static str> {
+        Some("change_over_log")
+    }
     fn params(&self, f: &Fitted) -> Vec<Param> {
         // Change over the log: Σ_d c_d (P_d(1) − P_d(−1)) = Σ_{d odd} 2 c_d.
         let n = f.cols.len();

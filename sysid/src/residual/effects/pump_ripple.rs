@@ -106,6 +106,12 @@ impl EffectModel for PumpRipple {
         ]
     }
 
+    fn nonnegative(&self, name: &str) -> bool {
+        name == "amplitude"
+    }
+    fn presence(&self) -> Option<&'static str> {
+        Some("amplitude")
+    }
     fn params(&self, f: &Fitted) -> Vec<Param> {
         // The columns carry the correction to the volume error δ already applied: a, b in mm³.
         let e = f.effect;

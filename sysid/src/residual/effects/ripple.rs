@@ -61,6 +61,12 @@ impl EffectModel for Ripple {
         ]
     }
 
+    fn nonnegative(&self, name: &str) -> bool {
+        name == "amplitude"
+    }
+    fn presence(&self) -> Option<&'static str> {
+        Some("amplitude")
+    }
     fn params(&self, f: &Fitted) -> Vec<Param> {
         let (amp, se) = amplitude(f, (0.0, 0.0));
         vec![

@@ -97,6 +97,9 @@ impl EffectModel for SensorLag {
         self.neutral(e, sc).is_none().then_some(e.theta)
     }
 
+    fn presence(&self) -> Option<&'static str> {
+        Some("time_constant")
+    }
     fn params(&self, f: &Fitted) -> Vec<Param> {
         vec![param("time_constant", f.effect.theta, f.theta_se, "s")]
     }

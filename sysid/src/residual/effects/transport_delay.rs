@@ -41,6 +41,9 @@ impl EffectModel for TransportDelay {
             signal::delay_hermite(t, &inputs.v, &inputs.f, e.theta, !e.point_sampled);
     }
 
+    fn presence(&self) -> Option<&'static str> {
+        Some("delay")
+    }
     fn params(&self, f: &Fitted) -> Vec<Param> {
         vec![
             param("delay", f.effect.theta, f.theta_se, "s"),

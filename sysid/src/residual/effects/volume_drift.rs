@@ -41,6 +41,9 @@ impl EffectModel for VolumeDrift {
         }
     }
 
+    fn presence(&self) -> Option<&'static str> {
+        Some("rate")
+    }
     fn params(&self, f: &Fitted) -> Vec<Param> {
         let (e, d) = (f.effect, f.prep.scales.duration);
         vec![
