@@ -277,6 +277,10 @@ pub fn report(path: &Path, chamber: u8, split: &str, d: &Diagnosis) -> String {
     let _ = writeln!(s, "significance: {}", d.significance);
     let _ = writeln!(
         s,
+        "intervals: 95 % from the data's scatter over cycle blocks; they leave out the error of an effect's form, so on the loop benchmark they held the planted value for about half of the named effects (the user guide: intervals on the parameters)"
+    );
+    let _ = writeln!(
+        s,
         "rig: {} ({})",
         d.rig.name(),
         match d.rig {
