@@ -112,6 +112,20 @@ fn fault_rig() -> Rig {
     Rig::start(&RigConfig::new(elf)).expect("the virtual rig starts")
 }
 
+/// A zeroed fault-injection rig whose user button is held for `held`: the boot line that
+/// follows (the fault's reset).
+fn fault_boot(held: Duration) -> (Rig, String) {
+    let mut rig = fault_rig();
+    rig.until_zeroed().unwrap();
+    assert!(enabled(&mut rig));
+    press(&mut rig, held);
+    let boot = rig
+        .next_boot(Duration::from_secs(2))
+        .unwrap()
+        .expect("the board restarts and says why");
+    (rig, boot)
+}
+
 /// Hold the user button for `held`, then release it.
 fn press(rig: &mut Rig, held: Duration) {
     let at = rig.now_ns();
@@ -150,17 +164,10 @@ fn safe_after_fault(rig: &mut Rig, cause: &str) -> String {
 
 #[test]
 fn a_stack_overflow_ends_in_a_fault_record_and_the_safe_state() {
-    let mut rig = fault_rig();
-    rig.until_zeroed().unwrap();
-    assert!(enabled(&mut rig));
     // Held for 1.2 s: the firmware recurses without end. Under flip-link the stack runs out at
     // 0x2000_0000; the HardFault's frame cannot be stacked there, and a handler that ran on
     // that stack would lock the core up (no record, the drivers left enabled).
-    press(&mut rig, Duration::from_millis(1200));
-    let boot = rig
-        .next_boot(Duration::from_secs(2))
-        .unwrap()
-        .expect("the board restarts and says why");
+    let (mut rig, boot) = fault_boot(Duration::from_millis(1200));
     assert!(boot.contains(" boot 0 hardfault 0x"), "{boot}");
     assert!(boot.ends_with(" stack-overflow"), "{boot}");
     let status = safe_after_fault(&mut rig, "hardfault");
@@ -184,14 +191,8 @@ fn a_stack_overflow_ends_in_a_fault_record_and_the_safe_state() {
 
 #[test]
 fn a_panic_ends_in_a_fault_record_and_the_safe_state() {
-    let mut rig = fault_rig();
-    rig.until_zeroed().unwrap();
-    assert!(enabled(&mut rig));
-    press(&mut rig, Duration::from_millis(200));
-    let boot = rig
-        .next_boot(Duration::from_secs(2))
-        .unwrap()
-        .expect("the board restarts and says why");
+    // A short press: a panic.
+    let (mut rig, boot) = fault_boot(Duration::from_millis(200));
     assert!(
         boot.contains(" boot 0 panic firmware/src/bin/vfp-fw.rs "),
         "{boot}"

@@ -57,7 +57,7 @@
 use model_core::poly::PolyModel;
 
 use super::effects::{Effect, Prepared};
-use super::select::{brent, fit_stage, sse_of, Stage};
+use super::search::{brent, fit_stage, sse_of, Stage};
 use super::{diagnose, Config, DiagnoseError, Diagnosis, EffectKind, PolyBasis, Series};
 
 /// Why an augmented export failed.

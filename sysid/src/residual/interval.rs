@@ -22,7 +22,7 @@
 //! differentiated numerically (`gᵀ V g`), and its interval `value ± t_{G−1}(0.975) · se`. A
 //! parameter that cannot be negative ([`super::effects::EffectModel::nonnegative`], or θ itself
 //! when searched as a positive number and everything derived from θ alone) has its interval
-//! clipped at 0 ([`super::select::Param::ci95_clipped`]).
+//! clipped at 0 ([`super::search::Param::ci95_clipped`]).
 //!
 //! The cost: two designs built per searched θ of the final model, and one pass over the training
 //! rows; no search is repeated.
@@ -31,7 +31,7 @@ use nalgebra::DMatrix;
 use statrs::distribution::{ContinuousCDF, StudentsT};
 
 use super::effects::{build, Fitted, Prepared, Search};
-use super::select::{Param, Stage};
+use super::search::{Param, Stage};
 
 /// Target number of blocks of the sandwich.
 pub const BLOCKS: usize = 30;

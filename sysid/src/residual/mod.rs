@@ -8,7 +8,7 @@
 //!    Welch spectrum.
 //! 3. Hold a library of candidate effects ([`effects`]), each a physical augmentation with a name, a
 //!    one-sentence story and parameters in physical units; nonlinear parameters found by search.
-//! 4. Forward selection ([`select`]): add the candidate that most improves held-out RMSE, keep it
+//! 4. Forward selection ([`search`]): add the candidate that most improves held-out RMSE, keep it
 //!    only if an autocorrelation-corrected nested F-test says so *and* the held-out gain clears a
 //!    stated threshold *and* its fit is physically possible (inertance ≥ 0, hysteresis gap ≥ 0;
 //!    searched lags, delays, widths, air volume and leak are positive by construction); refit;
@@ -31,7 +31,7 @@ pub mod export;
 pub(crate) mod inframe;
 pub mod interval;
 mod lsq;
-pub mod select;
+pub mod search;
 pub(crate) mod signal;
 pub mod validate;
 
@@ -43,7 +43,7 @@ use crate::progress::{tell, Progress};
 pub use analysis::{ResidualAnalysis, Signature};
 pub use basis::PolyBasis;
 pub use effects::{Effect, EffectKind, EffectModel, REGISTRY};
-pub use select::{param, NestedTest, Param, Stage};
+pub use search::{param, NestedTest, Param, Stage};
 
 /// The kind of rig a log comes from, for the names of the effects the loop reports (issue 35):
 /// an effect whose story is a mechanism of a syringe pump (lead-screw ripple, backlash, the
@@ -604,7 +604,7 @@ struct Selection {
 
 /// One searched candidate of a round, judged against the model it would extend.
 struct Ranked {
-    cand: select::Candidate,
+    cand: search::Candidate,
     test: NestedTest,
     /// The test rejects at `alpha` and the held-out gain clears `min_gain`.
     passes: bool,
@@ -626,7 +626,7 @@ pub fn diagnose(series: Series, cfg: &Config) -> Result<Diagnosis, DiagnoseError
         .map_err(|e| DiagnoseError::Degenerate(e.to_string()))?;
     let mut prep = effects::Prepared::new(series, basis);
     prep.gate = effects::DesignGate::new(cfg.design_memory);
-    let baseline = select::fit_stage(&prep, &[]).ok_or_else(|| {
+    let baseline = search::fit_stage(&prep, &[]).ok_or_else(|| {
         DiagnoseError::Degenerate(
             "its columns are linearly dependent on the training rows (is volume or flow constant?)"
                 .into(),
@@ -645,7 +645,7 @@ pub fn diagnose(series: Series, cfg: &Config) -> Result<Diagnosis, DiagnoseError
     Ok(d)
 }
 
-/// Forward selection (step 4, [`select`]): each round searches every candidate not yet in the
+/// Forward selection (step 4, [`search`]): each round searches every candidate not yet in the
 /// model, keeps the best-ranked one that passes and is physical, and stops when none does. Then
 /// each kept effect's look-alikes, one or two together, are tried in its place
 /// ([`swap_look_alike`]); after a swap the
@@ -758,7 +758,7 @@ struct Swap {
 /// The best swap of one kept effect for one of its look-alikes ([`KeptStep::rivals`], not
 /// in the model or `banned`): the look-alike searched on the model without the effect and,
 /// where that already fits the training rows better, every searched parameter re-tuned
-/// ([`select::retune`]), so that two lags that trade against each other find their joint
+/// ([`search::retune`]), so that two lags that trade against each other find their joint
 /// optimum. A swap must be physical, add no parameter, and lower
 /// both the training SSE and the held-out RMSE. The best by held-out RMSE is returned
 /// ([`select_effects`] weighs it against the best pair of look-alikes, [`swap_for_pair`]).
@@ -781,11 +781,11 @@ fn swap_look_alike(
         // The model without the effect, once for all its look-alikes.
         let mut without = model.effects.clone();
         without.remove(at);
-        let Some(base) = select::fit_stage(prep, &without) else {
+        let Some(base) = search::fit_stage(prep, &without) else {
             continue;
         };
         for c in rivals.iter().map(|r| r.kind) {
-            let Some(cand) = select::search(prep, &base, c) else {
+            let Some(cand) = search::search(prep, &base, c) else {
                 continue;
             };
             // Only a look-alike that already fits the training rows better, searched alone in
@@ -794,7 +794,7 @@ fn swap_look_alike(
             if cand.stage.fit.sse >= model.fit.sse {
                 continue;
             }
-            let tuned = select::retune(prep, &cand.stage);
+            let tuned = search::retune(prep, &cand.stage);
             let stage = if tuned.fit.sse <= cand.stage.fit.sse {
                 tuned
             } else {
@@ -803,7 +803,7 @@ fn swap_look_alike(
             let better = stage.fit.sse < model.fit.sse
                 && stage.rmse_heldout < model.rmse_heldout
                 && stage.n_params() <= model.n_params()
-                && select::unphysical(&stage, &prep.scales).is_none()
+                && search::unphysical(&stage, &prep.scales).is_none()
                 && best
                     .as_ref()
                     .is_none_or(|b| stage.rmse_heldout < b.stage.rmse_heldout);
@@ -843,7 +843,7 @@ fn open_rivals<'a>(
 /// re-tuned; it is kept only where it lowers both the training SSE and the held-out RMSE, is
 /// physical, and each of the two passes the loop's test in the other's company (leave-one-out),
 /// which pays for the parameter it adds. The re-tune gives up once it cannot come below the
-/// model's training SSE ([`select::retune_to_beat`]): on a 3-hour log one sweep takes 15–20 s.
+/// model's training SSE ([`search::retune_to_beat`]): on a 3-hour log one sweep takes 15–20 s.
 fn swap_for_pair(
     prep: &effects::Prepared,
     cfg: &Config,
@@ -864,12 +864,12 @@ fn swap_for_pair(
         let mut effects = model.effects.clone();
         effects.remove(at);
         effects.extend([a.clone(), b.clone()]);
-        let Some(start) = select::fit_stage(prep, &effects) else {
+        let Some(start) = search::fit_stage(prep, &effects) else {
             continue;
         };
-        let stage = select::retune_to_beat(prep, &start, model.fit.sse);
+        let stage = search::retune_to_beat(prep, &start, model.fit.sse);
         if !(stage.fit.sse < model.fit.sse && stage.rmse_heldout < model.rmse_heldout)
-            || select::unphysical(&stage, &prep.scales).is_some()
+            || search::unphysical(&stage, &prep.scales).is_some()
             || best
                 .as_ref()
                 .is_some_and(|b| stage.rmse_heldout >= b.stage.rmse_heldout)
@@ -909,7 +909,7 @@ fn apply_swap(
     for (o, e) in new.into_iter().enumerate() {
         effects.insert(swap.at + o, e);
     }
-    let Some(mut model) = select::fit_stage(prep, &effects) else {
+    let Some(mut model) = search::fit_stage(prep, &effects) else {
         return;
     };
     sel.swaps.push(SwapReport {
@@ -935,7 +935,7 @@ fn apply_swap(
     let old: Vec<KeptStep> = std::mem::take(&mut sel.kept);
     let mut prev = baseline.clone();
     for j in 0..model.effects.len() {
-        let Some(after) = select::fit_stage(prep, &model.effects[..=j]) else {
+        let Some(after) = search::fit_stage(prep, &model.effects[..=j]) else {
             continue;
         };
         let kind = model.effects[j].kind;
@@ -962,7 +962,7 @@ fn apply_swap(
             heldout_after: after.rmse_heldout,
             train_before: prev.rmse_train,
             train_after: after.rmse_train,
-            test: select::nested_test(prep, &prev, &after),
+            test: search::nested_test(prep, &prev, &after),
             runner_up,
             rivals: was.map(|k| k.rivals.clone()).unwrap_or_default(),
         });
@@ -1001,10 +1001,10 @@ fn rank_round(
     let mut ranked: Vec<Ranked> = found
         .into_iter()
         .map(|cand| {
-            let test = select::nested_test(prep, cur, &cand.stage);
+            let test = search::nested_test(prep, cur, &cand.stage);
             Ranked {
                 passes: passes(cfg, cur, &cand.stage, &test),
-                unphysical: select::unphysical(&cand.stage, &prep.scales).map(|(_, why)| why),
+                unphysical: search::unphysical(&cand.stage, &prep.scales).map(|(_, why)| why),
                 cand,
                 test,
             }
@@ -1036,12 +1036,12 @@ fn leave_one_out(
 ) -> Option<(Stage, bool)> {
     let mut rest = model.effects.clone();
     rest.remove(j);
-    let small = select::fit_stage(prep, &rest)?;
+    let small = search::fit_stage(prep, &rest)?;
     let ok = passes(
         cfg,
         &small,
         model,
-        &select::nested_test(prep, &small, model),
+        &search::nested_test(prep, &small, model),
     );
     Some((small, ok))
 }
@@ -1059,10 +1059,10 @@ fn keep(
     runner_up: Option<Rejected>,
     rivals: Vec<Effect>,
 ) {
-    let tuned = select::retune(prep, &r.cand.stage);
+    let tuned = search::retune(prep, &r.cand.stage);
     let model = if tuned.fit.sse <= r.cand.stage.fit.sse
         && tuned.rmse_heldout < sel.model.rmse_heldout
-        && select::unphysical(&tuned, &prep.scales).is_none()
+        && search::unphysical(&tuned, &prep.scales).is_none()
     {
         tuned
     } else {
@@ -1139,7 +1139,7 @@ fn drop_absent(prep: &effects::Prepared, cfg: &Config, sel: &mut Selection) {
             let Some(name) = sel.model.effects[i].kind.presence() else {
                 continue;
             };
-            let params = select::effect_params_ci(prep, &sel.model, i, Some(&jc));
+            let params = search::effect_params_ci(prep, &sel.model, i, Some(&jc));
             let Some(p) = params.into_iter().find(|p| p.name == name) else {
                 continue;
             };
@@ -1151,7 +1151,7 @@ fn drop_absent(prep: &effects::Prepared, cfg: &Config, sel: &mut Selection) {
             }
             let mut rest = sel.model.effects.clone();
             rest.remove(i);
-            let Some(model) = select::fit_stage(prep, &rest) else {
+            let Some(model) = search::fit_stage(prep, &rest) else {
                 continue;
             };
             let gain = 1.0 - with / model.rmse_heldout;
@@ -1205,7 +1205,7 @@ fn effect_reports(prep: &effects::Prepared, sel: &Selection) -> Vec<EffectReport
             kind: step.kind,
             name: neutral(prep, sel, i).map_or(step.kind.name(), |n| n.0),
             story: neutral(prep, sel, i).map_or(step.kind.story(), |n| n.1),
-            params: select::effect_params_ci(prep, &sel.model, i, jc),
+            params: search::effect_params_ci(prep, &sel.model, i, jc),
             rmse_heldout_before: step.heldout_before,
             rmse_heldout_after: step.heldout_after,
             rmse_train_before: step.train_before,
@@ -1324,7 +1324,7 @@ fn search_all(
     cfg: &Config,
     costs: &mut std::collections::HashMap<EffectKind, f64>,
 ) -> (
-    Vec<select::Candidate>,
+    Vec<search::Candidate>,
     std::collections::BTreeMap<&'static str, f64>,
 ) {
     let threads = cfg.threads.max(1).min(todo.len().max(1));
@@ -1337,7 +1337,7 @@ fn search_all(
         cost(b).total_cmp(&cost(a))
     });
     let next = std::sync::atomic::AtomicUsize::new(0);
-    let mut out: Vec<Option<select::Candidate>> = vec![None; todo.len()];
+    let mut out: Vec<Option<search::Candidate>> = vec![None; todo.len()];
     let mut times = std::collections::BTreeMap::new();
     std::thread::scope(|s| {
         let handles: Vec<_> = (0..threads)
@@ -1348,7 +1348,7 @@ fn search_all(
                         let j = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
                         let Some(&i) = order.get(j) else { break };
                         let start = std::time::Instant::now();
-                        let found = select::search(prep, cur, todo[i]);
+                        let found = search::search(prep, cur, todo[i]);
                         mine.push((i, found, start.elapsed().as_secs_f64()));
                         let done = 1 + finished.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
                         let what = todo[i].name();

@@ -38,7 +38,7 @@ use serde::Serialize;
 use super::effects::design::build;
 use super::effects::{Effect, Prepared};
 use super::lsq;
-use super::select::basis_derivative;
+use super::search::basis_derivative;
 use super::{DiagnoseError, Diagnosis, PolyBasis, Series, Stage};
 
 /// The paired z over held-out units above which an effect's gain on the other log counts as

@@ -35,6 +35,16 @@ fn diagnose(a: &Path, b: &Path, extra: &[&str]) -> serde_json::Value {
     serde_json::from_slice(&out.stdout).expect("JSON")
 }
 
+/// The names of the effects a diagnosis kept, in order.
+fn effect_names(d: &serde_json::Value) -> Vec<&str> {
+    d["effects"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|e| e["name"].as_str().unwrap())
+        .collect()
+}
+
 fn f(v: &serde_json::Value, path: &[&str]) -> f64 {
     let mut x = v;
     for p in path {
@@ -77,12 +87,7 @@ fn an_effect_of_the_rig_holds_on_another_run_and_not_on_another_rig() {
     let same = simulate(&dir, "same.csv", "effect:hysteresis", 2, 2);
     let other = simulate(&dir, "other.csv", "paper", 2, 3);
     let d = diagnose(&a, &same, &[]);
-    let names: Vec<&str> = d["effects"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|e| e["name"].as_str().unwrap())
-        .collect();
+    let names = effect_names(&d);
     assert_eq!(names.first(), Some(&"hysteresis"), "{names:?}");
     let v = &d["validation"];
     let (base, fin) = (f(v, &["baseline_rmse"]), f(v, &["final_rmse"]));
@@ -118,12 +123,7 @@ fn an_air_pocket_does_not_carry_to_a_rig_without_air() {
     let a = simulate(&dir, "air.csv", "effect:air", 3, 4);
     let other = simulate(&dir, "other.csv", "paper", 2, 3);
     let d = diagnose(&a, &other, &[]);
-    let names: Vec<&str> = d["effects"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|e| e["name"].as_str().unwrap())
-        .collect();
+    let names = effect_names(&d);
     assert!(names.contains(&"air_compliance"), "{names:?}");
     let v = &d["validation"];
     assert_eq!(carries(v, "air_compliance"), Some(false), "{v}");

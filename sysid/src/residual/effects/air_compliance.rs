@@ -13,7 +13,7 @@ use super::{
     param, DeviceSupport, Effect, EffectModel, Fitted, Inputs, Needs, Param, Prepared, Scales,
     Search, Stage, P_ATM_KPA,
 };
-use crate::residual::select::{brent, fit_stage, sse_of, with};
+use crate::residual::search::{brent, fit_stage, sse_of, with};
 use crate::residual::signal;
 
 /// Compressible air between plunger and chamber.

@@ -915,14 +915,14 @@ mod tests {
                 Effect::new(EffectKind(&Hysteresis), 20.0),
                 Effect::new(EffectKind(&Ripple), 0.27),
             ] {
-                let effects = super::super::super::select::with(&cur, cand);
+                let effects = super::super::super::search::with(&cur, cand);
                 let d = build(&prep, &effects);
                 let built = lsq::sse_fast(&d.cols, &prep.series.p, &prep.train_rows);
                 let apart = sse_adding_columns(&prep, &base, &effects).expect("adds columns only");
                 assert_eq!(apart.to_bits(), built.to_bits(), "{effects:?}");
             }
             let moved =
-                super::super::super::select::with(&cur, Effect::new(EffectKind(&VolumeDrift), 3.0));
+                super::super::super::search::with(&cur, Effect::new(EffectKind(&VolumeDrift), 3.0));
             assert!(sse_adding_columns(&prep, &base, &moved).is_none());
         }
         assert!(filtered_base(&prep, &[Effect::new(EffectKind(&Hysteresis), 20.0)]).is_none());

@@ -147,7 +147,7 @@ pub use sensor_lag::SensorLag;
 pub use transport_delay::TransportDelay;
 pub use volume_drift::VolumeDrift;
 
-pub use super::select::{param, Param, Stage};
+pub use super::search::{param, Param, Stage};
 pub use super::DeviceSupport;
 
 /// Atmospheric pressure (kPa) for the isothermal air pocket.

@@ -14,7 +14,7 @@ use super::{
     Scales, Scan, Search, Stage,
 };
 use crate::residual::lsq;
-use crate::residual::select::{fit_stage, with};
+use crate::residual::search::{fit_stage, with};
 use crate::residual::signal;
 
 /// Ripple periodic in plunger position (lead-screw pitch error, once per screw turn).

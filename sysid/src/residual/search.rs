@@ -1,4 +1,5 @@
-//! Forward selection of effects (step 4 of the loop).
+//! The loop's search for effects (step 4): forward selection, re-tunes and the tests that keep an
+//! effect. (`crate::select` is the baseline polynomial's shape; this module searches effects.)
 //!
 //! Each round, every candidate not yet in the model has its nonlinear parameter θ searched on the
 //! *training* rows (a log grid of 8 points, or 5 magnitudes of each sign, over a range set by the data's own
