@@ -15,7 +15,7 @@ use std::process::{Child, Output, Stdio};
 use std::time::{Duration, Instant};
 
 use host_sim::{Effects, PlantConfig};
-use rig_emu::rig::FLASH_CR;
+use rig_emu::rig::{FLASH_ACR, FLASH_CR};
 use rig_emu::wire::Received;
 use rig_emu::{default_elf, vfp, Rig, RigConfig};
 use serialport::{SerialPort, TTYPort};
@@ -205,6 +205,7 @@ fn a_deployed_chain_runs_on_the_binary_as_vfp_replay_computes_it() {
         operations.iter().all(|&t| t > done),
         "flash operations at {operations:?} µs, the last step at {done} µs"
     );
+    caches_emptied_after(&flash, *operations.last().unwrap());
 
     // The frame the new chain first estimated: the first stamped after the load event (module
     // docs of host-sim's `tests/all/chain.rs`: one of the first two after the event − a frame).
@@ -314,4 +315,36 @@ fn replay_from(log: &Path, t0: f64, model: &Path, dir: &Path) -> Vec<f32> {
     let (header, rows) = read_log(&out);
     let col = column(&header, "p_hat_0");
     rows.iter().map(|r| r[col].parse().unwrap()).collect()
+}
+
+/// FLASH_ACR's cache bits (RM0390 §3.9.1): enables and resets of the instruction and data
+/// caches.
+const ICEN: u64 = 1 << 9;
+const DCEN: u64 = 1 << 10;
+const ICRST: u64 = 1 << 11;
+const DCRST: u64 = 1 << 12;
+
+/// After the last flash operation (at `last_us`) the firmware emptied both flash caches, the
+/// way RM0390 §3.5.2 allows (reset only while disabled), and turned them back on: a cache left
+/// as it was would go on serving words the erase or the program replaced.
+fn caches_emptied_after(flash: &[(u64, u64, u64)], last_us: u64) {
+    let acr: Vec<u64> = flash
+        .iter()
+        .filter(|&&(t, a, _)| a == FLASH_ACR && t / 1000 >= last_us)
+        .map(|&(.., v)| v)
+        .collect();
+    eprintln!("FLASH_ACR writes after the last operation: {acr:x?}");
+    let reset = acr
+        .iter()
+        .position(|v| v & (ICRST | DCRST) == ICRST | DCRST)
+        .expect("both flash caches reset after the store's last flash operation");
+    assert!(
+        reset > 0 && acr[reset - 1] & (ICEN | DCEN) == 0,
+        "the caches were disabled before their reset: {acr:x?}"
+    );
+    let now = acr.last().unwrap();
+    assert!(
+        now & (ICEN | DCEN) == ICEN | DCEN && now & (ICRST | DCRST) == 0,
+        "the caches are back on, out of reset: {acr:x?}"
+    );
 }

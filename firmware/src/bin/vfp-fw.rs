@@ -36,7 +36,7 @@
 //! reports the cause on its boot event and refuses motion until `origin`.
 //!
 //! Board settings: flash prefetch and both caches on after `embassy_stm32::init` (its F4 clock
-//! set-up writes only the wait states); the time driver on TIM5 (32-bit); the watchdog frozen
+//! set-up writes only the wait states), emptied again after every flash write; the time driver on TIM5 (32-bit); the watchdog frozen
 //! while a debugger halts the core; defmt timestamps in µs since boot.
 #![cfg_attr(target_os = "none", no_std)]
 #![cfg_attr(target_os = "none", no_main)]
@@ -241,9 +241,12 @@ mod device {
 
     // ------------------------------------------------------------------ board settings
 
-    /// Flash prefetch and instruction/data caches on (RM0390 §3.5.2: reset a cache only while
-    /// it is disabled). embassy-stm32's F4 clock set-up writes FLASH_ACR with the wait states
-    /// only; at 180 MHz (5 wait states) every uncached fetch would stall.
+    /// Flash prefetch and instruction/data caches on, both emptied first (RM0390 §3.5.2: reset
+    /// a cache only while it is disabled). embassy-stm32's F4 clock set-up writes FLASH_ACR with
+    /// the wait states only; at 180 MHz (5 wait states) every uncached fetch would stall. Called
+    /// at boot and again after every flash write and the store's load (which may erase): the
+    /// caches would otherwise go on serving words an erase or a program has replaced, and
+    /// embassy-stm32's F4 flash driver does not reset them.
     fn flash_accelerator() {
         use embassy_stm32::pac::FLASH;
         FLASH.acr().modify(|w| {
@@ -273,16 +276,17 @@ mod device {
             .modify(|w| w.set_iwdg(true));
     }
 
-    /// Stretches the independent watchdog's window around a flash write: a sector erase stalls
+    /// Around a flash write: stretches the independent watchdog's window, and empties the flash
+    /// caches after it ([`flash_accelerator`]). A sector erase stalls
     /// the CPU for 1–2 s (RM0390/datasheet: 128 KiB erase, x32 parallelism, max 2 s), against
     /// a 50 ms window. Prescaler /64 and reload 4095 give 4096 × 64 / 32 kHz ≈ 8.2 s, still
     /// 5.6 s with the LSI at its 47 kHz worst case. The write happens only at rest (no
     /// motion), and the previous prescaler and reload come back after it.
-    struct IwdgWindow {
+    struct StoreGuard {
         saved: Option<(embassy_stm32::pac::iwdg::vals::Pr, u16)>,
     }
 
-    impl IwdgWindow {
+    impl StoreGuard {
         fn set(pr: embassy_stm32::pac::iwdg::vals::Pr, rl: u16) {
             use embassy_stm32::pac::{iwdg::vals::Key, IWDG};
             // Reload first: the change itself then has the old window's full length.
@@ -299,13 +303,14 @@ mod device {
         }
     }
 
-    impl FlashGuard for IwdgWindow {
+    impl FlashGuard for StoreGuard {
         fn before(&mut self) {
             use embassy_stm32::pac::{iwdg::vals::Pr, IWDG};
             self.saved = Some((IWDG.pr().read().pr(), IWDG.rlr().read().rl()));
             Self::set(Pr::DIVIDE_BY64, 0x0FFF);
         }
         fn after(&mut self) {
+            flash_accelerator();
             if let Some((pr, rl)) = self.saved.take() {
                 Self::set(pr, rl);
             }
@@ -382,7 +387,7 @@ mod device {
 
     #[embassy_executor::task]
     async fn persist(shared: &'static Shared, store: ModelStore<StoreFlash>) {
-        firmware::store::persist_task(shared, store, IwdgWindow { saved: None }).await
+        firmware::store::persist_task(shared, store, StoreGuard { saved: None }).await
     }
 
     /// 180 MHz from the ST-LINK's 8 MHz clock (HSE bypass): 8 / 4 × 180 / 2.
@@ -496,6 +501,7 @@ mod device {
         let range = STORE_START - REGION3_START..STORE_END - REGION3_START;
         let mut store = defmt::unwrap!(ModelStore::new(BlockingAsync::new(region), range).ok());
         let models = store.load_all().await;
+        flash_accelerator();
 
         let mut iwdg = IndependentWatchdog::new(rest.iwdg, WATCHDOG_TIMEOUT_US);
         iwdg.unleash();
