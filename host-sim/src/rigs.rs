@@ -11,6 +11,10 @@
 //!   well below what a log can show to three times the preset; its second parameter (a
 //!   hysteresis's transition, a ripple's period, a drift's time constant) is drawn around the
 //!   preset's. Rigs without a delivery lag use the ideal drive, so a clean rig is clean;
+//! * **forms** ([`FormChoice`], `vfp bench-loop --forms`): the usual forms of the effects (those
+//!   of [`crate::plant`]'s module docs, which the residual loop's effects were written against),
+//!   host-sim's other form of each kind that has one ([`crate::plant::Forms`]), or either at even
+//!   odds; drawn from a stream of their own, so the rest of a rig is the same whatever the choice;
 //! * **trajectory** ([`Trajectory`]): the paper's protocol, irregular strokes (short dwells),
 //!   random moves with long dwells, or breathing-like cycles ([`crate::scenario::Breathing`]);
 //! * **length**: log-uniform in `samples` frames per chamber (default 5,000–20,000, 200–800 s at
@@ -27,7 +31,8 @@ use serde::Serialize;
 
 use crate::law::Design;
 use crate::plant::{
-    Drive, Effects, Hysteresis, NoiseTails, PlantConfig, Ripple, SensorSpec, ThermalDrift, CHAMBERS,
+    Drive, Effects, Forms, Hysteresis, NoiseTails, PlantConfig, Ripple, SensorSpec, ThermalDrift,
+    CHAMBERS,
 };
 use crate::scenario::{Breathing, Protocol, Scenario, Strokes, TimedCommand, START_S};
 
@@ -98,6 +103,16 @@ impl PlantedKind {
         }
     }
 
+    /// Whether host-sim has another form of the kind than the usual one ([`Forms`]): all but
+    /// the inertance (a mass of water), the backlash (a dead band) and the transport delay (a
+    /// delay).
+    pub fn has_other_form(self) -> bool {
+        !matches!(
+            self,
+            PlantedKind::Inertance | PlantedKind::Backlash | PlantedKind::TransportDelay
+        )
+    }
+
     /// The preset size of the kind's main parameter ([`Planted::size`]).
     pub fn preset_size(self) -> f64 {
         match self {
@@ -128,6 +143,8 @@ pub struct Planted {
     /// Its second parameter, where it has one: hysteresis transition mm³, ripple period mm³,
     /// drift time constant s (0 otherwise).
     pub shape: f64,
+    /// Planted in its other form ([`PlantedKind::has_other_form`], [`Planted::apply`]).
+    pub other_form: bool,
 }
 
 impl Planted {
@@ -170,6 +187,30 @@ impl Planted {
                 plant.delivery_time_constant_s = self.size;
             }
         }
+        if !self.other_form {
+            return;
+        }
+        let f: &mut Forms = &mut plant.effects.forms;
+        match self.kind {
+            PlantedKind::Air => f.air_polytropic_index = 1.4,
+            PlantedKind::Hysteresis => f.hysteresis_linear = true,
+            PlantedKind::SensorLag => f.sensor_lag_second_order = true,
+            PlantedKind::ThermalDrift => f.drift_ramp = true,
+            PlantedKind::Ripple => f.ripple_second_harmonic = 0.5,
+            PlantedKind::Leak => f.leak_orifice_kpa = 5.0,
+            PlantedKind::VolumeCreep => f.creep_time_constant_s = 300.0,
+            PlantedKind::DeliveryLag => f.delivery_overdamped = true,
+            PlantedKind::Inertance | PlantedKind::Backlash | PlantedKind::TransportDelay => {}
+        }
+    }
+
+    /// The kind's name, with ` (other form)` when planted so.
+    pub fn label(&self) -> String {
+        if self.other_form {
+            format!("{} (other form)", self.kind.name())
+        } else {
+            self.kind.name().to_string()
+        }
     }
 }
 
@@ -207,17 +248,48 @@ impl Trajectory {
     }
 }
 
+/// Which forms the planted effects take ([`Forms`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum FormChoice {
+    /// The usual forms (the module docs of [`crate::plant`]: those the residual loop's effects
+    /// were written against).
+    #[default]
+    Usual,
+    /// The other form wherever a kind has one.
+    Other,
+    /// Each effect with another form in it with probability ½.
+    Mixed,
+}
+
+impl FormChoice {
+    /// Every choice.
+    pub const ALL: [FormChoice; 3] = [FormChoice::Usual, FormChoice::Other, FormChoice::Mixed];
+
+    /// Name (kebab case).
+    pub fn name(self) -> &'static str {
+        match self {
+            FormChoice::Usual => "usual",
+            FormChoice::Other => "other",
+            FormChoice::Mixed => "mixed",
+        }
+    }
+}
+
 /// How rigs are drawn beyond the seed.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct RigOptions {
     /// Range of the log's length, frames per chamber (drawn log-uniformly).
     pub samples: (usize, usize),
+    /// The effects' forms.
+    pub forms: FormChoice,
 }
 
 impl Default for RigOptions {
     fn default() -> Self {
         Self {
             samples: (5_000, 20_000),
+            forms: FormChoice::Usual,
         }
     }
 }
@@ -253,6 +325,9 @@ pub struct RigSpec {
     pub sim_seed: u64,
 }
 
+/// Keys the stream of the effects' forms apart from the rig's own (`seed ^ FORMS_KEY`).
+const FORMS_KEY: u64 = 0x666f_726d_7300_0000;
+
 /// Log-uniform draw between `lo` and `hi`.
 fn log_uniform(rng: &mut ChaCha8Rng, lo: f64, hi: f64) -> f64 {
     (lo.ln() + (hi.ln() - lo.ln()) * rng.random::<f64>()).exp()
@@ -283,9 +358,26 @@ pub fn draw(seed: u64, index: usize, opts: &RigOptions) -> Result<RigSpec, RigEr
             PlantedKind::ThermalDrift => log_uniform(&mut rng, 100.0, 1_000.0),
             _ => 0.0,
         };
-        planted.push(Planted { kind, size, shape });
+        planted.push(Planted {
+            kind,
+            size,
+            shape,
+            other_form: false,
+        });
     }
     planted.sort_by_key(|p| p.kind);
+    // The forms from a stream of their own, so a rig's other draws do not depend on them.
+    let mut forms = ChaCha8Rng::seed_from_u64(seed ^ FORMS_KEY);
+    forms.set_stream(index as u64);
+    for p in &mut planted {
+        let coin = forms.random::<f64>() < 0.5;
+        p.other_form = p.kind.has_other_form()
+            && match opts.forms {
+                FormChoice::Usual => false,
+                FormChoice::Other => true,
+                FormChoice::Mixed => coin,
+            };
+    }
     let trajectory = Trajectory::ALL[rng.random_range(0..Trajectory::ALL.len())];
     let design = match rng.random::<f64>() {
         u if u < 0.5 => Design::Sba1,
@@ -329,7 +421,7 @@ impl RigSpec {
         } else {
             self.planted
                 .iter()
-                .map(|p| p.kind.name())
+                .map(Planted::label)
                 .collect::<Vec<_>>()
                 .join(" + ")
         };
@@ -454,10 +546,50 @@ mod tests {
         assert_eq!(differ, 20);
     }
 
+    /// The forms change nothing else about a rig: `usual` and `other` draw the same rigs, the
+    /// second with every effect that has another form in it; `mixed` about half of them.
+    #[test]
+    fn the_forms_are_drawn_apart_from_the_rig() {
+        let with = |forms| RigOptions {
+            forms,
+            ..RigOptions::default()
+        };
+        let (mut other, mut mixed, mut can) = (0, 0, 0);
+        for i in 0..200 {
+            let usual = draw(5, i, &with(FormChoice::Usual)).unwrap();
+            let o = draw(5, i, &with(FormChoice::Other)).unwrap();
+            let m = draw(5, i, &with(FormChoice::Mixed)).unwrap();
+            assert!(usual.planted.iter().all(|p| !p.other_form));
+            for r in [&o, &m] {
+                let strip = |r: &RigSpec| {
+                    let mut r = r.clone();
+                    r.planted.iter_mut().for_each(|p| p.other_form = false);
+                    r
+                };
+                assert_eq!(strip(r), usual, "rig {i}");
+            }
+            for (p, q) in o.planted.iter().zip(&m.planted) {
+                assert_eq!(p.other_form, p.kind.has_other_form());
+                assert!(!q.other_form || q.kind.has_other_form());
+                can += usize::from(p.kind.has_other_form());
+                other += usize::from(p.other_form);
+                mixed += usize::from(q.other_form);
+            }
+        }
+        assert_eq!(other, can);
+        // Binomial(can, ½): within 4σ.
+        let sd = (can as f64 / 4.0).sqrt();
+        assert!(
+            (mixed as f64 - can as f64 / 2.0).abs() < 4.0 * sd,
+            "{mixed} of {can}"
+        );
+    }
+
     #[test]
     fn sizes_lengths_and_counts_stay_in_their_ranges() {
         let o = RigOptions {
             samples: (5_000, 9_000),
+            ..RigOptions::default()
         };
         let rigs: Vec<RigSpec> = (0..400).map(|i| draw(3, i, &o).unwrap()).collect();
         let clean = rigs.iter().filter(|r| r.planted.is_empty()).count();
@@ -553,7 +685,14 @@ mod tests {
     fn an_empty_or_reversed_length_range_is_an_error() {
         for samples in [(9_000, 5_000), (10, 20), (5_000, 1_000_000)] {
             assert_eq!(
-                draw(1, 0, &RigOptions { samples }),
+                draw(
+                    1,
+                    0,
+                    &RigOptions {
+                        samples,
+                        ..RigOptions::default()
+                    }
+                ),
                 Err(RigError::Samples(samples.0, samples.1))
             );
         }

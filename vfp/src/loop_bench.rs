@@ -69,7 +69,9 @@ pub struct PlantedResult {
     pub oracle_gain: f64,
     /// Whether the loop named `expects`.
     pub found: bool,
-    /// Parameters compared.
+    /// Planted in host-sim's other form of the kind (`vfp bench-loop --forms`).
+    pub other_form: bool,
+    /// Parameters compared (none for an effect in its other form).
     pub params: Vec<ParamCompare>,
 }
 

@@ -4,6 +4,7 @@
 //! MockDriver is process-global; `host_sim::simulate` holds a lock), as they did in each binary.
 
 mod chain;
+mod forms;
 mod link;
 mod plant;
 mod presets;

@@ -28,7 +28,7 @@
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-use host_sim::rigs::{self, Planted, PlantedKind, RigOptions, RigSpec};
+use host_sim::rigs::{self, FormChoice, Planted, PlantedKind, RigOptions, RigSpec};
 use host_sim::{simulate, SimRun};
 use nalgebra::DMatrix;
 use sysid::residual::{diagnose_log, Config, Diagnosis, PolyBasis, Timings};
@@ -65,6 +65,14 @@ pub struct Args {
     /// Keep each rig's log in DIR (default: a temporary file, removed after the rig).
     #[arg(long, value_name = "DIR")]
     pub keep_logs: Option<PathBuf>,
+    /// The planted effects' forms: `usual` (those the loop's effects were written against),
+    /// `other` (host-sim's other form of each kind that has one: polytropic air, linear
+    /// hysteresis, second-order sensor lag, ripple with a second harmonic, orifice leak, ramp
+    /// drift, slowing creep, overdamped delivery lag) or `mixed` (each effect either, at even
+    /// odds). Parameters are compared with the truth on usual forms only.
+    #[arg(long, default_value = "usual", value_parser = ["usual", "other", "mixed"],
+          conflicts_with = "gate")]
+    pub forms: String,
 }
 
 /// The polynomial shape of the oracle's fits: host-sim's chamber law (`host_sim::law`, the paper's
@@ -374,8 +382,14 @@ fn run_rig(spec: &RigSpec, keep: Option<&Path>, result: &mut RigResult) -> Resul
                 oracle_rms_sigma: rms,
                 oracle_gain: gain,
                 found: named.is_some(),
-                params: truth_params(p, span)
-                    .into_iter()
+                other_form: p.other_form,
+                // The other forms' parameters do not all mean the loop's.
+                params: (if p.other_form {
+                    Vec::new()
+                } else {
+                    truth_params(p, span)
+                })
+                .into_iter()
                     .map(|(name, truth)| ParamCompare {
                         name: name.into(),
                         truth,
@@ -453,15 +467,25 @@ pub fn run(args: &Args) -> Result<(), Error> {
     if n == 0 {
         return Err(Error::Usage("--rigs must be at least 1".into()));
     }
-    let opts = RigOptions { samples };
+    let forms = FormChoice::ALL
+        .into_iter()
+        .find(|f| f.name() == args.forms)
+        .unwrap_or_default();
+    let opts = RigOptions { samples, forms };
     if let Some(dir) = &args.keep_logs {
         std::fs::create_dir_all(dir).map_err(|e| Error::output(dir, e))?;
     }
     let command = match &args.gate {
         Some(g) => format!("vfp bench-loop --gate {}", g.display()),
         None => format!(
-            "vfp bench-loop --rigs {n} --seed {seed} --samples {},{}",
-            samples.0, samples.1
+            "vfp bench-loop --rigs {n} --seed {seed} --samples {},{}{}",
+            samples.0,
+            samples.1,
+            if forms == FormChoice::Usual {
+                String::new()
+            } else {
+                format!(" --forms {}", forms.name())
+            }
         ),
     };
     let mut results = Vec::with_capacity(n);
@@ -538,6 +562,7 @@ mod tests {
                 kind,
                 size: kind.preset_size(),
                 shape: 20.0,
+                other_form: false,
             };
             assert!(!truth_params(&p, (0.0, 600.0)).is_empty());
         }

@@ -28,6 +28,7 @@ fn bench_loop_scores_what_vfp_diagnose_names_on_the_rigs_it_drew() {
     assert_eq!(rigs.len(), 2);
     let opts = RigOptions {
         samples: (5000, 5200),
+        ..RigOptions::default()
     };
     for (i, rig) in rigs.iter().enumerate() {
         assert!(rig["error"].is_null(), "rig {i}: {}", rig["error"]);
