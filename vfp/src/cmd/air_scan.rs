@@ -119,8 +119,8 @@ fn plot_scan(
     points: &[ScanPoints],
     u: &DisplayUnits,
 ) -> Result<PathBuf, Error> {
-    let kd = format!("k ({})", DisplayUnits::pretty(&u.stiffness()));
-    let cd = format!("c ({})", DisplayUnits::pretty(&u.damping()));
+    let kd = format!("k ({})", u.stiffness());
+    let cd = format!("c ({})", u.damping());
     let k = |x: Option<f64>| x.map(|x| u.k(x));
     let path = plot::target(dir, &format.file("diag-air-scan"))?;
     let root = plot::canvas(&path, (1100, 840), format);

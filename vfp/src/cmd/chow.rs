@@ -208,7 +208,7 @@ fn plot_chow(
         &left,
         &path,
         "V-P of the compared logs",
-        &format!("volume ({})", DisplayUnits::pretty(u.volume())),
+        &format!("volume ({})", u.volume()),
         &format!("pressure ({})", u.pressure()),
         &vp,
     )?;

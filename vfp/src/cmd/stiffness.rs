@@ -159,7 +159,7 @@ fn plot_distributions(
         &left,
         &path,
         &format!("{label}: pointwise stiffness k"),
-        &format!("k = dP/dv ({})", DisplayUnits::pretty(&u.stiffness())),
+        &format!("k = dP/dv ({})", u.stiffness()),
         "density",
         &curves(&ks, klo, khi),
     )?;
@@ -167,7 +167,7 @@ fn plot_distributions(
         &right,
         &path,
         &format!("{label}: pointwise damping c"),
-        &format!("c = dP/dvdot ({})", DisplayUnits::pretty(&u.damping())),
+        &format!("c = dP/dvdot ({})", u.damping()),
         "density",
         &curves(&cs, clo, chi),
     )?;

@@ -148,7 +148,7 @@ impl FitFigures<'_> {
             .zip(&held.p)
             .map(|((&v, &q), &p)| (u.v(v), u.p(p - fit.predict(v, q))))
             .collect();
-        let (vol, pres) = (DisplayUnits::pretty(u.volume()), u.pressure());
+        let (vol, pres) = (u.volume(), u.pressure());
         let scatter_path = (self.file)(format!("ch{}-residual-vs-volume", self.chamber));
         scatter(
             &canvas(&scatter_path, (900, 600), self.format),
@@ -196,7 +196,7 @@ impl FitFigures<'_> {
             &path,
             &format!("V-P curves: measured (grey) and {name} (blue)"),
             (
-                &format!("volume ({})", DisplayUnits::pretty(u.volume())),
+                &format!("volume ({})", u.volume()),
                 &format!("pressure ({})", u.pressure()),
             ),
             &[
