@@ -314,7 +314,7 @@ fn render_table2(r: &ChamberReport, u: &DisplayUnits) -> String {
         }
     }
     for n in &r.notes {
-        let _ = writeln!(s, "  note: {n}");
+        let _ = writeln!(s, "  note: {}", u.sentence(n));
     }
     if let Some(sel) = &r.poly_selection {
         s.push_str(&render_selection(sel, u));

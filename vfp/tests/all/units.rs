@@ -26,7 +26,7 @@ fn scratch(name: &str) -> PathBuf {
 
 /// The bag log in mL, mL/s and cmH2O, by the hand factors.
 fn lab_copy(out: &Path) {
-    let log = sysid::log::read_log(&root().join(BAG)).expect("the bag log reads");
+    let log = sysid::log::read_log(root().join(BAG)).expect("the bag log reads");
     let mut text = String::from("t,V_ml,Q_ml_s,P_cmH2O\n");
     for s in &log.samples {
         let q = s.flow_mm3_s.expect("the bag log has flow");
@@ -113,7 +113,13 @@ fn same_numbers(canon: &str, lab: &str, map: &[(&str, &str, f64)]) -> usize {
 
 /// Table II's training and held-out RMSE columns and Table IV's coefficients and standard errors
 /// with the powers (i, j) of their term vⁱ v̇ʲ (RMSE rows: (0, 0)).
-fn tables(text: &str) -> (Vec<(f64, f64)>, Vec<((f64, f64), (f64, f64), usize)>) {
+/// A number as printed and its last digit's worth.
+type Printed = (f64, f64);
+
+/// A coefficient and its standard error as printed, with the total power i + j of its term.
+type Coefficient = (Printed, Printed, usize);
+
+fn tables(text: &str) -> (Vec<Printed>, Vec<Coefficient>) {
     let mut rmse = Vec::new();
     let mut coef = Vec::new();
     let mut section = 0;
