@@ -163,8 +163,8 @@ impl DisplayUnits {
     }
 
     /// A number with one of the units the library writes (`mm3`, `mm3/s`, `kPa`, `kPa2`,
-    /// `mm3/(kPa*s)`, `kPa*s^2/mm3`, `kPa*s^2/mm6`; anything else — s, Hz, 1 — as it is) in
-    /// these units, with its unit's name.
+    /// `mm3/(kPa*s)`, `kPa*s^2/mm3`, `kPa*s^2/mm6`, and in its sentences `mm³`, `mm³/s`,
+    /// `kPa·s²/mm³`; anything else — s, Hz, 1 — as it is) in these units, with its unit's name.
     pub fn convert(&self, value: f64, unit: &str) -> (f64, String) {
         let (v, p) = (self.volume.0, self.pressure.0);
         // (the value's powers of the volume and the pressure unit, the unit's name)
@@ -176,6 +176,10 @@ impl DisplayUnits {
             "mm3/(kPa*s)" => (1, -1, format!("{v}/({p}*s)")),
             "kPa*s^2/mm3" => (-1, 1, format!("{p}*s^2/{v}")),
             "kPa*s^2/mm6" => (-2, 1, format!("{p}*s^2/{v}^2")),
+            // As the library's sentences spell them.
+            "mm³" => (1, 0, Self::pretty(v)),
+            "mm³/s" => (1, 0, format!("{}/s", Self::pretty(v))),
+            "kPa·s²/mm³" => (-1, 1, format!("{p}·s²/{}", Self::pretty(v))),
             _ => return (value, unit.to_string()),
         };
         if self.is_canonical() {
@@ -305,12 +309,14 @@ mod tests {
         let u: DisplayUnits = "mL,cmH2O".parse().unwrap();
         let s = u.sentence(
             "residual differs by direction: +0.0981 kPa inflating vs -0.196 kPa deflating (t = 4.0); \
-             interval (1.000e3 to 2.000e3 mm3) at 0.500 s; 0.0981 → 0.1961 kPa",
+             interval (1.000e3 to 2.000e3 mm3) at 0.500 s; 0.0981 → 0.1961 kPa; a play of \
+             2.0000e3 mm³ is 4 % of the stroke (5.0000e4 mm³), L = -1.000e-7 kPa·s²/mm³",
         );
         assert_eq!(
             s,
             "residual differs by direction: +1.0003 cmH2O inflating vs -1.999 cmH2O deflating (t = 4.0); \
-             interval (1.000e0 to 2.000e0 mL) at 0.500 s; 1.0003 → 1.9997 cmH2O"
+             interval (1.000e0 to 2.000e0 mL) at 0.500 s; 1.0003 → 1.9997 cmH2O; a play of \
+             2.0000e0 mL is 4 % of the stroke (5.0000e1 mL), L = -1.020e-3 cmH2O·s²/mL"
         );
         let same = "held-out 0.1234 kPa";
         assert_eq!(DisplayUnits::default().sentence(same), same);

@@ -2,7 +2,8 @@
 //!
 //! - `ch<c>-<family>-rmse-aicc.<ext>`: RMSE bars and AICc points per model (Figs. 2-4);
 //! - `ch<c>-residual-vs-volume.<ext>`: held-out residuals of the selected polynomial against v (Fig. 5a);
-//! - `ch<c>-error-histogram.<ext>`: its error distribution, 0.05 kPa bins (Fig. 5b);
+//! - `ch<c>-error-histogram.<ext>`: its error distribution, 0.05 kPa bins (Fig. 5b; in another
+//!   pressure unit the round width nearest to it, 0.5 cmH2O);
 //! - `ch<c>-vp.<ext>`: measured and predicted V-P curves (Fig. 1c).
 //!
 //! Volumes and pressures are drawn in the report's units ([`DisplayUnits`], `--units`).
@@ -149,6 +150,12 @@ impl FitFigures<'_> {
             .map(|((&v, &q), &p)| (u.v(v), u.p(p - fit.predict(v, q))))
             .collect();
         let (vol, pres) = (u.volume(), u.pressure());
+        // 0.05 kPa bins; in another unit the round width nearest to 0.05 kPa (0.5 cmH2O).
+        let bin = if u.is_canonical() {
+            0.05
+        } else {
+            round_width(u.p(0.05))
+        };
         let scatter_path = (self.file)(format!("ch{}-residual-vs-volume", self.chamber));
         scatter(
             &canvas(&scatter_path, (900, 600), self.format),
@@ -163,10 +170,10 @@ impl FitFigures<'_> {
             &hist_path,
             &format!(
                 "{name}: held-out error distribution ({} {pres} bins)",
-                crate::figure::tick(u.p(0.05))
+                crate::figure::tick(bin)
             ),
             &resid.iter().map(|r| r.1).collect::<Vec<_>>(),
-            (u.p(0.05), &format!("error ({pres})")),
+            (bin, &format!("error ({pres})")),
         )?;
         Ok(vec![scatter_path, hist_path])
     }
@@ -206,6 +213,17 @@ impl FitFigures<'_> {
         )?;
         Ok(path)
     }
+}
+
+/// The width of the form 1, 2 or 5 × 10ᵏ nearest to `x` (> 0) on a log scale.
+fn round_width(x: f64) -> f64 {
+    let k = x.log10().floor();
+    let m = x / 10f64.powf(k);
+    let best = [1.0, 2.0, 5.0, 10.0]
+        .into_iter()
+        .min_by(|a: &f64, b: &f64| (m / a).ln().abs().total_cmp(&(m / b).ln().abs()))
+        .unwrap_or(1.0);
+    best * 10f64.powf(k)
 }
 
 /// A white canvas.
