@@ -259,6 +259,28 @@ impl fmt::Display for ColumnMap {
     }
 }
 
+/// The format's units, which every JSON document's numbers are in (its `units` field): a report's
+/// text and figures may show others (`vfp --units`), the machine-readable output never does.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+pub struct FormatUnits {
+    /// Time: s.
+    pub time: &'static str,
+    /// Volume: mm3.
+    pub volume: &'static str,
+    /// Flow: mm3/s.
+    pub flow: &'static str,
+    /// Pressure: kPa.
+    pub pressure: &'static str,
+}
+
+/// The format's units: s, mm3, mm3/s, kPa.
+pub const FORMAT_UNITS: FormatUnits = FormatUnits {
+    time: "s",
+    volume: "mm3",
+    flow: "mm3/s",
+    pressure: "kPa",
+};
+
 /// How to read a log whose layout is not quite the format's.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct ReadOptions {

@@ -2,6 +2,7 @@
 //! and the small helpers every command's rendering uses.
 
 use crate::figure::PlotFormat;
+use crate::units::DisplayUnits;
 use crate::Error;
 use clap::builder::{PossibleValue, PossibleValuesParser, TypedValueParser};
 use std::path::{Path, PathBuf};
@@ -134,9 +135,27 @@ pub struct OutputOpts {
     /// The figures' file format.
     #[arg(long, value_name = "FORMAT", value_enum, default_value_t = PlotFormat::Svg)]
     pub plot_format: PlotFormat,
+    /// Units of the text report and the figures, `VOLUME,PRESSURE` (e.g. `mL,cmH2O`; the unit
+    /// names of --columns); flow is the volume unit per second. Default: the units --columns
+    /// gave, else mm3 and kPa. JSON stays in mm3, mm3/s and kPa.
+    #[arg(long, value_name = "VOLUME,PRESSURE", value_parser = parse_units)]
+    pub units: Option<DisplayUnits>,
+}
+
+fn parse_units(s: &str) -> Result<DisplayUnits, String> {
+    s.parse()
 }
 
 impl OutputOpts {
+    /// The units to show: `--units`, else those `--columns` read the file in, else mm³ and kPa.
+    pub fn display_units(&self, data: &DataOpts) -> DisplayUnits {
+        self.units.unwrap_or_else(|| {
+            data.columns
+                .as_ref()
+                .map_or_else(DisplayUnits::default, DisplayUnits::of_columns)
+        })
+    }
+
     /// Writes the figure when `--plots DIR` asks for it (`plot` gets the directory and the format
     /// and returns the file it wrote), then the report: pretty JSON with `--json`, else
     /// `human(report)`.

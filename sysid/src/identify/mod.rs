@@ -361,6 +361,9 @@ pub struct Document<'a> {
     pub timing_s: BTreeMap<&'static str, f64>,
     /// The per-chamber reports.
     pub chambers: &'a [ChamberReport],
+    /// The units of every number: the format's ([`crate::columns::FORMAT_UNITS`]), whatever the
+    /// log was read in.
+    pub units: crate::columns::FormatUnits,
 }
 
 impl<'a> Document<'a> {
@@ -388,6 +391,7 @@ impl<'a> Document<'a> {
                 .collect(),
             timing_s,
             chambers: reports,
+            units: crate::columns::FORMAT_UNITS,
         }
     }
 }

@@ -1520,6 +1520,10 @@ pub fn document(data: &crate::dataset::LogData, d: &Diagnosis) -> serde_json::Va
         obj.insert("log".into(), data.name().into());
         obj.insert("chamber".into(), ds.chamber.into());
         obj.insert("split".into(), ds.split_description().into());
+        obj.insert(
+            "units".into(),
+            serde_json::to_value(crate::columns::FORMAT_UNITS).unwrap_or_default(),
+        );
     }
     doc
 }

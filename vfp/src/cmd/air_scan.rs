@@ -5,6 +5,7 @@
 use super::stiffness::ShapeOpts;
 use crate::opts::{ChamberOpt, DataOpts, OutputOpts};
 use crate::plots::diag::{self as plot, Curve, Mark};
+use crate::units::DisplayUnits;
 use crate::Error;
 use std::path::PathBuf;
 use sysid::diag::air_scan::{scan, AirScanReport, ScanPoints, Trend};
@@ -47,34 +48,46 @@ pub fn scan_logs(args: &Args) -> Result<(AirScanReport, Vec<ScanPoints>), Error>
 /// Runs `vfp air-scan`.
 pub fn run(args: &Args) -> Result<(), Error> {
     let (report, points) = scan_logs(args)?;
-    args.out.emit(&report, human, |dir, format| {
-        plot_scan(dir, format, &report, &points)
-    })
+    let u = args.out.display_units(&args.data);
+    args.out.emit(
+        &report,
+        |r| human(r, &u),
+        |dir, format| plot_scan(dir, format, &report, &points, &u),
+    )
 }
 
-fn opt(x: Option<f64>) -> String {
-    x.map(|x| format!("{x:>10.5}"))
+fn opt(x: Option<f64>, u: &DisplayUnits) -> String {
+    x.map(|x| format!("{:>10.5}", u.k(x)))
         .unwrap_or_else(|| format!("{:>10}", "-"))
 }
 
-/// The human report.
-pub fn human(r: &AirScanReport) -> String {
+/// The human report, its numbers in `u`.
+pub fn human(r: &AirScanReport, u: &DisplayUnits) -> String {
     let mut s = format!(
-        "Mean stiffness k (kPa/mm3) and damping c (kPa s/mm3) per log, by {}\n\n  {:>8} {:>10} \
+        "Mean stiffness k ({}) and damping c ({}) per log, by {}\n\n  {:>8} {:>10} \
          {:>10} {:>10} {:>10} {:>10} {:>10}  log\n",
-        r.x_key, r.x_key, "k all", "c all", "k infl", "c infl", "k defl", "c defl"
+        u.stiffness(),
+        u.damping(),
+        r.x_key,
+        r.x_key,
+        "k all",
+        "c all",
+        "k infl",
+        "c infl",
+        "k defl",
+        "c defl"
     );
     for e in &r.logs {
         let m = &e.summary;
         s += &format!(
             "  {:>8} {:>10.5} {:>10.5} {} {} {} {}  {} (chamber {}){}\n",
             e.x,
-            m.k_mean,
-            m.c_mean,
-            opt(m.inflation.k_mean),
-            opt(m.inflation.c_mean),
-            opt(m.deflation.k_mean),
-            opt(m.deflation.c_mean),
+            u.k(m.k_mean),
+            u.k(m.c_mean),
+            opt(m.inflation.k_mean, u),
+            opt(m.inflation.c_mean, u),
+            opt(m.deflation.k_mean, u),
+            opt(m.deflation.c_mean, u),
             e.log,
             m.chamber,
             if e.x_from_meta {
@@ -104,7 +117,11 @@ fn plot_scan(
     format: crate::figure::PlotFormat,
     r: &AirScanReport,
     points: &[ScanPoints],
+    u: &DisplayUnits,
 ) -> Result<PathBuf, Error> {
+    let kd = format!("k ({})", u.stiffness());
+    let cd = format!("c ({})", u.damping());
+    let k = |x: Option<f64>| x.map(|x| u.k(x));
     let path = plot::target(dir, &format.file("diag-air-scan"))?;
     let root = plot::canvas(&path, (1100, 840), format);
     let (top, bottom) = root.split_vertically(420);
@@ -112,39 +129,30 @@ fn plot_scan(
     let (bl, br) = bottom.split_horizontally(550);
     let k_means = mean_curves(
         r,
-        |m| Some(m.k_mean),
-        |m| m.inflation.k_mean,
-        |m| m.deflation.k_mean,
+        |m| k(Some(m.k_mean)),
+        |m| k(m.inflation.k_mean),
+        |m| k(m.deflation.k_mean),
     );
     let c_means = mean_curves(
         r,
-        |m| Some(m.c_mean),
-        |m| m.inflation.c_mean,
-        |m| m.deflation.c_mean,
+        |m| k(Some(m.c_mean)),
+        |m| k(m.inflation.c_mean),
+        |m| k(m.deflation.c_mean),
     );
-    plot::panel(
-        &tl,
-        &path,
-        "mean stiffness",
-        &r.x_key,
-        "k (kPa/mm3)",
-        &k_means,
-    )?;
-    plot::panel(
-        &tr,
-        &path,
-        "mean damping",
-        &r.x_key,
-        "c (kPa s/mm3)",
-        &c_means,
-    )?;
-    let ks: Vec<&[f64]> = points.iter().map(|p| p.pointwise.k.as_slice()).collect();
-    let cs: Vec<&[f64]> = points.iter().map(|p| p.pointwise.c.as_slice()).collect();
+    plot::panel(&tl, &path, "mean stiffness", &r.x_key, &kd, &k_means)?;
+    plot::panel(&tr, &path, "mean damping", &r.x_key, &cd, &c_means)?;
+    let conv = |x: &[f64]| x.iter().map(|&x| u.k(x)).collect::<Vec<f64>>();
+    let (kv, cv): (Vec<Vec<f64>>, Vec<Vec<f64>>) = points
+        .iter()
+        .map(|p| (conv(&p.pointwise.k), conv(&p.pointwise.c)))
+        .unzip();
+    let ks: Vec<&[f64]> = kv.iter().map(Vec::as_slice).collect();
+    let cs: Vec<&[f64]> = cv.iter().map(Vec::as_slice).collect();
     plot::panel(
         &bl,
         &path,
         "distribution of pointwise k",
-        "k (kPa/mm3)",
+        &kd,
         "density",
         &density_curves(r, points, &ks),
     )?;
@@ -152,7 +160,7 @@ fn plot_scan(
         &br,
         &path,
         "distribution of pointwise c",
-        "c (kPa s/mm3)",
+        &cd,
         "density",
         &density_curves(r, points, &cs),
     )?;

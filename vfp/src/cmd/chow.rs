@@ -4,6 +4,7 @@
 use super::stiffness::ShapeOpts;
 use crate::opts::{method_parser, ChamberOpt, DataOpts, OutputOpts};
 use crate::plots::diag::{self as plot, Curve, Mark};
+use crate::units::DisplayUnits;
 use crate::Error;
 use std::path::PathBuf;
 use sysid::dataset::LogData;
@@ -62,8 +63,9 @@ pub fn run(args: &Args) -> Result<(), Error> {
         ar_order: args.ar_order,
     };
     let report = chow_logs(&logs, &o)?;
+    let u = args.out.display_units(&args.data);
     args.out.emit(&report, human, |dir, format| {
-        plot_chow(dir, format, &logs, &report)
+        plot_chow(dir, format, &logs, &report, &u)
     })
 }
 
@@ -143,7 +145,7 @@ pub fn human(r: &ChowReport) -> String {
 }
 
 /// Each log's V–P points (about 800 of each), coloured by its index.
-fn vp_curves(logs: &[LogData]) -> Vec<Curve> {
+fn vp_curves(logs: &[LogData], u: &DisplayUnits) -> Vec<Curve> {
     logs.iter()
         .enumerate()
         .map(|(i, l)| {
@@ -153,7 +155,7 @@ fn vp_curves(logs: &[LogData]) -> Vec<Curve> {
                 s.v.iter()
                     .zip(&s.p)
                     .step_by(step)
-                    .map(|(&v, &p)| (v, p))
+                    .map(|(&v, &p)| (u.v(v), u.p(p)))
                     .collect();
             Curve::new(
                 format!("[{i}] {}", l.label()),
@@ -196,17 +198,18 @@ fn plot_chow(
     format: crate::figure::PlotFormat,
     logs: &[LogData],
     r: &ChowReport,
+    u: &DisplayUnits,
 ) -> Result<PathBuf, Error> {
     let path = plot::target(dir, &format.file("diag-chow"))?;
     let root = plot::canvas(&path, (1100, 440), format);
     let (left, right) = root.split_horizontally(550);
-    let vp = vp_curves(logs);
+    let vp = vp_curves(logs, u);
     plot::panel(
         &left,
         &path,
         "V-P of the compared logs",
-        "volume (mm3)",
-        "pressure (kPa)",
+        &format!("volume ({})", u.volume()),
+        &format!("pressure ({})", u.pressure()),
         &vp,
     )?;
     let curves = f_curves(r);

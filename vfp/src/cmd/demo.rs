@@ -700,10 +700,21 @@ fn write_figures(
     let mut written = Vec::new();
     let format = plan.plot_format;
     if let (Some(ds), Some(rep)) = (datasets.first(), reports.first()) {
-        written.extend(crate::plots::identify::write_all(&fig, format, ds, rep)?);
+        written.extend(crate::plots::identify::write_all(
+            &fig,
+            format,
+            ds,
+            rep,
+            &crate::units::DisplayUnits::default(),
+        )?);
     }
     if let Some(d) = diagnosis {
-        written.extend(super::diagnose::write_plots(&fig, format, d)?);
+        written.extend(super::diagnose::write_plots(
+            &fig,
+            format,
+            d,
+            &crate::units::DisplayUnits::default(),
+        )?);
     }
     let force_path = fig.join(format.file("force"));
     let mut panels = vec![ForcePanel::new(

@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 use plotters::prelude::*;
 
 use crate::opts::{effect_parser, LogInput, OutputOpts};
+use crate::units::DisplayUnits;
 use crate::Error;
 use sysid::residual::analysis::Binned;
 use sysid::residual::validate::{validate_log, Validation};
@@ -94,6 +95,7 @@ pub fn run(args: &Args) -> Result<(), Error> {
     if args.input.data.holdout_every < 2 {
         return Err(Error::Usage("--holdout-every must be at least 2".into()));
     }
+    let units = args.out.display_units(&args.input.data);
     let mut data = args.input.load()?;
     // The loop runs on the first requested chamber only; the others' data would only take room.
     data.datasets.truncate(1);
@@ -121,7 +123,7 @@ pub fn run(args: &Args) -> Result<(), Error> {
         None => None,
     };
     if let Some(dir) = &args.out.plots {
-        write_plots(dir, args.out.plot_format, &d)?;
+        write_plots(dir, args.out.plot_format, &d, &units)?;
     }
     if args.out.json {
         let mut doc = document(&data, &d);
@@ -140,11 +142,12 @@ pub fn run(args: &Args) -> Result<(), Error> {
                 &data.path,
                 data.first().chamber,
                 &data.first().split_description(),
-                &d
+                &d,
+                &units
             )
         );
         if let Some(v) = &validation {
-            print!("{}", validation_report(v));
+            print!("{}", validation_report(v, &units));
         }
         if args.timings {
             print!("{}", timings_report(&d.timing));
@@ -192,26 +195,29 @@ pub fn timings_report(t: &Timings) -> String {
 }
 
 /// The `--validate` block of the text report.
-fn validation_report(v: &Validation) -> String {
+fn validation_report(v: &Validation, u: &DisplayUnits) -> String {
+    let p = u.pressure();
     let mut s = format!(
-        "\nvalidation on {} ({} samples, every row, nothing refitted):\n  baseline RMSE {:.4} kPa\n",
-        v.log, v.samples, v.baseline_rmse
+        "\nvalidation on {} ({} samples, every row, nothing refitted):\n  baseline RMSE {:.4} {p}\n",
+        v.log,
+        v.samples,
+        u.p(v.baseline_rmse)
     );
     for st in &v.steps {
-        let _ = writeln!(s, "  + {:<18} RMSE {:.4} kPa", st.effect, st.rmse);
+        let _ = writeln!(s, "  + {:<18} RMSE {:.4} {p}", st.effect, u.p(st.rmse));
     }
     let verdict = if v.final_rmse.is_nan() {
         "the final model could not be evaluated there".to_string()
     } else if v.final_rmse > v.baseline_rmse {
         format!(
-            "the final model is WORSE there than the baseline ({:.4} against {:.4} kPa): what the loop added on this log does not hold on that one",
-            v.final_rmse, v.baseline_rmse
+            "the final model is WORSE there than the baseline ({:.4} against {:.4} {p}): what the loop added on this log does not hold on that one",
+            u.p(v.final_rmse), u.p(v.baseline_rmse)
         )
     } else {
         format!(
-            "the final model lowers the error there from {:.4} to {:.4} kPa ({:.1} %)",
-            v.baseline_rmse,
-            v.final_rmse,
+            "the final model lowers the error there from {:.4} to {:.4} {p} ({:.1} %)",
+            u.p(v.baseline_rmse),
+            u.p(v.final_rmse),
             100.0 * (1.0 - v.final_rmse / v.baseline_rmse)
         )
     };
@@ -224,7 +230,7 @@ fn validation_report(v: &Validation) -> String {
         );
     }
     if let Some(note) = &v.carry_over_note {
-        let _ = writeln!(s, "{note}");
+        let _ = writeln!(s, "{}", u.sentence(note));
     }
     if let Some(first) = v.carry_over.first() {
         let _ = writeln!(
@@ -236,10 +242,10 @@ fn validation_report(v: &Validation) -> String {
         for c in &v.carry_over {
             let _ = writeln!(
                 s,
-                "  {:<18} {:.4} -> {:.4} kPa  gain {:>6.2} %  z {:>6.2}  {}",
+                "  {:<18} {:.4} -> {:.4} {p}  gain {:>6.2} %  z {:>6.2}  {}",
                 c.effect,
-                c.without_rmse,
-                c.with_rmse,
+                u.p(c.without_rmse),
+                u.p(c.with_rmse),
                 100.0 * c.gain,
                 c.z,
                 if c.carries {
@@ -253,20 +259,26 @@ fn validation_report(v: &Validation) -> String {
     s
 }
 
-fn fmt_param(p: &Param) -> String {
+/// A parameter in `u`: its value, standard error and interval by the factor of its unit.
+fn fmt_param(p: &Param, u: &DisplayUnits) -> String {
+    let (f, unit) = u.convert(1.0, p.unit);
+    let name = u.param_name(&p.name);
+    // A factor of exactly 1 (the format's units, or s, Hz, 1) leaves the numbers as they are.
+    let c = |x: f64| if f == 1.0 { x } else { u.convert(x, p.unit).0 };
     let mut s = match p.std_err {
-        Some(se) => format!("{} = {:.4e} ± {:.2e} {}", p.name, p.value, se, p.unit),
-        None => format!("{} = {:.4e} {}", p.name, p.value, p.unit),
+        Some(se) => format!("{} = {:.4e} ± {:.2e} {}", name, c(p.value), c(se), unit),
+        None => format!("{} = {:.4e} {}", name, c(p.value), unit),
     };
-    if let Some([lo, hi]) = p.ci95 {
+    if let Some([lo, hi]) = p.ci95.map(|b| b.map(c)) {
         let bound = if p.ci95_clipped { ", clipped at 0" } else { "" };
         s.push_str(&format!(" (95 % {lo:.3e} to {hi:.3e}{bound})"));
     }
     s
 }
 
-/// The text report for a person.
-pub fn report(path: &Path, chamber: u8, split: &str, d: &Diagnosis) -> String {
+/// The text report for a person, its numbers in `u`.
+pub fn report(path: &Path, chamber: u8, split: &str, d: &Diagnosis, u: &DisplayUnits) -> String {
+    let p = u.pressure();
     let mut s = String::new();
     let _ = writeln!(s, "vfp diagnose {} — chamber {chamber}", path.display());
     let _ = writeln!(
@@ -291,32 +303,36 @@ pub fn report(path: &Path, chamber: u8, split: &str, d: &Diagnosis) -> String {
     );
     let _ = writeln!(
         s,
-        "\nbaseline polynomial n = {}, m = {} ({} parameters): RMSE train {:.4} kPa, held-out {:.4} kPa",
-        d.baseline.n, d.baseline.m, d.baseline.nu, d.baseline.rmse_train, d.baseline.rmse_heldout
+        "\nbaseline polynomial n = {}, m = {} ({} parameters): RMSE train {:.4} {p}, held-out {:.4} {p}",
+        d.baseline.n,
+        d.baseline.m,
+        d.baseline.nu,
+        u.p(d.baseline.rmse_train),
+        u.p(d.baseline.rmse_heldout)
     );
     let _ = writeln!(
         s,
-        "  residual: Ljung–Box p = {:.2e}, lag-1 autocorrelation {:.2}, strongest input {} (lag {}, r = {:.2}), spectral peak {:.3} Hz, inflation − deflation {:+.4} kPa",
+        "  residual: Ljung–Box p = {:.2e}, lag-1 autocorrelation {:.2}, strongest input {} (lag {}, r = {:.2}), spectral peak {:.3} Hz, inflation − deflation {:+.4} {p}",
         d.before.ljung_box_p,
         d.before.acf_lag1,
         d.before.strongest_input.0,
         d.before.strongest_input.1,
         d.before.strongest_input.2,
         d.before.spectral_peak_hz,
-        d.before.direction_gap
+        u.p(d.before.direction_gap)
     );
     if d.effects.is_empty() {
         let _ = writeln!(s, "\nno effect passed the test");
     }
     for (i, e) in d.effects.iter().enumerate() {
-        report_effect(&mut s, i + 1, e);
+        report_effect(&mut s, i + 1, e, u);
     }
     let _ = writeln!(
         s,
-        "\nfinal model ({} parameters): RMSE train {:.4} kPa, held-out {:.4} kPa{}",
+        "\nfinal model ({} parameters): RMSE train {:.4} {p}, held-out {:.4} {p}{}",
         d.final_model.nu,
-        d.final_model.rmse_train,
-        d.final_model.rmse_heldout,
+        u.p(d.final_model.rmse_train),
+        u.p(d.final_model.rmse_heldout),
         if d.final_model.uses_measured_pressure {
             " (uses measured pressure as a scheduling input)"
         } else {
@@ -332,21 +348,22 @@ pub fn report(path: &Path, chamber: u8, split: &str, d: &Diagnosis) -> String {
     } else {
         let _ = writeln!(s, "remaining structure that no candidate explains:");
         for r in &d.remaining {
-            let _ = writeln!(s, "  - {}: {}", r.kind, r.description);
+            let _ = writeln!(s, "  - {}: {}", r.kind, u.sentence(&r.description));
         }
     }
     s
 }
 
 /// The report's paragraph on the `k`-th effect kept.
-fn report_effect(s: &mut String, k: usize, e: &EffectReport) {
+fn report_effect(s: &mut String, k: usize, e: &EffectReport, u: &DisplayUnits) {
+    let p = u.pressure();
     let _ = writeln!(
         s,
-        "\n{}. {} — held-out RMSE {:.4} → {:.4} kPa ({:+.1} %), F = {:.1} on ({:.0}, {:.0}) df, N_eff = {:.0}, p = {:.2e}",
+        "\n{}. {} — held-out RMSE {:.4} → {:.4} {p} ({:+.1} %), F = {:.1} on ({:.0}, {:.0}) df, N_eff = {:.0}, p = {:.2e}",
         k,
         e.name,
-        e.rmse_heldout_before,
-        e.rmse_heldout_after,
+        u.p(e.rmse_heldout_before),
+        u.p(e.rmse_heldout_after),
         100.0 * (e.rmse_heldout_after / e.rmse_heldout_before - 1.0),
         e.test.f_statistic,
         e.test.df1,
@@ -355,8 +372,8 @@ fn report_effect(s: &mut String, k: usize, e: &EffectReport) {
         e.p_value
     );
     let _ = writeln!(s, "   {}", e.story);
-    for p in &e.params {
-        let _ = writeln!(s, "   {}", fmt_param(p));
+    for par in &e.params {
+        let _ = writeln!(s, "   {}", fmt_param(par, u));
     }
     let _ = writeln!(
         s,
@@ -367,13 +384,13 @@ fn report_effect(s: &mut String, k: usize, e: &EffectReport) {
     if let Some(r) = &e.runner_up {
         let _ = writeln!(
             s,
-            "   runner-up: {}, held-out {:.4} kPa ({:+.1} % against {:.4} kPa with this one), p = {:.2e}, {}",
+            "   runner-up: {}, held-out {:.4} {p} ({:+.1} % against {:.4} {p} with this one), p = {:.2e}, {}",
             r.name,
-            r.rmse_heldout,
+            u.p(r.rmse_heldout),
             100.0 * (r.rmse_heldout / e.rmse_heldout_after - 1.0),
-            e.rmse_heldout_after,
+            u.p(e.rmse_heldout_after),
             r.p_value,
-            r.reason
+            u.sentence(&r.reason)
         );
     }
 }
@@ -383,6 +400,7 @@ pub fn write_plots(
     dir: &Path,
     format: crate::figure::PlotFormat,
     d: &Diagnosis,
+    u: &DisplayUnits,
 ) -> Result<Vec<PathBuf>, Error> {
     std::fs::create_dir_all(dir).map_err(|e| Error::output(dir, e))?;
     let mut out = Vec::new();
@@ -391,7 +409,7 @@ pub fn write_plots(
         ("resid-after", &d.analysis_after, "after the residual loop"),
     ] {
         let path = dir.join(format.file(name));
-        figure(&path, format, a, title).map_err(|msg| Error::output(&path, msg))?;
+        figure(&path, format, a, title, u).map_err(|msg| Error::output(&path, msg))?;
         out.push(path);
     }
     Ok(out)
@@ -503,21 +521,24 @@ fn figure(
     format: crate::figure::PlotFormat,
     a: &ResidualAnalysis,
     title: &str,
+    u: &DisplayUnits,
 ) -> Result<(), String> {
     let root = crate::figure::canvas(path, (1500, 900), format);
     root.fill(&WHITE).map_err(|e| e.to_string())?;
     let root = root
         .titled(
             &format!(
-                "held-out residual, {title}: RMSE {:.4} kPa, Ljung–Box p = {:.2e}",
-                a.rmse, a.whiteness.lb_p_value
+                "held-out residual, {title}: RMSE {:.4} {}, Ljung–Box p = {:.2e}",
+                u.p(a.rmse),
+                u.pressure(),
+                a.whiteness.lb_p_value
             ),
             ("sans-serif", 22),
         )
         .map_err(|e| e.to_string())?;
     let panels = root.split_evenly((2, 3));
-    time_panels(&panels[..3], a)?;
-    shape_panels(&panels[3..], a)?;
+    time_panels(&panels[..3], a, u)?;
+    shape_panels(&panels[3..], a, u)?;
     root.present().map_err(|e| e.to_string())
 }
 
@@ -527,7 +548,7 @@ const GREEN: RGBColor = RGBColor(44, 160, 44);
 const GREY: RGBColor = RGBColor(90, 90, 90);
 
 /// The residual over time, its autocorrelation and its cross-correlation with the inputs.
-fn time_panels(panels: &[Area<'_>], a: &ResidualAnalysis) -> Result<(), String> {
+fn time_panels(panels: &[Area<'_>], a: &ResidualAnalysis, u: &DisplayUnits) -> Result<(), String> {
     // Subsample the scatter so figures stay small.
     let step = (a.points.len() / 4000).max(1);
     let pts: Vec<&[f64; 4]> = a.points.iter().step_by(step).collect();
@@ -535,10 +556,10 @@ fn time_panels(panels: &[Area<'_>], a: &ResidualAnalysis) -> Result<(), String> 
         &panels[0],
         "residual over time",
         "time (s)",
-        "residual (kPa)",
+        &format!("residual ({})", u.pressure()),
         &[(
             "residual",
-            pts.iter().map(|p| (p[0], p[3])).collect(),
+            pts.iter().map(|p| (p[0], u.p(p[3]))).collect(),
             GREY,
             true,
         )],
@@ -592,20 +613,23 @@ fn time_panels(panels: &[Area<'_>], a: &ResidualAnalysis) -> Result<(), String> 
 }
 
 /// The residual against volume and speed by direction, and its spectrum.
-fn shape_panels(panels: &[Area<'_>], a: &ResidualAnalysis) -> Result<(), String> {
+fn shape_panels(panels: &[Area<'_>], a: &ResidualAnalysis, u: &DisplayUnits) -> Result<(), String> {
     let dir = &a.direction;
+    // Bins of volume (mm³) or speed (mm³/s): the same factor.
     let line = |b: &Binned| {
         b.centre
             .iter()
-            .copied()
-            .zip(b.mean.iter().copied())
+            .map(|&x| u.v(x))
+            .zip(b.mean.iter().map(|&r| u.p(r)))
             .collect::<Vec<_>>()
     };
+    let (vol, pres) = (DisplayUnits::pretty(u.volume()), u.pressure());
+    let mean = format!("mean residual ({pres})");
     panel(
         &panels[0],
         "residual vs volume by direction",
-        "volume (mm³)",
-        "mean residual (kPa)",
+        &format!("volume ({vol})"),
+        &mean,
         &[
             ("inflation", line(&dir.inflation_vs_v), RED, false),
             ("deflation", line(&dir.deflation_vs_v), BLUE, false),
@@ -615,8 +639,8 @@ fn shape_panels(panels: &[Area<'_>], a: &ResidualAnalysis) -> Result<(), String>
     panel(
         &panels[1],
         "residual vs |flow| by direction",
-        "|flow| (mm³/s)",
-        "mean residual (kPa)",
+        &format!("|flow| ({vol}/s)"),
+        &mean,
         &[
             ("inflation", line(&dir.inflation_vs_speed), RED, false),
             ("deflation", line(&dir.deflation_vs_speed), BLUE, false),
@@ -628,14 +652,14 @@ fn shape_panels(panels: &[Area<'_>], a: &ResidualAnalysis) -> Result<(), String>
         &panels[2],
         "Welch spectrum",
         "frequency (Hz)",
-        "log10 PSD (kPa²/Hz)",
+        &format!("log10 PSD ({pres}²/Hz)"),
         &[(
             "psd",
             sp.freq_hz
                 .iter()
                 .zip(&sp.psd)
                 .skip(1)
-                .map(|(&f, &p)| (f, p.max(1e-30).log10()))
+                .map(|(&f, &p)| (f, u.p(u.p(p)).max(1e-30).log10()))
                 .collect(),
             BLUE,
             false,

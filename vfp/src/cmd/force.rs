@@ -5,6 +5,7 @@
 use super::stiffness::ShapeOpts;
 use crate::opts::{DataOpts, OutputOpts};
 use crate::plots::diag::{self as plot, Curve, Mark};
+use crate::units::DisplayUnits;
 use crate::Error;
 use std::path::PathBuf;
 use sysid::diag::force::{
@@ -96,23 +97,29 @@ pub fn run(args: &Args) -> Result<(), Error> {
     let ident = args.data.load(&args.ident, None)?;
     let test = args.data.load(&args.test, None)?;
     let w = args.plot_window;
+    let u = args.out.display_units(&args.data);
     match cfg {
         None => {
             let (report, trace) = estimate(&ident, &test, &o)?;
-            args.out
-                .emit(&report, human, |dir, f| plot_force(dir, f, &trace, w))
+            args.out.emit(
+                &report,
+                |r| human(r, &u),
+                |dir, f| plot_force(dir, f, &trace, w, &u),
+            )
         }
         Some(cfg) => {
             let (report, trace) = estimate_augmented(&ident, &test, &o, &cfg)?;
-            args.out.emit(&report, human_augmented, |dir, f| {
-                plot_force(dir, f, &trace, w)
-            })
+            args.out.emit(
+                &report,
+                |r| human_augmented(r, &u),
+                |dir, f| plot_force(dir, f, &trace, w, &u),
+            )
         }
     }
 }
 
 /// The human report of `--augmented`: the bare report's text, then the board models.
-pub fn human_augmented(r: &AugmentedForceReport) -> String {
+pub fn human_augmented(r: &AugmentedForceReport, u: &DisplayUnits) -> String {
     let mut s = format!(
         "Augmented models as the board runs them (residual loop on {}, `vfp export \
          --augmented`'s model, the firmware's estimator over the test log; ident RMSE below is \
@@ -126,8 +133,11 @@ pub fn human_augmented(r: &AugmentedForceReport) -> String {
             a.effects.join(", ")
         };
         s += &format!(
-            "  chamber {}: effects on the board: {fx}; held-out RMSE {:.4} kPa (baseline {:.4})\n",
-            a.chamber, a.device_heldout_rmse_kpa, a.baseline_heldout_rmse_kpa
+            "  chamber {}: effects on the board: {fx}; held-out RMSE {:.4} {} (baseline {:.4})\n",
+            a.chamber,
+            u.p(a.device_heldout_rmse_kpa),
+            u.pressure(),
+            u.p(a.baseline_heldout_rmse_kpa)
         );
         for d in &a.host_only {
             s += &format!(
@@ -143,11 +153,11 @@ pub fn human_augmented(r: &AugmentedForceReport) -> String {
             r.no_estimate
         );
     }
-    s + "\n" + &human(&r.force)
+    s + "\n" + &human(&r.force, u)
 }
 
-/// The human report (forces in mN).
-pub fn human(r: &ForceReport) -> String {
+/// The human report (forces in mN, pressures in `u`).
+pub fn human(r: &ForceReport, u: &DisplayUnits) -> String {
     let mn = |x: f64| x * 1e3;
     let mut s = format!(
         "External force from pressure residuals (polynomial n = {}, m = {} per chamber, \
@@ -167,11 +177,21 @@ pub fn human(r: &ForceReport) -> String {
             String::new()
         }
     );
-    s += "  chamber  area (mm2)  ident RMSE (kPa)  test noise (kPa)  mean residual (kPa)\n";
+    let p = u.pressure();
+    s += &format!(
+        "  chamber  area (mm2)  {:>16}  {:>16}  {:>19}\n",
+        format!("ident RMSE ({p})"),
+        format!("test noise ({p})"),
+        format!("mean residual ({p})")
+    );
     for c in &r.chambers {
         s += &format!(
             "  {:>7} {:>11.1} {:>17.4} {:>17.4} {:>20.4}\n",
-            c.chamber, c.area_mm2, c.ident_rmse_kpa, c.test_noise_kpa, c.mean_residual_kpa
+            c.chamber,
+            c.area_mm2,
+            u.p(c.ident_rmse_kpa),
+            u.p(c.test_noise_kpa),
+            u.p(c.mean_residual_kpa)
         );
     }
     s += &format!("\nmean estimated force: {:.2} mN\n", mn(r.mean_force_n));
@@ -221,6 +241,7 @@ fn plot_force(
     format: crate::figure::PlotFormat,
     tr: &ForceTrace,
     window: f64,
+    u: &DisplayUnits,
 ) -> Result<PathBuf, Error> {
     let path = plot::target(dir, &format.file("diag-force"))?;
     let root = plot::canvas(&path, (1000, 760), format);
@@ -264,13 +285,13 @@ fn plot_force(
     for (k, (c, (meas, pred))) in tr.pressures.iter().enumerate() {
         pc.push(Curve::new(
             format!("chamber {c} measured"),
-            keep.iter().map(|&i| (tr.t[i], meas[i])).collect(),
+            keep.iter().map(|&i| (tr.t[i], u.p(meas[i]))).collect(),
             plot::color(k),
             Mark::Dots,
         ));
         pc.push(Curve::new(
             format!("chamber {c} model"),
-            keep.iter().map(|&i| (tr.t[i], pred[i])).collect(),
+            keep.iter().map(|&i| (tr.t[i], u.p(pred[i]))).collect(),
             plot::color(k),
             Mark::Line,
         ));
@@ -280,7 +301,7 @@ fn plot_force(
         &path,
         "chamber pressures",
         "time (s)",
-        "pressure (kPa)",
+        &format!("pressure ({})", u.pressure()),
         &pc,
     )?;
     plot::finish(root, &path)?;

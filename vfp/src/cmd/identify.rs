@@ -2,6 +2,7 @@
 //! JSON document.
 
 use crate::opts::{family_parser, num, opt, LogInput, OutputOpts};
+use crate::units::DisplayUnits;
 use crate::Error;
 use sysid::identify::{self, ChamberReport, Family, ModelRow, Options};
 use sysid::metrics::CostWeights;
@@ -105,6 +106,7 @@ impl Args {
 /// Runs `vfp identify`.
 pub fn run(args: &Args) -> Result<(), Error> {
     let options = args.options()?;
+    let units = args.out.display_units(&args.input.data);
     let data = args.input.load()?;
     let datasets = &data.datasets;
     let wrap = |ch: u8, e: identify::IdentifyError| {
@@ -122,7 +124,7 @@ pub fn run(args: &Args) -> Result<(), Error> {
     }
     if let Some(dir) = &args.out.plots {
         for (ds, rep) in datasets.iter().zip(&reports) {
-            crate::plots::identify::write_all(dir, args.out.plot_format, ds, rep)?;
+            crate::plots::identify::write_all(dir, args.out.plot_format, ds, rep, &units)?;
         }
     }
     if args.out.json {
@@ -133,7 +135,10 @@ pub fn run(args: &Args) -> Result<(), Error> {
         println!("{text}");
     } else {
         for r in &reports {
-            print!("{}", render(r, &data.path.display().to_string(), &options));
+            print!(
+                "{}",
+                render(r, &data.path.display().to_string(), &options, &units)
+            );
         }
         if let Some(dir) = &args.out.plots {
             println!("figures written to {}", dir.display());
@@ -142,8 +147,8 @@ pub fn run(args: &Args) -> Result<(), Error> {
     Ok(())
 }
 
-/// The human report of one chamber, in the paper's table layout.
-pub fn render(r: &ChamberReport, file: &str, options: &Options) -> String {
+/// The human report of one chamber, in the paper's table layout, its numbers in `u`.
+pub fn render(r: &ChamberReport, file: &str, options: &Options, u: &DisplayUnits) -> String {
     use std::fmt::Write;
     let mut s = String::new();
     let w = &options.weights;
@@ -162,29 +167,30 @@ pub fn render(r: &ChamberReport, file: &str, options: &Options) -> String {
     );
 
     s.push_str(&render_table1(&r.table1));
-    s.push_str(&render_table2(r));
+    s.push_str(&render_table2(r, u));
     if let Some(f) = &r.poly_fit {
-        s.push_str(&render_coefficients(r, f));
+        s.push_str(&render_coefficients(r, f, u));
     }
     if let Some(sel) = &r.selected {
         let _ = writeln!(
             s,
-            "Lowest joint cost J among the families' choices: {} {} (nu = {}): RMSE {} kPa \
-             training, {} kPa held-out",
+            "Lowest joint cost J among the families' choices: {} {} (nu = {}): RMSE {} {p} \
+             training, {} {p} held-out",
             sel.family.name(),
             sel.shape(),
             sel.nu,
-            num(sel.rmse),
-            opt(sel.rmse_heldout)
+            num(u.p(sel.rmse)),
+            opt(sel.rmse_heldout.map(|x| u.p(x))),
+            p = u.pressure(),
         );
     }
-    s.push_str(&render_model_used(r));
+    s.push_str(&render_model_used(r, u));
     s
 }
 
 /// The model `vfp export` and `vfp diagnose` use by default, and why: the polynomial family's
 /// selection (its reduced terms for export), whatever the joint cost ranks first.
-fn render_model_used(r: &ChamberReport) -> String {
+fn render_model_used(r: &ChamberReport, u: &DisplayUnits) -> String {
     let Some(sel) = &r.poly_selection else {
         return "Model used by export and diagnose: none selected (the polynomial family did not \
                 run or could not be cross-validated; give --n/--m to export and diagnose)\n\n"
@@ -193,10 +199,11 @@ fn render_model_used(r: &ChamberReport) -> String {
     let (n, m) = (sel.selected.n, sel.selected.m);
     let terms = sel.reduced.as_ref().map_or(String::new(), |red| {
         format!(
-            ", {} of its {} terms kept (held-out RMSE {} kPa)",
+            ", {} of its {} terms kept (held-out RMSE {} {})",
             red.nu,
             red.active.len(),
-            opt(red.rmse_heldout)
+            opt(red.rmse_heldout.map(|x| u.p(x))),
+            u.pressure()
         )
     });
     format!(
@@ -250,13 +257,21 @@ fn render_table1(t: &identify::Table1) -> String {
 
 /// Table II: every family's sweep (training | held-out), failures, notes and the polynomial
 /// selection.
-fn render_table2(r: &ChamberReport) -> String {
+fn render_table2(r: &ChamberReport, u: &DisplayUnits) -> String {
     use std::fmt::Write;
     let mut s = String::new();
     let _ = writeln!(
         s,
         "Table II. Regression performances (training | held-out); * = the family's choice (poly: see below; others: lowest cost)"
     );
+    if !u.is_canonical() {
+        let _ = writeln!(
+            s,
+            "  RMSE in {}; AICc and BIC from the residuals in kPa, as in --json (a change of unit \
+             shifts every model's by the same constant)",
+            u.pressure()
+        );
+    }
     for fam in Family::ALL {
         let rows: Vec<&ModelRow> = r.models.iter().filter(|m| m.family == fam).collect();
         if rows.is_empty() && !r.failed.iter().any(|f| f.family == fam) {
@@ -283,11 +298,11 @@ fn render_table2(r: &ChamberReport) -> String {
                 m.shape(),
                 star,
                 m.nu,
-                num(m.rmse),
+                num(u.p(m.rmse)),
                 m.r2_adj,
                 format!("{:.4e}", m.aicc),
                 format!("{:.4e}", m.bic),
-                opt(m.rmse_heldout),
+                opt(m.rmse_heldout.map(|x| u.p(x))),
                 m.r2_adj_heldout.map_or("-".into(), |x| format!("{x:.4}"))
             );
         }
@@ -299,10 +314,10 @@ fn render_table2(r: &ChamberReport) -> String {
         }
     }
     for n in &r.notes {
-        let _ = writeln!(s, "  note: {n}");
+        let _ = writeln!(s, "  note: {}", u.sentence(n));
     }
     if let Some(sel) = &r.poly_selection {
-        s.push_str(&render_selection(sel));
+        s.push_str(&render_selection(sel, u));
     }
     let _ = writeln!(s);
 
@@ -310,12 +325,22 @@ fn render_table2(r: &ChamberReport) -> String {
 }
 
 /// Table IV: the selected polynomial's coefficients with their statistics, and the pruning table.
-fn render_coefficients(r: &ChamberReport, f: &sysid::poly::PolyFit) -> String {
+fn render_coefficients(r: &ChamberReport, f: &sysid::poly::PolyFit, u: &DisplayUnits) -> String {
     use std::fmt::Write;
     let mut s = String::new();
+    let units = if u.is_canonical() {
+        "paper units (kPa, mm3, mm3/s)".to_string()
+    } else {
+        format!(
+            "units {}, {}, {} (P = sum of coeff. v^i vdot^j with P, v and vdot in them)",
+            u.pressure(),
+            u.volume(),
+            u.flow()
+        )
+    };
     let _ = writeln!(
         s,
-        "Table IV. Coefficients of the polynomial model (n = {}, m = {}), paper units (kPa, mm3, mm3/s)",
+        "Table IV. Coefficients of the polynomial model (n = {}, m = {}), {units}",
         f.n, f.m
     );
     let _ = writeln!(
@@ -323,11 +348,17 @@ fn render_coefficients(r: &ChamberReport, f: &sysid::poly::PolyFit) -> String {
         "  {:>14} {:>13} {:>11} {:>9} {:>10}",
         "term", "coeff.", "SE", "t", "p"
     );
-    for c in &r.poly_coefficients {
+    for (k, c) in r.poly_coefficients.iter().enumerate() {
+        // Terms in the order of `PolyFit::term_names`: index i·(m + 1) + j for vⁱ v̇ʲ.
+        let (i, j) = (k / (f.m + 1), k % (f.m + 1));
         let _ = writeln!(
             s,
             "  {:>14} {:>13.4e} {:>11.3e} {:>9.2} {:>10.2e}",
-            c.term, c.stat.estimate, c.stat.se, c.stat.t, c.stat.p
+            c.term,
+            u.coefficient(c.stat.estimate, i, j),
+            u.coefficient(c.stat.se, i, j),
+            c.stat.t,
+            c.stat.p
         );
     }
     if !r.pruning.is_empty() {
@@ -345,7 +376,7 @@ fn render_coefficients(r: &ChamberReport, f: &sysid::poly::PolyFit) -> String {
             "  {:>26} {:>4} {:>9} {:>8.4} {:>11} |",
             "(none)",
             f.nu,
-            num(f.train.rmse),
+            num(u.p(f.train.rmse)),
             f.train.r2_adj,
             format!("{:.4e}", f.train.aicc)
         );
@@ -355,10 +386,10 @@ fn render_coefficients(r: &ChamberReport, f: &sysid::poly::PolyFit) -> String {
                 "  {:>26} {:>4} {:>9} {:>8.4} {:>11} | {:>9}",
                 p.excluded.join(", "),
                 p.nu,
-                num(p.train.rmse),
+                num(u.p(p.train.rmse)),
                 p.train.r2_adj,
                 format!("{:.4e}", p.train.aicc),
-                opt(p.heldout.map(|h| h.rmse))
+                opt(p.heldout.map(|h| u.p(h.rmse)))
             );
         }
     }
@@ -367,42 +398,52 @@ fn render_coefficients(r: &ChamberReport, f: &sysid::poly::PolyFit) -> String {
 }
 
 /// The polynomial selection in words, with the AICc and joint-cost picks beside it.
-fn render_selection(sel: &Selection) -> String {
+fn render_selection(sel: &Selection, u: &DisplayUnits) -> String {
     let shape = |s: &Shape| format!("({}, {}) (nu = {})", s.n, s.m, s.nu);
     let pick = |s: &Option<Shape>| s.as_ref().map_or("-".into(), shape);
-    let (blocks, compared) = match sel.blocks {
-        BlockKind::Cycles => ("training cycles", "(mean log ratio of block errors)"),
+    // The excess compares log ratios (no unit) over cycles, squared pressures over stretches.
+    let (blocks, compared, sq) = match sel.blocks {
+        BlockKind::Cycles => (
+            "training cycles",
+            "(mean log ratio of block errors)".to_string(),
+            1.0,
+        ),
         BlockKind::TimeStretches => (
             "stretches of the training samples (too few cycles)",
-            "kPa2 (pooled difference)",
+            format!("{} (pooled difference)", u.convert(1.0, "kPa2").1),
+            u.convert(1.0, "kPa2").0,
         ),
     };
+    let p = u.pressure();
     format!(
-        "  poly selection: {} — typical cross-validated RMSE {} kPa (pooled {} kPa); lowest {} kPa \
+        "  poly selection: {} — typical cross-validated RMSE {} {p} (pooled {} {p}); lowest {} {p} \
          at {}; excess {:.3e} {compared} within one paired SE {:.3e}, typical RMSE at most {} x \
          the lowest; {} blocks ({blocks}), {} folds\n  \
-         beside it: lowest pooled cross-validated RMSE {} kPa at {} (textbook one-SE limit {} kPa); \
+         beside it: lowest pooled cross-validated RMSE {} {p} at {} (textbook one-SE limit {} {p}); \
          lowest training AICc {}; lowest joint cost J {}\n",
         shape(&sel.selected),
-        num(sel.typical_rmse),
-        num(sel.cv_rmse),
-        num(sel.typical_best_rmse),
+        num(u.p(sel.typical_rmse)),
+        num(u.p(sel.cv_rmse)),
+        num(u.p(sel.typical_best_rmse)),
         shape(&sel.cv_best),
-        sel.excess,
-        sel.excess_se,
+        sel.excess * sq,
+        sel.excess_se * sq,
         sysid::select::MAX_RMSE_RATIO,
         sel.n_blocks,
         sel.folds,
-        num(sel.pooled_best.0),
+        num(u.p(sel.pooled_best.0)),
         shape(&sel.pooled_best.1),
-        num(sel.cv_limit_rmse),
+        num(u.p(sel.cv_limit_rmse)),
         pick(&sel.aicc_pick),
         pick(&sel.joint_cost_pick),
-    ) + &sel.reduced.as_ref().map_or(String::new(), render_reduction)
+    ) + &sel
+        .reduced
+        .as_ref()
+        .map_or(String::new(), |r| render_reduction(r, u))
 }
 
 /// The selected shape's terms reduced by the selection's rule: what `vfp export` exports.
-fn render_reduction(r: &Reduction) -> String {
+fn render_reduction(r: &Reduction, u: &DisplayUnits) -> String {
     let dropped = if r.dropped.is_empty() {
         "none".to_string()
     } else {
@@ -418,13 +459,14 @@ fn render_reduction(r: &Reduction) -> String {
         "fewest within the band".to_string()
     };
     format!(
-        "  terms: {} of {} kept ({why}; lowest typical cross-validated RMSE {} kPa): typical \
-         cross-validated RMSE {} kPa, held-out {} kPa; dropped {dropped}\n",
+        "  terms: {} of {} kept ({why}; lowest typical cross-validated RMSE {} {p}): typical \
+         cross-validated RMSE {} {p}, held-out {} {p}; dropped {dropped}\n",
         r.nu,
         r.active.len(),
-        num(r.typical_lowest_rmse),
-        num(r.typical_rmse),
-        opt(r.rmse_heldout),
+        num(u.p(r.typical_lowest_rmse)),
+        num(u.p(r.typical_rmse)),
+        opt(r.rmse_heldout.map(|x| u.p(x))),
+        p = u.pressure(),
     )
 }
 

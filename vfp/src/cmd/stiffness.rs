@@ -3,6 +3,7 @@
 
 use crate::opts::{LogInput, OutputOpts};
 use crate::plots::diag::{self as plot, Curve, Mark};
+use crate::units::DisplayUnits;
 use crate::Error;
 use std::path::PathBuf;
 use sysid::diag::stiffness::{stiffness, ChamberStiffness, StiffnessReport};
@@ -55,18 +56,25 @@ pub fn run(args: &Args) -> Result<(), Error> {
     let shape = args.shape.shape()?;
     let data = args.input.load()?;
     let (report, res) = stiffness(&data, shape)?;
-    args.out.emit(&report, human, |dir, format| {
-        plot_distributions(dir, format, &data.label(), &res)
-    })
+    let u = args.out.display_units(&args.input.data);
+    args.out.emit(
+        &report,
+        |r| human(r, &u),
+        |dir, format| plot_distributions(dir, format, &data.label(), &res, &u),
+    )
 }
 
-fn opt(x: Option<f64>) -> String {
-    x.map(|x| format!("{x:>12.5}"))
+fn opt(x: Option<f64>, u: &DisplayUnits) -> String {
+    x.map(|x| format!("{:>12.5}", u.k(x)))
         .unwrap_or_else(|| format!("{:>12}", "-"))
 }
 
-/// The human report.
-pub fn human(r: &StiffnessReport) -> String {
+/// The human report, its numbers in `u`.
+pub fn human(r: &StiffnessReport, u: &DisplayUnits) -> String {
+    let (kh, ch) = (
+        format!("k ({})", u.stiffness()),
+        format!("c ({})", u.damping()),
+    );
     let mut s = format!(
         "Stiffness k = dP/dv and damping c = dP/dvdot of the fitted polynomial (n = {}, m = {}) \
          at every sample of {}\n",
@@ -77,31 +85,37 @@ pub fn human(r: &StiffnessReport) -> String {
     }
     for c in &r.chambers {
         s += &format!(
-            "\nchamber {}: {} samples, fit RMSE {:.4} kPa\n  {:<10} {:>12} {:>12} {:>8}\n",
+            "\nchamber {}: {} samples, fit RMSE {:.4} {}\n  {:<10} {:>12} {:>12} {:>8}\n",
             c.chamber,
             c.samples,
-            c.fit_rmse_kpa,
+            u.p(c.fit_rmse_kpa),
+            u.pressure(),
             "phase",
-            "k (kPa/mm3)",
-            "c (kPa s/mm3)",
+            kh,
+            ch,
             "samples"
         );
         s += &format!(
             "  {:<10} {:>12.5} {:>12.5} {:>8}\n",
-            "all", c.k_mean, c.c_mean, c.samples
+            "all",
+            u.k(c.k_mean),
+            u.k(c.c_mean),
+            c.samples
         );
         for (name, m) in [("inflation", &c.inflation), ("deflation", &c.deflation)] {
             s += &format!(
                 "  {:<10} {} {} {:>8}\n",
                 name,
-                opt(m.k_mean),
-                opt(m.c_mean),
+                opt(m.k_mean, u),
+                opt(m.c_mean, u),
                 m.samples
             );
         }
         s += &format!(
-            "  ({} samples with |vdot| <= {} mm3/s count as rest: in 'all' only)\n",
-            c.rest_samples, c.deadband_mm3_s
+            "  ({} samples with |vdot| <= {} {} count as rest: in 'all' only)\n",
+            c.rest_samples,
+            u.q(c.deadband_mm3_s),
+            u.flow()
         );
     }
     s
@@ -113,12 +127,18 @@ fn plot_distributions(
     format: crate::figure::PlotFormat,
     label: &str,
     res: &[ChamberStiffness],
+    u: &DisplayUnits,
 ) -> Result<PathBuf, Error> {
     let path = plot::target(dir, &format.file("diag-stiffness"))?;
     let root = plot::canvas(&path, (1100, 420), format);
     let (left, right) = root.split_horizontally(550);
-    let ks: Vec<&[f64]> = res.iter().map(|r| r.pointwise.k.as_slice()).collect();
-    let cs: Vec<&[f64]> = res.iter().map(|r| r.pointwise.c.as_slice()).collect();
+    let conv = |x: &[f64]| x.iter().map(|&x| u.k(x)).collect::<Vec<f64>>();
+    let (kv, cv): (Vec<Vec<f64>>, Vec<Vec<f64>>) = res
+        .iter()
+        .map(|r| (conv(&r.pointwise.k), conv(&r.pointwise.c)))
+        .unzip();
+    let ks: Vec<&[f64]> = kv.iter().map(Vec::as_slice).collect();
+    let cs: Vec<&[f64]> = cv.iter().map(Vec::as_slice).collect();
     let (klo, khi) = plot::quantile_range(&ks, 0.005, 0.995);
     let (clo, chi) = plot::quantile_range(&cs, 0.005, 0.995);
     let curves = |sets: &[&[f64]], lo, hi| -> Vec<Curve> {
@@ -139,7 +159,7 @@ fn plot_distributions(
         &left,
         &path,
         &format!("{label}: pointwise stiffness k"),
-        "k = dP/dv (kPa/mm3)",
+        &format!("k = dP/dv ({})", u.stiffness()),
         "density",
         &curves(&ks, klo, khi),
     )?;
@@ -147,7 +167,7 @@ fn plot_distributions(
         &right,
         &path,
         &format!("{label}: pointwise damping c"),
-        "c = dP/dvdot (kPa s/mm3)",
+        &format!("c = dP/dvdot ({})", u.damping()),
         "density",
         &curves(&cs, clo, chi),
     )?;

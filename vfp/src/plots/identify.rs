@@ -2,13 +2,17 @@
 //!
 //! - `ch<c>-<family>-rmse-aicc.<ext>`: RMSE bars and AICc points per model (Figs. 2-4);
 //! - `ch<c>-residual-vs-volume.<ext>`: held-out residuals of the selected polynomial against v (Fig. 5a);
-//! - `ch<c>-error-histogram.<ext>`: its error distribution, 0.05 kPa bins (Fig. 5b);
+//! - `ch<c>-error-histogram.<ext>`: its error distribution, 0.05 kPa bins (Fig. 5b; in another
+//!   pressure unit the round width nearest to it, 0.5 cmH2O);
 //! - `ch<c>-vp.<ext>`: measured and predicted V-P curves (Fig. 1c).
+//!
+//! Volumes and pressures are drawn in the report's units ([`DisplayUnits`], `--units`).
 //!
 //! Scatter plots draw at most [`MAX_POINTS`] points per set, evenly spaced through the data, so
 //! a figure of a long log stays well under 1 MB (a point is some 100 bytes of SVG).
 
 use crate::figure::{Canvas, PlotFormat};
+use crate::units::DisplayUnits;
 use crate::Error;
 use plotters::prelude::*;
 use std::path::{Path, PathBuf};
@@ -34,10 +38,11 @@ pub fn write_all(
     format: PlotFormat,
     ds: &Dataset,
     rep: &ChamberReport,
+    units: &DisplayUnits,
 ) -> Result<Vec<PathBuf>, Error> {
     std::fs::create_dir_all(dir).map_err(|e| err(dir, e))?;
     let file = |stem: String| dir.join(format.file(&stem));
-    let mut written = family_figures(&file, format, rep)?;
+    let mut written = family_figures(&file, format, rep, units)?;
     if let Some(fit) = &rep.poly_fit {
         let figs = FitFigures {
             file: &file,
@@ -46,6 +51,7 @@ pub fn write_all(
             chamber: rep.chamber,
             fit,
             name: format!("poly ({}, {})", fit.n, fit.m),
+            units,
         };
         written.extend(figs.residuals()?);
         written.push(figs.vp()?);
@@ -58,6 +64,7 @@ fn family_figures(
     file: &dyn Fn(String) -> PathBuf,
     format: PlotFormat,
     rep: &ChamberReport,
+    u: &DisplayUnits,
 ) -> Result<Vec<PathBuf>, Error> {
     let mut written = Vec::new();
     for fam in Family::ALL {
@@ -71,7 +78,7 @@ fn family_figures(
             .iter()
             .map(|r| r.shape().replace(['(', ')', ' '], ""))
             .collect();
-        let rmse: Vec<f64> = rows.iter().map(|r| r.rmse).collect();
+        let rmse: Vec<f64> = rows.iter().map(|r| u.p(r.rmse)).collect();
         let aicc: Vec<f64> = rows.iter().map(|r| r.aicc).collect();
         let chosen = rep
             .best
@@ -97,7 +104,11 @@ fn family_figures(
         bars_and_points(
             &canvas(&path, (width, 640), format),
             &path,
-            [&title, shape_name],
+            [
+                &title,
+                shape_name,
+                &format!("RMSE, training ({})", u.pressure()),
+            ],
             &labels,
             chosen,
             &rmse,
@@ -117,13 +128,15 @@ struct FitFigures<'a> {
     fit: &'a PolyFit,
     /// The model as the titles name it.
     name: String,
+    /// The units of the axes.
+    units: &'a DisplayUnits,
 }
 
 impl FitFigures<'_> {
     /// The held-out residual against volume, and its histogram (the training rows when nothing is
     /// held out).
     fn residuals(&self) -> Result<Vec<PathBuf>, Error> {
-        let (ds, fit, name) = (self.ds, self.fit, &self.name);
+        let (ds, fit, name, u) = (self.ds, self.fit, &self.name, self.units);
         let held = if ds.heldout.iter().any(|&h| h) {
             ds.heldout()
         } else {
@@ -134,30 +147,40 @@ impl FitFigures<'_> {
             .iter()
             .zip(&held.vdot)
             .zip(&held.p)
-            .map(|((&v, &q), &p)| (v, p - fit.predict(v, q)))
+            .map(|((&v, &q), &p)| (u.v(v), u.p(p - fit.predict(v, q))))
             .collect();
+        let (vol, pres) = (u.volume(), u.pressure());
+        // 0.05 kPa bins; in another unit the round width nearest to 0.05 kPa (0.5 cmH2O).
+        let bin = if u.is_canonical() {
+            0.05
+        } else {
+            round_width(u.p(0.05))
+        };
         let scatter_path = (self.file)(format!("ch{}-residual-vs-volume", self.chamber));
         scatter(
             &canvas(&scatter_path, (900, 600), self.format),
             &scatter_path,
             &format!("{name}: held-out residual vs volume"),
-            ("volume (mm3)", "P - P_hat (kPa)"),
+            (&format!("volume ({vol})"), &format!("P - P_hat ({pres})")),
             &[(resid.clone(), BLUE.mix(0.3))],
         )?;
         let hist_path = (self.file)(format!("ch{}-error-histogram", self.chamber));
         histogram(
             &canvas(&hist_path, (900, 600), self.format),
             &hist_path,
-            &format!("{name}: held-out error distribution (0.05 kPa bins)"),
+            &format!(
+                "{name}: held-out error distribution ({} {pres} bins)",
+                crate::figure::tick(bin)
+            ),
             &resid.iter().map(|r| r.1).collect::<Vec<_>>(),
-            0.05,
+            (bin, &format!("error ({pres})")),
         )?;
         Ok(vec![scatter_path, hist_path])
     }
 
     /// The measured and predicted V-P curves over every row (thinned to [`MAX_POINTS`]).
     fn vp(&self) -> Result<PathBuf, Error> {
-        let (ds, fit, name) = (self.ds, self.fit, &self.name);
+        let (ds, fit, name, u) = (self.ds, self.fit, &self.name, self.units);
         let all = ds.all();
         let step = all.len().div_ceil(MAX_POINTS).max(1);
         let measured: Vec<(f64, f64)> = all
@@ -165,21 +188,24 @@ impl FitFigures<'_> {
             .iter()
             .zip(&all.p)
             .step_by(step)
-            .map(|(&v, &p)| (v, p))
+            .map(|(&v, &p)| (u.v(v), u.p(p)))
             .collect();
         let predicted: Vec<(f64, f64)> = all
             .v
             .iter()
             .zip(&all.vdot)
             .step_by(step)
-            .map(|(&v, &q)| (v, fit.predict(v, q)))
+            .map(|(&v, &q)| (u.v(v), u.p(fit.predict(v, q))))
             .collect();
         let path = (self.file)(format!("ch{}-vp", self.chamber));
         scatter(
             &canvas(&path, (900, 600), self.format),
             &path,
             &format!("V-P curves: measured (grey) and {name} (blue)"),
-            ("volume (mm3)", "pressure (kPa)"),
+            (
+                &format!("volume ({})", u.volume()),
+                &format!("pressure ({})", u.pressure()),
+            ),
             &[
                 (predicted, BLUE.mix(0.25)),
                 (measured, RGBColor(60, 60, 60).mix(0.5)),
@@ -187,6 +213,17 @@ impl FitFigures<'_> {
         )?;
         Ok(path)
     }
+}
+
+/// The width of the form 1, 2 or 5 × 10ᵏ nearest to `x` (> 0) on a log scale.
+fn round_width(x: f64) -> f64 {
+    let k = x.log10().floor();
+    let m = x / 10f64.powf(k);
+    let best = [1.0, 2.0, 5.0, 10.0]
+        .into_iter()
+        .min_by(|a: &f64, b: &f64| (m / a).ln().abs().total_cmp(&(m / b).ln().abs()))
+        .unwrap_or(1.0);
+    best * 10f64.powf(k)
 }
 
 /// A white canvas.
@@ -200,7 +237,7 @@ fn canvas(path: &Path, size: (u32, u32), format: PlotFormat) -> Canvas<'_> {
 fn bars_and_points(
     root: &Canvas<'_>,
     path: &Path,
-    [title, xdesc]: [&str; 2],
+    [title, xdesc, ydesc]: [&str; 3],
     labels: &[String],
     chosen: Option<usize>,
     bars: &[f64],
@@ -233,7 +270,7 @@ fn bars_and_points(
         c.configure_mesh()
             .x_labels(0)
             .y_label_formatter(&|y| crate::figure::tick(*y))
-            .y_desc("RMSE, training (kPa)")
+            .y_desc(ydesc)
             .draw()
             .map_err(|e| err(path, e))?;
         c.draw_series(bars.iter().enumerate().map(|(i, &b)| {
@@ -319,7 +356,7 @@ fn histogram(
     path: &Path,
     title: &str,
     xs: &[f64],
-    bin: f64,
+    (bin, xdesc): (f64, &str),
 ) -> Result<(), Error> {
     let (lo, hi) = bounds(xs.iter().copied());
     let nb = (((hi - lo) / bin).ceil() as usize).clamp(1, 2000);
@@ -336,7 +373,7 @@ fn histogram(
         .build_cartesian_2d(lo..lo + nb as f64 * bin, 0.0..cmax * 1.05)
         .map_err(|e| err(path, e))?;
     c.configure_mesh()
-        .x_desc("error (kPa)")
+        .x_desc(xdesc)
         .y_desc("count")
         .x_label_formatter(&|x| crate::figure::tick(*x))
         .y_label_formatter(&|y| crate::figure::tick(*y))

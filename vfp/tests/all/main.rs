@@ -28,3 +28,4 @@ mod record_stream;
 mod replay_board;
 mod residual_real_log;
 mod serial_record;
+mod units;

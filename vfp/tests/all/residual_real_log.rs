@@ -31,7 +31,16 @@ fn ventilator_log_runs_and_every_kept_effect_helps() {
         },
     )
     .expect("diagnosis");
-    eprintln!("{}", report(&path, 0, &ds.split.to_string(), &d));
+    eprintln!(
+        "{}",
+        report(
+            &path,
+            0,
+            &ds.split.to_string(),
+            &d,
+            &vfp::units::DisplayUnits::default()
+        )
+    );
     let mut prev = d.baseline.rmse_heldout;
     for e in &d.effects {
         assert!((e.rmse_heldout_before - prev).abs() < 1e-9 * prev.max(1.0));
