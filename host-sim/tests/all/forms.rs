@@ -1,23 +1,10 @@
 //! The effects' other forms ([`host_sim::plant::Forms`]) against hand-computed values: each
 //! obeys its own law, and differs from the usual form where the two laws differ.
 
+use super::ramp;
 use host_sim::plant::{
     Forms, Hysteresis, Plant, PlantConfig, Ripple, ThermalDrift, ATMOSPHERE_KPA, CHAMBERS,
 };
-
-/// Drive every chamber at a constant `rate` mm³/s from `t0` for `steps` steps; the last step's
-/// instant, µs.
-fn ramp(plant: &mut Plant, t0_us: u64, steps: u32, rate: f64, inflate: bool) -> u64 {
-    let dt = 0.04 / rate * 1e6;
-    let mut t = t0_us;
-    for k in 1..=steps {
-        t = t0_us + (k as f64 * dt).round() as u64;
-        for i in 0..CHAMBERS {
-            plant.step(i, t, inflate);
-        }
-    }
-    t
-}
 
 fn quiet(forms: Forms) -> PlantConfig {
     let mut c = PlantConfig::default();

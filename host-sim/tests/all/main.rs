@@ -12,3 +12,19 @@ mod reset;
 mod rest_zero;
 mod scenarios;
 mod strokes;
+
+use host_sim::plant::{Plant, CHAMBERS};
+
+/// Drives every chamber at a constant `rate` mm³/s from `t0_us` for `steps` steps (inflating or
+/// not); the last step's instant, µs.
+fn ramp(plant: &mut Plant, t0_us: u64, steps: u32, rate: f64, inflate: bool) -> u64 {
+    let dt = 0.04 / rate * 1e6;
+    let mut t = t0_us;
+    for k in 1..=steps {
+        t = t0_us + (k as f64 * dt).round() as u64;
+        for i in 0..CHAMBERS {
+            plant.step(i, t, inflate);
+        }
+    }
+    t
+}

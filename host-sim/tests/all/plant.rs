@@ -1,24 +1,12 @@
 //! The plant against physics it must obey: the paper's law, Boyle's law, mass balance, the force
 //! premise, rate independence, and integration accuracy against a much finer reference.
 
+use super::ramp;
 use host_sim::law::Design;
 use host_sim::plant::{
     ForcePush, Hysteresis, Plant, PlantConfig, Ripple, ATMOSPHERE_KPA, CHAMBERS,
 };
 
-/// Drive chamber 0 (and the others alike) at a constant `rate` mm³/s from `t0` for `steps` steps.
-/// Returns the time of the last step, µs.
-fn ramp(plant: &mut Plant, t0_us: u64, steps: u32, rate: f64, inflate: bool) -> u64 {
-    let dt = 0.04 / rate * 1e6;
-    let mut t = t0_us;
-    for k in 1..=steps {
-        t = t0_us + (k as f64 * dt).round() as u64;
-        for i in 0..CHAMBERS {
-            plant.step(i, t, inflate);
-        }
-    }
-    t
-}
 
 fn quiet() -> PlantConfig {
     let mut c = PlantConfig::default();
