@@ -21,6 +21,10 @@
 //! moving average over M samples (`--smooth M`) divides white noise by √M but costs bandwidth:
 //! its −3 dB frequency is ≈ 0.443·f_s/M (0.443 being where |sin(πfM/f_s)/(M sin(πf/f_s))| = 1/√2
 //! for large M), stated in the report.
+//!
+//! `vfp force --augmented` (the residual loop's models run by the firmware's own estimator) is the
+//! board side of this analysis, `sysid::board::force`: it hands its residuals to this file's
+//! summary (`summarize`), so both reports are made alike.
 
 use super::DiagError;
 use crate::dataset::{Dataset, LogData};
