@@ -13,6 +13,7 @@
 //! - [`exp`]: the physics-inspired exponential model.
 //! - [`rls`]: online identification (U-D factored recursive least squares with forgetting).
 //! - [`force`]: external force from pressure residuals.
+//! - [`flags`]: the fault and warning bits every telemetry frame carries.
 //! - [`stats`]: running means of k and c, split by inflation and deflation.
 //!
 //! ```
@@ -55,6 +56,7 @@
 pub mod chain;
 mod error;
 pub mod exp;
+pub mod flags;
 pub mod force;
 pub mod poly;
 pub mod rls;

@@ -317,7 +317,7 @@ fn force(
                 m: o.shape.m,
                 ..sysid::residual::Config::default()
             };
-            let (report, _) = sysid::diag::force::estimate_augmented(&ident, &test, &o, &cfg)
+            let (report, _) = sysid::board::force::estimate_augmented(&ident, &test, &o, &cfg)
                 .map_err(value_error)?;
             return json(&report);
         }
@@ -340,7 +340,7 @@ fn export(
 ) -> PyResult<Vec<(u8, Option<String>, Vec<String>, String)>> {
     py.detach(|| {
         let data = load(source, &data, chamber)?;
-        let out = sysid::export::export_log(&data, shape.0, shape.1, p, all_samples)
+        let out = sysid::board::export::export_log(&data, shape.0, shape.1, p, all_samples)
             .map_err(value_error)?;
         Ok(out
             .into_iter()
@@ -361,15 +361,17 @@ fn replay(
     data: DataOptions,
 ) -> PyResult<(String, Vec<OutColumn>)> {
     py.detach(|| {
-        let uploads = sysid::deploy::parse_lines(&model, &model_name).map_err(value_error)?;
-        let models = sysid::replay::board_models(&uploads)
+        let uploads =
+            sysid::board::deploy::parse_lines(&model, &model_name).map_err(value_error)?;
+        let models = sysid::board::deploy::board_models(&uploads)
             .map_err(|e| value_error(format!("{model_name}: {e}")))?;
         let data = load(source, &data, None)?;
-        let (summary, frames) = sysid::replay::replay(&models, &data).map_err(value_error)?;
+        let (summary, frames) =
+            sysid::board::replay::replay(&models, &data).map_err(value_error)?;
         let mut cols = vec![numbers("time_s", frames.iter().map(|f| f.t))];
-        for ch in 0..sysid::replay::CHAMBERS {
-            let c = |f: &sysid::replay::ReplayFrame| f.frame.chambers[ch];
-            let col = |name: &str, get: &dyn Fn(&sysid::replay::ReplayFrame) -> f32| {
+        for ch in 0..sysid::board::replay::CHAMBERS {
+            let c = |f: &sysid::board::replay::ReplayFrame| f.frame.chambers[ch];
+            let col = |name: &str, get: &dyn Fn(&sysid::board::replay::ReplayFrame) -> f32| {
                 numbers(
                     &format!("{name}_{ch}"),
                     frames.iter().map(|f| f64::from(get(f))),

@@ -79,7 +79,7 @@ pub fn hysteresis(v: &[f64]) -> f64 {
     }
     let mut q = |p: f64| {
         let k = ((s.len() - 1) as f64 * p).round() as usize;
-        crate::dataset::order_statistic(&mut s, k).expect("k < len")
+        crate::metrics::order_statistic(&mut s, k).expect("k < len")
     };
     TURN_FRACTION * (q(0.95) - q(0.05))
 }

@@ -37,7 +37,8 @@
 //! is not an unsigned integer is an error naming the sample.
 
 use crate::log::{Log, LogError, Sample, MAX_CHAMBERS};
-use firmware::telemetry::Flags;
+use crate::metrics::order_statistic;
+use model_core::flags::Flags;
 use std::path::{Path, PathBuf};
 
 /// How to build datasets from a log.
@@ -698,10 +699,12 @@ fn default_deadband(vdot: &[f64]) -> f64 {
     0.05 * order_statistic(&mut a, k).unwrap_or(0.0)
 }
 
-/// The `k`-th smallest of `x` (from 0, in `f64::total_cmp`'s order: the element a sort would put
-/// at `k`), found in linear time; `x` is reordered. `None` when `k` is out of range.
-pub(crate) fn order_statistic(x: &mut [f64], k: usize) -> Option<f64> {
-    (k < x.len()).then(|| *x.select_nth_unstable_by(k, f64::total_cmp).1)
+/// Median sample interval (s) of the times `t` (NaN with fewer than two): a board's frame
+/// interval, as its log recorded it.
+pub fn median_dt(t: &[f64]) -> f64 {
+    let mut d: Vec<f64> = t.windows(2).map(|w| w[1] - w[0]).collect();
+    d.sort_by(f64::total_cmp);
+    d.get(d.len() / 2).copied().unwrap_or(f64::NAN)
 }
 
 /// First and second derivatives of `y(t)` by a local quadratic least-squares fit over
@@ -851,30 +854,4 @@ fn holdout_mask(cycle: &[usize], n_cycles: usize, k: usize) -> (Vec<bool>, Split
     }
     let cut = n - n / 5;
     ((0..n).map(|i| i >= cut).collect(), Split::LastFifth)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::order_statistic;
-    use proptest::prelude::*;
-
-    proptest! {
-        /// The k-th order statistic is the element a full sort puts at k (ties, signed zeros and
-        /// infinities in `total_cmp`'s order), for every k.
-        #[test]
-        fn order_statistic_is_the_sorted_element(
-            x in prop::collection::vec(
-                prop_oneof![-1e3..1e3f64, Just(0.0), Just(-0.0), Just(f64::INFINITY), Just(1.5)],
-                1..60,
-            ),
-        ) {
-            let mut sorted = x.clone();
-            sorted.sort_by(f64::total_cmp);
-            for (k, want) in sorted.iter().enumerate() {
-                let got = order_statistic(&mut x.clone(), k).unwrap();
-                prop_assert_eq!(got.to_bits(), want.to_bits());
-            }
-            prop_assert!(order_statistic(&mut x.clone(), x.len()).is_none());
-        }
-    }
 }

@@ -170,9 +170,16 @@ impl CostWeights {
     }
 }
 
+/// The `k`-th smallest of `x` (from 0, in `f64::total_cmp`'s order: the element a sort would put
+/// at `k`), found in linear time; `x` is reordered. `None` when `k` is out of range.
+pub(crate) fn order_statistic(x: &mut [f64], k: usize) -> Option<f64> {
+    (k < x.len()).then(|| *x.select_nth_unstable_by(k, f64::total_cmp).1)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+    use proptest::prelude::*;
 
     #[test]
     fn hand_computed_values() {
@@ -226,5 +233,25 @@ mod tests {
         assert!(
             (w.cost(&m) - (2.0 * m.rmse + 3.0 * (1.0 - m.r2_adj) + 0.5 * m.aicc)).abs() < 1e-12
         );
+    }
+
+    proptest! {
+        /// The k-th order statistic is the element a full sort puts at k (ties, signed zeros and
+        /// infinities in `total_cmp`'s order), for every k.
+        #[test]
+        fn order_statistic_is_the_sorted_element(
+            x in prop::collection::vec(
+                prop_oneof![-1e3..1e3f64, Just(0.0), Just(-0.0), Just(f64::INFINITY), Just(1.5)],
+                1..60,
+            ),
+        ) {
+            let mut sorted = x.clone();
+            sorted.sort_by(f64::total_cmp);
+            for (k, want) in sorted.iter().enumerate() {
+                let got = order_statistic(&mut x.clone(), k).unwrap();
+                prop_assert_eq!(got.to_bits(), want.to_bits());
+            }
+            prop_assert!(order_statistic(&mut x.clone(), x.len()).is_none());
+        }
     }
 }

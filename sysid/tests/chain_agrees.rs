@@ -1,6 +1,6 @@
 //! The board's f32 effect chain (`model_core::chain`, run by the firmware's own estimator through
-//! `sysid::replay`) and sysid's f64 form of the same effect (the design the residual loop builds,
-//! in the device form the export fits, `sysid::residual::export`) agree on the same inputs.
+//! `sysid::board::replay`) and sysid's f64 form of the same effect (the design the residual loop builds,
+//! in the device form the export fits, `sysid::board::augmented`) agree on the same inputs.
 //!
 //! Each case draws a random motion (flow segments of random speed, direction and length at
 //! 25 Hz, some at rest), a random measured pressure and a random effect parameter, lets the
@@ -23,8 +23,8 @@
 //! host (`pump_ripple`'s `device_support`), so no f64 device form exists to compare with.
 
 use proptest::prelude::*;
+use sysid::board::augmented::{board_frames, device_model_with};
 use sysid::residual::effects::Effect;
-use sysid::residual::export::{board_frames, device_model_with};
 use sysid::residual::{EffectKind, Series};
 
 /// Frame period (s): the board's 25 Hz.

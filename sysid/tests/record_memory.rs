@@ -4,7 +4,7 @@
 //! dropped and one line in 50 is garbled, so the gap and bad-line bookkeeping is exercised too.
 
 use firmware::telemetry::{ChamberFrame, Frame};
-use sysid::record::Recorder;
+use sysid::board::record::Recorder;
 
 mod heap;
 

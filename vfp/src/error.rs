@@ -31,13 +31,13 @@ pub enum Error {
     Diag(#[from] sysid::diag::DiagError),
     /// A model could not be exported.
     #[error(transparent)]
-    Export(#[from] sysid::export::ExportError),
+    Export(#[from] sysid::board::export::ExportError),
     /// A telemetry capture could not be converted.
     #[error(transparent)]
-    Record(#[from] sysid::record::RecordError),
+    Record(#[from] sysid::board::record::RecordError),
     /// Model lines could not be parsed or sent.
     #[error(transparent)]
-    Deploy(#[from] sysid::deploy::DeployError),
+    Deploy(#[from] sysid::board::deploy::DeployError),
 }
 
 impl Error {

@@ -1,6 +1,6 @@
 //! The board's serial port as a telemetry source (`vfp record --port`, `vfp monitor --port`):
 //! opened, the binary stream switched on with the firmware's `telemetry on` command, its bytes
-//! read as they come (`sysid::packets` decodes them), and the stream switched off again when
+//! read as they come (`sysid::board::packets` decodes them), and the stream switched off again when
 //! the reader is done. Both commands go checksummed ([`framed`]), as the firmware requires.
 
 use std::io::{Read, Write};
@@ -92,7 +92,7 @@ mod tests {
     /// freshly booted (checksums required), on and off.
     #[test]
     fn the_stream_switches_are_accepted_by_a_freshly_booted_firmware() {
-        let mut board = sysid::deploy::FirmwarePort::new();
+        let mut board = sysid::board::deploy::FirmwarePort::new();
         for (line, want) in [
             (framed("telemetry on"), "ok"),
             (framed("telemetry"), "ok on"),

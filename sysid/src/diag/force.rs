@@ -21,6 +21,10 @@
 //! moving average over M samples (`--smooth M`) divides white noise by √M but costs bandwidth:
 //! its −3 dB frequency is ≈ 0.443·f_s/M (0.443 being where |sin(πfM/f_s)/(M sin(πf/f_s))| = 1/√2
 //! for large M), stated in the report.
+//!
+//! `vfp force --augmented` (the residual loop's models run by the firmware's own estimator) is the
+//! board side of this analysis, `sysid::board::force`: it hands its residuals to this file's
+//! summary (`summarize`), so both reports are made alike.
 
 use super::DiagError;
 use crate::dataset::{Dataset, LogData};
@@ -183,7 +187,7 @@ pub fn error_stats(e: &[f64]) -> (f64, f64, f64) {
 }
 
 /// The effective area of chamber `c` (one value for all, or one per chamber).
-fn area_of(args: &ForceOptions, c: u8) -> f64 {
+pub(crate) fn area_of(args: &ForceOptions, c: u8) -> f64 {
     if args.area.len() == 1 {
         args.area[0]
     } else {
@@ -192,7 +196,7 @@ fn area_of(args: &ForceOptions, c: u8) -> f64 {
 }
 
 /// The identification log's data set of chamber `c`, which the test log uses.
-fn ident_dataset(ident: &LogData, c: u8) -> Result<&Dataset, DiagError> {
+pub(crate) fn ident_dataset(ident: &LogData, c: u8) -> Result<&Dataset, DiagError> {
     ident.dataset(c).ok_or_else(|| DiagError::Input {
         path: ident.path.clone(),
         line: None,
@@ -207,17 +211,17 @@ fn ident_dataset(ident: &LogData, c: u8) -> Result<&Dataset, DiagError> {
 /// What an estimator hands [`summarize`]: per kept instant its time, the unfiltered force and the
 /// truth, per chamber the measured and predicted pressure and the model's error on the
 /// identification log.
-struct Residuals {
-    t: Vec<f64>,
-    raw: Vec<f64>,
-    truth: Option<Vec<f64>>,
-    pressures: BTreeMap<u8, (Vec<f64>, Vec<f64>)>,
-    ident_rmse: BTreeMap<u8, f64>,
-    unmatched: usize,
+pub(crate) struct Residuals {
+    pub(crate) t: Vec<f64>,
+    pub(crate) raw: Vec<f64>,
+    pub(crate) truth: Option<Vec<f64>>,
+    pub(crate) pressures: BTreeMap<u8, (Vec<f64>, Vec<f64>)>,
+    pub(crate) ident_rmse: BTreeMap<u8, f64>,
+    pub(crate) unmatched: usize,
 }
 
 /// Error when fewer than 3 instants are left to estimate on.
-fn too_few(test: &LogData, why: &str) -> DiagError {
+pub(crate) fn too_few(test: &LogData, why: &str) -> DiagError {
     DiagError::Input {
         path: test.path.clone(),
         line: None,
@@ -301,7 +305,12 @@ pub fn estimate(
 }
 
 /// The device's own force law (model-core), its signed total `Σ Aᵢ·rᵢ` in N.
-fn signed_force(r: [f32; 3], areas: [f32; 3], test: &LogData, t: f64) -> Result<f64, DiagError> {
+pub(crate) fn signed_force(
+    r: [f32; 3],
+    areas: [f32; 3],
+    test: &LogData,
+    t: f64,
+) -> Result<f64, DiagError> {
     let f = model_core::force::estimate(r, areas).map_err(|e| DiagError::Input {
         path: test.path.clone(),
         line: None,
@@ -313,7 +322,7 @@ fn signed_force(r: [f32; 3], areas: [f32; 3], test: &LogData, t: f64) -> Result<
 
 /// The report and trace from the residuals of either estimator (filter, error statistics,
 /// noise floors).
-fn summarize(
+pub(crate) fn summarize(
     ident: &LogData,
     test: &LogData,
     args: &ForceOptions,
@@ -392,176 +401,4 @@ fn summarize(
             pressures,
         },
     )
-}
-
-/// Per chamber: the board model `vfp force --augmented` estimated with.
-#[derive(Debug, Clone, Serialize)]
-pub struct AugmentedChamber {
-    /// Chamber index.
-    pub chamber: u8,
-    /// Effects the board's model carries (inertance folded into the polynomial, then the chain's
-    /// effects in evaluation order); empty: the residual loop kept none the board can run.
-    pub effects: Vec<&'static str>,
-    /// Effects the loop kept that stay on the host, with the reason.
-    pub host_only: Vec<crate::residual::export::Dropped>,
-    /// Held-out RMSE of the board's model on the identification log, run by the firmware's
-    /// estimator in f32 (kPa); also the report's `ident_rmse_kpa`.
-    pub device_heldout_rmse_kpa: f64,
-    /// Held-out RMSE of the loop's baseline polynomial on the same cycles (kPa).
-    pub baseline_heldout_rmse_kpa: f64,
-}
-
-/// The report of `vfp force --augmented`: every key of [`ForceReport`] plus the board models.
-#[derive(Debug, Serialize)]
-pub struct AugmentedForceReport {
-    /// The estimate, with the keys of the bare report.
-    #[serde(flatten)]
-    pub force: ForceReport,
-    /// Matched test-log instants where the board gave no estimate (a chain's or AR history still
-    /// filling, or a sample outside the model's range), left out of every statistic.
-    pub no_estimate: usize,
-    /// The model each chamber's board ran.
-    pub augmented: Vec<AugmentedChamber>,
-}
-
-/// `vfp force --augmented`: the force the board would estimate with the augmented models.
-///
-/// Per chamber of `test`, the residual loop runs on `ident`'s data set of that chamber with
-/// `cfg` and its model is built for the board exactly as `vfp export --augmented` builds it
-/// ([`crate::residual::export::export_dataset`]: polynomial, folded inertance and effect chain).
-/// The three models are installed in the firmware's own estimator and `test`'s frames replayed
-/// through it ([`crate::replay::replay`]: the chain's state carried from frame to frame, `f32`).
-/// The force is the board's residuals through the device's force law with the areas of `args`,
-/// kept signed as in [`estimate`] (the board's telemetry sends `|Σ Aᵢ·rᵢ|`), then filtered and
-/// summarised as there, so the two reports compare like with like.
-pub fn estimate_augmented(
-    ident: &LogData,
-    test: &LogData,
-    args: &ForceOptions,
-    cfg: &crate::residual::Config,
-) -> Result<(AugmentedForceReport, ForceTrace), DiagError> {
-    let BoardModels {
-        models,
-        chambers: augmented,
-    } = augmented_models(ident, test, cfg)?;
-    let (summary, frames) = crate::replay::replay(&models, test).map_err(|e| DiagError::Input {
-        path: test.path.clone(),
-        line: None,
-        column: None,
-        msg: e.0,
-    })?;
-    let ident_rmse = augmented
-        .iter()
-        .map(|a| (a.chamber, a.device_heldout_rmse_kpa))
-        .collect();
-    let (res, no_estimate) = board_residuals(test, args, &frames, ident_rmse, summary.unmatched)?;
-    if res.t.len() < 3 {
-        return Err(too_few(
-            test,
-            "where every chamber has a sample and the board an estimate",
-        ));
-    }
-    let (force, trace) = summarize(ident, test, args, res);
-    Ok((
-        AugmentedForceReport {
-            force,
-            no_estimate,
-            augmented,
-        },
-        trace,
-    ))
-}
-
-/// The board models of [`estimate_augmented`], by chamber (`None`: not in the test log), and
-/// what each carries.
-struct BoardModels {
-    models: [Option<firmware::store::Model>; crate::replay::CHAMBERS],
-    chambers: Vec<AugmentedChamber>,
-}
-
-/// Per chamber of `test` the loop on `ident`'s data set and `vfp export --augmented`'s model.
-fn augmented_models(
-    ident: &LogData,
-    test: &LogData,
-    cfg: &crate::residual::Config,
-) -> Result<BoardModels, DiagError> {
-    use crate::replay::CHAMBERS;
-    let mut models = [None; CHAMBERS];
-    let mut augmented = Vec::new();
-    for s in &test.datasets {
-        let c = s.chamber;
-        if c as usize >= CHAMBERS {
-            return Err(DiagError::Input {
-                path: test.path.clone(),
-                line: None,
-                column: Some("chamber".into()),
-                msg: format!("chamber {c}: the board has chambers 0..={}", CHAMBERS - 1),
-            });
-        }
-        let x = crate::residual::export::export_dataset(ident_dataset(ident, c)?, cfg).map_err(
-            |e| {
-                DiagError::fit(
-                    format!("{}, chamber {c}", ident.path.display()),
-                    e.to_string(),
-                )
-            },
-        )?;
-        models[c as usize] = Some(x.device.board_model());
-        augmented.push(AugmentedChamber {
-            chamber: c,
-            effects: x.carried.iter().map(|e| e.name).collect(),
-            host_only: x.dropped.clone(),
-            device_heldout_rmse_kpa: x.rmse.device,
-            baseline_heldout_rmse_kpa: x.rmse.baseline,
-        });
-    }
-    Ok(BoardModels {
-        models,
-        chambers: augmented,
-    })
-}
-
-/// The replayed frames as [`Residuals`] (frames where a chamber of `test` has no board estimate
-/// left out and counted): the board's load pressures (its residuals with the chain's sensor lag
-/// undone, `ReplayFrame::load_kpa`) through the device's force law, signed.
-fn board_residuals(
-    test: &LogData,
-    args: &ForceOptions,
-    frames: &[crate::replay::ReplayFrame],
-    ident_rmse: BTreeMap<u8, f64>,
-    unmatched: usize,
-) -> Result<(Residuals, usize), DiagError> {
-    let areas: [f32; 3] = core::array::from_fn(|c| area_of(args, c as u8) as f32);
-    let used: Vec<u8> = ident_rmse.keys().copied().collect();
-    let mut res = Residuals {
-        t: Vec::new(),
-        raw: Vec::new(),
-        truth: frames.iter().any(|f| f.force_ref.is_some()).then(Vec::new),
-        pressures: BTreeMap::new(),
-        ident_rmse,
-        unmatched,
-    };
-    let mut no_estimate = 0;
-    for f in frames {
-        let chambers = &f.frame.chambers;
-        if used.iter().any(|&c| !f.load_kpa[c as usize].is_finite()) {
-            no_estimate += 1;
-            continue;
-        }
-        // Chambers absent from the test log contribute a zero residual, as in `estimate`.
-        let mut r = [0.0f32; 3];
-        for &c in &used {
-            let ch = &chambers[c as usize];
-            r[c as usize] = f.load_kpa[c as usize];
-            let e = res.pressures.entry(c).or_default();
-            e.0.push(f64::from(ch.p));
-            e.1.push(f64::from(ch.p_hat));
-        }
-        res.raw.push(signed_force(r, areas, test, f.t)?);
-        res.t.push(f.t);
-        if let Some(tr) = &mut res.truth {
-            tr.push(f.force_ref.unwrap_or(f64::NAN));
-        }
-    }
-    Ok((res, no_estimate))
 }

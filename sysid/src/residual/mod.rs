@@ -27,7 +27,6 @@
 pub mod analysis;
 mod basis;
 pub mod effects;
-pub mod export;
 pub(crate) mod inframe;
 pub mod interval;
 mod lsq;

@@ -4,9 +4,9 @@
 
 use e2e_tests::short_protocol;
 use host_sim::{simulate, PlantConfig, Scenario, TimedCommand};
+use sysid::board::deploy::{deploy, parse_lines, FirmwarePort, Readback};
+use sysid::board::export::command_lines;
 use sysid::dataset::{Dataset, DatasetConfig};
-use sysid::deploy::{deploy, parse_lines, FirmwarePort, Readback};
-use sysid::export::command_lines;
 use sysid::poly::{fit, Scaling, Xy};
 
 #[test]

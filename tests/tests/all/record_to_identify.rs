@@ -5,9 +5,9 @@
 use e2e_tests::{probe_rs_text, scratch, short_protocol};
 use firmware::telemetry::Frame;
 use host_sim::{simulate, PlantConfig};
+use sysid::board::record::{convert, Gap};
 use sysid::dataset::{Dataset, DatasetConfig};
 use sysid::identify::{identify, Family, Options};
-use sysid::record::{convert, Gap};
 
 #[test]
 fn gaps_and_corrupted_lines_are_reported_and_nothing_else_is_lost() {

@@ -34,8 +34,8 @@ use plotters::prelude::*;
 use serde::Serialize;
 
 use crate::Error;
+use sysid::board::export;
 use sysid::dataset::{Dataset, DatasetConfig, LogData};
-use sysid::export;
 use sysid::identify::{self, ChamberReport, Family};
 use sysid::poly::{self, PolyFit, Scaling, Xy};
 use sysid::residual;
@@ -454,9 +454,9 @@ fn stage_record(
     capture: &Path,
     out: &Path,
     stages: &mut Vec<StageReport>,
-) -> Result<(sysid::record::Recording, std::path::PathBuf), Error> {
+) -> Result<(sysid::board::record::Recording, std::path::PathBuf), Error> {
     let st = Stage::start(3, "record", "capture → log");
-    let rec = sysid::record::convert_file(capture).map_err(fail)?;
+    let rec = sysid::board::record::convert_file(capture).map_err(fail)?;
     let log_path = out.join("identification.csv");
     sysid::log::write_log(&log_path, &rec.log).map_err(fail)?;
     st.done(
@@ -775,7 +775,7 @@ fn run_deployed(plan: &Plan, seed: u64, lines: &[String]) -> Result<(SimRun, usi
 }
 
 /// Every chamber's augmented model through `vfp export --augmented`'s own path
-/// ([`sysid::residual::export`], [`export::command_lines`]): chamber 0's is the export of the
+/// ([`sysid::board::augmented`], [`export::command_lines`]): chamber 0's is the export of the
 /// residual loop the demo ran on it, the others' the loop run on them over the effects it kept
 /// on chamber 0 (the same plant). Returns the lines and, per chamber, the effects its chain
 /// carries.
@@ -783,7 +783,7 @@ pub fn augmented_lines(
     datasets: &[Dataset],
     diagnosis: &residual::Diagnosis,
 ) -> Result<(Vec<String>, Vec<ChamberEffects>), Error> {
-    use sysid::residual::export::{augmented_export, from_diagnosis};
+    use sysid::board::augmented::{augmented_export, from_diagnosis};
     let kept: Vec<residual::EffectKind> = diagnosis.effects.iter().map(|e| e.kind).collect();
     let mut lines = Vec::new();
     let mut carried = Vec::new();

@@ -1,11 +1,11 @@
 //! `vfp deploy LINES --port /dev/ttyACM0`: load a model into a board over its serial port and read
-//! it back; the protocol is [`sysid::deploy`].
+//! it back; the protocol is [`sysid::board::deploy`].
 
 use crate::Error;
 use std::io::Read;
 use std::path::PathBuf;
 use std::time::Duration;
-use sysid::deploy::{deploy, parse_lines, Readback};
+use sysid::board::deploy::{deploy, parse_lines, Readback};
 
 /// `vfp deploy`: send a model to a board and read it back.
 #[derive(Debug, Clone, clap::Args)]

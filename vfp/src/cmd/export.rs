@@ -1,13 +1,13 @@
 //! `vfp export LOG.csv`: identify each chamber's polynomial (or poly-AR) model and print it in the
-//! forms the device loads (serial command lines, Rust constants); see [`sysid::export`] for the
-//! forms and the model choice, and [`sysid::residual::export`] for `--augmented`.
+//! forms the device loads (serial command lines, Rust constants); see [`sysid::board::export`] for the
+//! forms and the model choice, and [`sysid::board::augmented`] for `--augmented`.
 
 use crate::opts::{effect_parser, LogInput};
 use crate::Error;
+use sysid::board::augmented::export_dataset;
+use sysid::board::export::{augmented_report, board_lines, export_log, rust_constants};
 use sysid::dataset::Dataset;
-use sysid::export::{augmented_report, board_lines, export_log, rust_constants};
 use sysid::poly;
-use sysid::residual::export::export_dataset;
 use sysid::residual::{self, EffectKind};
 
 /// Export identified models for the device (serial command lines and Rust constants).

@@ -1,6 +1,6 @@
 //! `vfp force --ident A.csv --test B.csv [--augmented]`: external force from pressure residuals
 //! (paper §IV-C, Fig. 8); the method is [`sysid::diag::force`], with `--augmented`
-//! [`sysid::diag::force::estimate_augmented`] (the residual loop's models as the board runs them).
+//! [`sysid::board::force::estimate_augmented`] (the residual loop's models as the board runs them).
 
 use super::stiffness::ShapeOpts;
 use crate::opts::{DataOpts, OutputOpts};
@@ -8,9 +8,8 @@ use crate::plots::diag::{self as plot, Curve, Mark};
 use crate::units::DisplayUnits;
 use crate::Error;
 use std::path::PathBuf;
-use sysid::diag::force::{
-    estimate, estimate_augmented, AugmentedForceReport, ForceOptions, ForceReport, ForceTrace,
-};
+use sysid::board::force::{estimate_augmented, AugmentedForceReport};
+use sysid::diag::force::{estimate, ForceOptions, ForceReport, ForceTrace};
 
 /// `vfp force`: external force from pressure residuals.
 #[derive(Debug, Clone, clap::Args)]

@@ -5,12 +5,12 @@
 //! each line as it arrives, appends it to the raw capture (when recording) and updates the state;
 //! the screen is redrawn at a fixed rate from the latest state, so a slow terminal never holds up
 //! the reading. q, Esc or Ctrl-C quits; then the log is converted from the raw capture by
-//! `vfp record`'s own converter ([`sysid::record`]), so it is the same CSV `vfp record` writes
+//! `vfp record`'s own converter ([`sysid::board::record`]), so it is the same CSV `vfp record` writes
 //! for the lines received, every frame in it.
 //!
 //! With `--port DEV` the source is the board's serial port: its binary telemetry is switched on
-//! and read packet by packet ([`sysid::packets`]); the raw bytes go to `LOG.capture.bin` and the
-//! log is converted from them the same way ([`sysid::record::convert_packets`]).
+//! and read packet by packet ([`sysid::board::packets`]); the raw bytes go to `LOG.capture.bin` and the
+//! log is converted from them the same way ([`sysid::board::record::convert_packets`]).
 
 mod render;
 mod state;
@@ -24,8 +24,8 @@ use std::time::Duration;
 
 use ratatui::crossterm::event::{self, Event, KeyCode, KeyEventKind, KeyModifiers};
 use ratatui::{backend::Backend, DefaultTerminal, Terminal};
-use sysid::packets::PacketReader;
-use sysid::record::{convert_file, convert_packets, Recording};
+use sysid::board::packets::PacketReader;
+use sysid::board::record::{convert_file, convert_packets, Recording};
 
 use crate::Error;
 pub use render::{buffer_text, flag_names, render, View};
@@ -96,7 +96,7 @@ impl Session {
         Self::start_with(source, out, window_s, false, move |s| pump(input, s))
     }
 
-    /// Starts reading the binary serial stream `input` ([`sysid::packets`]) on a thread of its
+    /// Starts reading the binary serial stream `input` ([`sysid::board::packets`]) on a thread of its
     /// own; with `out`, records to it (the raw bytes to [`binary_capture_path`]).
     pub fn start_binary(
         input: Box<dyn Read + Send>,

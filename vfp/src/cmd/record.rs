@@ -1,5 +1,5 @@
 //! `vfp record CAPTURE -o LOG.csv`: the firmware's telemetry text turned into an actuation log
-//! as it arrives; the conversion is [`sysid::record::Recorder`].
+//! as it arrives; the conversion is [`sysid::board::record::Recorder`].
 //!
 //! A reader thread reads the capture line by line and a signal thread waits for SIGINT, SIGTERM
 //! or SIGHUP; both hand their news to this thread through one channel, in order. Every line read
@@ -9,15 +9,15 @@
 //! appended, the summary printed, exit status 0. A second signal ends the process at once.
 //!
 //! With `--port DEV` the source is the board's serial port instead: the binary stream is switched
-//! on (`telemetry on`), its packets decoded by [`sysid::packets`] into the same items a text
+//! on (`telemetry on`), its packets decoded by [`sysid::board::packets`] into the same items a text
 //! capture gives, and switched off again when recording stops.
 
 use crate::Error;
 use std::io::{BufRead, BufReader, Read, Write};
 use std::path::PathBuf;
 use std::sync::mpsc::{sync_channel, Receiver, SyncSender, TryRecvError};
-use sysid::capture::CaptureLine;
-use sysid::record::{Recorder, Recording};
+use sysid::board::capture::CaptureLine;
+use sysid::board::record::{Recorder, Recording};
 
 /// `vfp record`: convert a telemetry capture into an actuation log.
 #[derive(Debug, Clone, clap::Args)]
@@ -149,7 +149,7 @@ fn read_lines(mut input: impl BufRead, tx: &SyncSender<Msg>) {
 
 /// The binary stream's items, in order, then the end (or the read error).
 fn read_packets(input: impl Read, tx: &SyncSender<Msg>) {
-    let sent = sysid::packets::read_all(input, |item| {
+    let sent = sysid::board::packets::read_all(input, |item| {
         tx.send(Msg::Item(item))
             .map_err(|_| std::io::Error::other("the recorder stopped"))
     });
@@ -197,7 +197,7 @@ fn report(args: &Args, source: &str, rec: &Recording, stopped: &str) {
 
 fn check(args: &Args, source: &str, rec: &Recording) -> Result<(), Error> {
     if rec.frames == 0 {
-        return Err(sysid::record::RecordError::NoFrames {
+        return Err(sysid::board::record::RecordError::NoFrames {
             file: source.to_string(),
             lines: rec.lines,
         }

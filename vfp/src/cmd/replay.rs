@@ -1,14 +1,14 @@
 //! `vfp replay MODEL LOG [-o OUT.csv] [--json]`: what the board would have estimated on a log.
 //! The model file is `vfp export` output (its `model …` lines, the effect chain included); the
-//! replay is [`sysid::replay`]: the firmware library's own estimator, compiled for the host, run
+//! replay is [`sysid::board::replay`]: the firmware library's own estimator, compiled for the host, run
 //! over the log's frames.
 
 use crate::opts::{print_json, DataOpts};
 use crate::Error;
 use std::io::Write;
 use std::path::PathBuf;
-use sysid::deploy::parse_lines;
-use sysid::replay::{board_models, replay, ReplayFrame, ReplaySummary};
+use sysid::board::deploy::{board_models, parse_lines};
+use sysid::board::replay::{replay, ReplayFrame, ReplaySummary};
 
 /// `vfp replay`: the board's estimator over a log.
 #[derive(Debug, Clone, clap::Args)]
@@ -55,7 +55,7 @@ pub fn run(args: &Args) -> Result<(), Error> {
 pub fn write_csv(path: &std::path::Path, frames: &[ReplayFrame]) -> std::io::Result<()> {
     let mut w = std::io::BufWriter::new(std::fs::File::create(path)?);
     write!(w, "time_s")?;
-    for ch in 0..sysid::replay::CHAMBERS {
+    for ch in 0..sysid::board::replay::CHAMBERS {
         write!(w, ",p_{ch},p_hat_{ch},residual_{ch},k_{ch},c_{ch}")?;
     }
     writeln!(w, ",force_n,force_ref_n")?;

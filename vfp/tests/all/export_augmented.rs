@@ -10,11 +10,11 @@
 use firmware::telemetry::Frame;
 use host_sim::{simulate, Effects, PlantConfig, Protocol, Scenario, TimedCommand};
 use model_core::poly::{ArHistory, PolyModel, SBA1_RAW};
+use sysid::board::augmented::{augmented_export, device_model, DeviceModel};
+use sysid::board::deploy::{deploy, parse_lines, FirmwarePort, Readback};
+use sysid::board::export::command_lines;
 use sysid::dataset::{Dataset, DatasetConfig};
-use sysid::deploy::{deploy, parse_lines, FirmwarePort, Readback};
-use sysid::export::command_lines;
 use sysid::residual::effects::{Hysteresis, Inertance, OffsetDrift};
-use sysid::residual::export::{augmented_export, device_model, DeviceModel};
 use sysid::residual::series_from_dataset;
 use sysid::residual::{Config, EffectKind, Series};
 use sysid::synth;
@@ -303,7 +303,7 @@ fn a_device_effect_in_its_own_file_reaches_the_board_unchanged() {
     }
     let series = series_of(&s);
     let e = sysid::residual::effects::Effect::new(EffectKind(&LineMass), 0.0);
-    let dm = sysid::residual::export::device_model_with(&series, 3, 2, &[], &[e]).expect("fit");
+    let dm = sysid::board::augmented::device_model_with(&series, 3, 2, &[], &[e]).expect("fit");
     // The board's chain carries it as the spec row says: one `inertance` with L.
     let fx = dm.chain.effects();
     assert_eq!(fx.len(), 1);
@@ -311,7 +311,7 @@ fn a_device_effect_in_its_own_file_reaches_the_board_unchanged() {
     let l = f64::from(fx[0].params()[0]);
     assert!((l - L).abs() < 0.05 * L, "L {l:.4e}, planted {L:.1e}");
     // And the firmware's own estimator, running that chain, predicts to the noise.
-    let (rmse, n) = sysid::residual::export::device_rmse(&dm.board_model(), &series);
+    let (rmse, n) = sysid::board::augmented::device_rmse(&dm.board_model(), &series);
     eprintln!(
         "line_mass on the board: L {l:.4e} (planted {L:.1e}), RMSE {rmse:.4} kPa over {n} frames"
     );

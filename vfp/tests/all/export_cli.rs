@@ -4,8 +4,8 @@
 
 use firmware::command::{parse, Command, ModelCmd};
 use model_core::poly::{PolyModel, Scaling, Shape};
+use sysid::board::export::{command_lines, rust_constants};
 use sysid::dataset::{Dataset, DatasetConfig};
-use sysid::export::{command_lines, rust_constants};
 use sysid::log::{write_log, Log, Sample};
 use sysid::poly::{self, Xy};
 use sysid::synth::{self, Protocol, SBA1_RAW};
@@ -224,7 +224,7 @@ fn identify_json_has_the_documented_fields() {
 #[test]
 fn export_warns_when_f32_cannot_carry_the_polynomial() {
     const ACCEL: f64 = 1000.0;
-    use sysid::export::{f32_loss, f32_warning, model_for};
+    use sysid::board::export::{f32_loss, f32_warning, model_for};
     // Fast ramps: the flow dwells on seven levels (0, ±20, ±60, ±100 mm³/s), so degree 7 in v̇
     // is barely determined and its coefficients cancel.
     let tr = Protocol {
@@ -270,12 +270,12 @@ fn export_warns_when_f32_cannot_carry_the_polynomial() {
     );
 }
 
-/// The f32 loss of shape (n, m) on `ds` measured independently of `sysid::export::f32_loss`: the
+/// The f32 loss of shape (n, m) on `ds` measured independently of `sysid::board::export::f32_loss`: the
 /// model as the firmware's command handler installs it, evaluated along the log, against sysid's
 /// own f64 evaluation of the fit (Chebyshev basis). Returns (loss RMS, the fit's RMSE), kPa.
 fn device_loss(ds: &Dataset, n: usize, m: usize) -> (f64, f64) {
-    use sysid::deploy::{deploy, parse_lines, FirmwarePort};
-    let e = sysid::export::model_for(ds, Some(n), Some(m), 0, false).unwrap();
+    use sysid::board::deploy::{deploy, parse_lines, FirmwarePort};
+    let e = sysid::board::export::model_for(ds, Some(n), Some(m), 0, false).unwrap();
     let fit = poly::fit(Xy::from(&ds.train()), n, m, Some(e.scaling)).unwrap();
     let ups = parse_lines(&command_lines(0, &e.model).join("\n"), "x").unwrap();
     let mut port = FirmwarePort::new();
@@ -295,7 +295,7 @@ fn device_loss(ds: &Dataset, n: usize, m: usize) -> (f64, f64) {
 /// Whether the device carries (n, m) on `ds`: its loss at most the export's limit of its fit error.
 fn carried(ds: &Dataset, n: usize, m: usize) -> bool {
     let (loss, rmse) = device_loss(ds, n, m);
-    loss <= sysid::export::F32_LOSS_LIMIT * rmse
+    loss <= sysid::board::export::F32_LOSS_LIMIT * rmse
 }
 
 /// The fast-ramp synthetic log of `export_warns_when_f32_cannot_carry_the_polynomial`: (7, 7)'s
@@ -320,7 +320,8 @@ fn export_passes_over_shapes_f32_cannot_carry() {
     assert!(!carried(&ds, 7, 7) && carried(&ds, 3, 2));
     let all = ds.all();
     let sc = sysid::poly::Scaling::from_data(&all.v, &all.vdot).unwrap();
-    let (e, over) = sysid::export::first_carried(&ds, &[(7, 7), (3, 2)], 0, false, sc).unwrap();
+    let (e, over) =
+        sysid::board::export::first_carried(&ds, &[(7, 7), (3, 2)], 0, false, sc).unwrap();
     let sh = e.model.shape();
     assert_eq!((sh.n, sh.m), (3, 2));
     let (n0, m0, l0) = over.expect("(7, 7) passed over");
@@ -331,7 +332,8 @@ fn export_passes_over_shapes_f32_cannot_carry() {
         "{l0:?} vs {direct}"
     );
     // Nothing to pass over when the first is carried.
-    let (e, over) = sysid::export::first_carried(&ds, &[(3, 2), (7, 7)], 0, false, sc).unwrap();
+    let (e, over) =
+        sysid::board::export::first_carried(&ds, &[(3, 2), (7, 7)], 0, false, sc).unwrap();
     assert!(over.is_none() && e.model.shape().m == 2);
 }
 
@@ -369,7 +371,7 @@ fn default_export_follows_the_selection_order() {
             .iter()
             .find(|&&(n, m)| carried(ds, n, m))
             .expect("a carried shape");
-        let e = sysid::export::model_for(ds, None, None, 0, false).unwrap();
+        let e = sysid::board::export::model_for(ds, None, None, 0, false).unwrap();
         let sh = e.model.shape();
         assert_eq!((usize::from(sh.n), usize::from(sh.m)), expected);
         assert_eq!(

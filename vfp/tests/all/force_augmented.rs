@@ -4,8 +4,9 @@
 use host_sim::plant::Hysteresis;
 use host_sim::{simulate, Effects, PlantConfig, Protocol, Scenario};
 use std::path::{Path, PathBuf};
+use sysid::board::force::{estimate_augmented, AugmentedForceReport};
 use sysid::dataset::{DatasetConfig, LogData};
-use sysid::diag::force::{estimate, estimate_augmented, AugmentedForceReport, ForceReport};
+use sysid::diag::force::{estimate, ForceReport};
 use vfp::cmd::force::{loop_config, Args as ForceArgs};
 use vfp::cmd::stiffness::ShapeOpts;
 use vfp::opts::{DataOpts, OutputOpts};

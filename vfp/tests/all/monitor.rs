@@ -146,7 +146,7 @@ fn a_recorded_stream_is_shown_counted_and_logged_without_loss() {
     // The same log `vfp record` makes of the raw capture, which holds every line received.
     let raw = std::fs::read_to_string(capture_path(&out)).unwrap();
     assert_eq!(raw, capture(&run));
-    let again = sysid::record::convert(raw.as_bytes(), "x").unwrap();
+    let again = sysid::board::record::convert(raw.as_bytes(), "x").unwrap();
     let mut csv = Vec::new();
     sysid::log::write_log_to(&mut csv, &rec.log).unwrap();
     let mut csv_again = Vec::new();

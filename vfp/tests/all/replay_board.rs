@@ -13,9 +13,9 @@ use common::{ok, scratch, vfp};
 use firmware::telemetry::{EventKind, Frame};
 use host_sim::plant::Drive;
 use host_sim::{simulate, Effects, PlantConfig, Protocol, Scenario, SimRun, TimedCommand};
+use sysid::board::augmented::augmented_export;
+use sysid::board::export::board_lines;
 use sysid::dataset::{Dataset, DatasetConfig};
-use sysid::export::board_lines;
-use sysid::residual::export::augmented_export;
 use sysid::residual::{series_from_dataset, Config, EffectKind};
 
 /// A short run of the paper's protocol on every chamber with `effects`, `lines` sent to the
@@ -55,7 +55,7 @@ fn export(
     plant: &PlantConfig,
     name: &str,
     seed: u64,
-) -> (Vec<String>, sysid::residual::export::Rmses) {
+) -> (Vec<String>, sysid::board::augmented::Rmses) {
     let log =
         sysid::log::parse_log(&log_text(&run(plant, seed, &[]))[..], "sim.csv").expect("valid log");
     let ds = Dataset::from_log(&log, 0, &DatasetConfig::default()).expect("dataset");
@@ -138,7 +138,7 @@ fn replay_from(
 
 /// `gap`: the largest relative excess of the board's held-out RMSE over the loop's: 2 %. The
 /// export refits every chain effect in the board's form (the lags' τ re-searched there,
-/// `sysid::residual::export`), and the board's f32 error equals that f64 device-form fit's to
+/// `sysid::board::augmented`), and the board's f32 error equals that f64 device-form fit's to
 /// 0.2 % for every effect. The board's lags run on the cubic with backward-difference slopes
 /// (the loop's Akima slopes need the next frames): sensor lag +0.75 %, air −0.15 % on these
 /// logs. The board's play runs on eight instants inside each frame rebuilt from that frame alone

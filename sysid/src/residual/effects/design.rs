@@ -46,7 +46,7 @@ pub struct Effect {
     /// interpolant's derivative, and a lag acts on each column's cubic between samples instead of
     /// inside the frames. The search tries both and keeps the better fit.
     pub point_sampled: bool,
-    /// Set by the export ([`crate::residual::export`]): the effect in the form the board runs it,
+    /// Set by the export (`sysid::board::augmented`): the effect in the form the board runs it,
     /// where that differs from the point-sampled one. Backlash: the play operator on the nut's
     /// motion inside each frame rebuilt from that frame alone (`signal::play_frame_linear`).
     pub board_form: bool,

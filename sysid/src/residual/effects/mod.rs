@@ -467,7 +467,7 @@ pub trait EffectModel: Send + Sync {
         None
     }
 
-    /// Whether the export searches θ again in the board's form (`residual::export`'s
+    /// Whether the export searches θ again in the board's form (`board::augmented`'s
     /// `device_form`): an effect whose causal board form trails further than the loop's at the
     /// same θ, a lag's (default: no; the loop's θ is kept, rounded to `f32`).
     fn device_retune(&self) -> bool {
@@ -487,7 +487,7 @@ pub trait EffectModel: Send + Sync {
         None
     }
 
-    /// Whether `residual::export::device_model` can fold the effect into the polynomial itself,
+    /// Whether `board::augmented::device_model` can fold the effect into the polynomial itself,
     /// its one column `θ·v̈` taken as the backward difference of the flow at the frame interval:
     /// an AR(1) flow coefficient plus a change of the v̇ coefficient (default: no).
     fn folds_into_polynomial(&self) -> bool {

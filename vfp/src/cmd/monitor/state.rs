@@ -2,7 +2,7 @@
 //! the counts of everything received, missed or unusable, and the last lines of other output.
 //! Pure: lines in, numbers out; no terminal, no clock but the board's.
 //!
-//! A frame is placed by the tracker `vfp record` uses ([`sysid::sequence::SeqTracker`]), so the
+//! A frame is placed by the tracker `vfp record` uses ([`sysid::board::sequence::SeqTracker`]), so the
 //! monitor counts as frames exactly the frames that become rows of the log it records: a `seq`
 //! jump is a gap, a `seq` restart at 0 (or after a `boot` event) a reboot, a `seq` or time that
 //! does not advance is rejected, as is a frame with a non-finite volume, flow or pressure.
@@ -10,8 +10,8 @@
 use std::collections::VecDeque;
 
 use firmware::telemetry::{Event, EventKind, Frame};
-use sysid::capture::{classify, CaptureLine};
-use sysid::sequence::SeqTracker;
+use sysid::board::capture::{classify, CaptureLine};
+use sysid::board::sequence::SeqTracker;
 
 /// Lines kept for the log pane.
 pub const LOG_KEEP: usize = 200;
@@ -102,7 +102,7 @@ impl MonitorState {
     }
 
     /// Takes one item: a classified captured line, or a packet of the binary serial stream
-    /// ([`sysid::packets`]); each counts as a line.
+    /// ([`sysid::board::packets`]); each counts as a line.
     pub fn push_item(&mut self, item: CaptureLine<'_>) {
         self.counts.lines += 1;
         match item {

@@ -22,7 +22,7 @@ use std::io::Read;
 
 use firmware::wire::{self, Record, MAX_RAW};
 
-use crate::capture::{classify, CaptureLine};
+use crate::board::capture::{classify, CaptureLine};
 
 /// Longest run of bytes kept without a delimiter or line end.
 pub const MAX_CHUNK: usize = 1024;

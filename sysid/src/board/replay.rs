@@ -1,5 +1,6 @@
 //! Replay (behind `vfp replay MODEL LOG`): what the board would have estimated on a log. The
-//! model file's uploads (`vfp export` lines, [`crate::deploy::parse_lines`]) are installed into
+//! model file's uploads (`vfp export` lines, [`crate::board::deploy::parse_lines`], made the board's
+//! models by [`crate::board::deploy::board_models`]) are installed into
 //! the firmware library's own estimator (`firmware::app::Estimator`, the code the board runs,
 //! compiled for the host), and the log's frames go through
 //! `Estimator::estimate_frame` in order: the effect chain, P̂, residual `P − P̂`, k, c and the
@@ -25,10 +26,9 @@ use firmware::store::Model;
 use firmware::telemetry::{ChamberFrame, Frame};
 
 use crate::dataset::{Dataset, LogData};
-use crate::deploy::Upload;
 
-/// Number of chambers the board estimates.
-pub const CHAMBERS: usize = 3;
+/// Number of chambers the board estimates (its axes, `firmware::hal::AXES`).
+pub const CHAMBERS: usize = firmware::hal::AXES;
 
 /// Why a replay could not run.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
@@ -96,23 +96,6 @@ pub struct ReplaySummary {
     pub chambers: Vec<ChamberSummary>,
     /// Force error, when the log has `force_n`.
     pub force: Option<ForceError>,
-}
-
-/// The models a file of uploads installs, by chamber (`None`: the board's boot model).
-pub fn board_models(uploads: &[Upload]) -> Result<[Option<Model>; CHAMBERS], ReplayError> {
-    let mut out = [None; CHAMBERS];
-    for up in uploads {
-        let slot = out
-            .get_mut(up.ch as usize)
-            .ok_or_else(|| ReplayError(format!("chamber {}: the board has 0..=2", up.ch)))?;
-        *slot = Some(up.model().map_err(|e| {
-            ReplayError(format!(
-                "chamber {}: the board would refuse the model ({e})",
-                up.ch
-            ))
-        })?);
-    }
-    Ok(out)
 }
 
 /// An estimator with `models` installed, its chains at `frame_hz`.
@@ -191,7 +174,7 @@ pub fn replay(
     }
     let (rows, unmatched) = crate::diag::force::match_times(&by_ch);
     let first = data.first();
-    let hz = frame_hz(crate::residual::export::median_dt(&first.t))?;
+    let hz = frame_hz(crate::dataset::median_dt(&first.t))?;
     let nan = (f32::NAN, f32::NAN, f32::NAN);
     let inputs = rows.iter().map(|row| {
         let (&c0, &i0) = row.iter().next().expect("a matched row has a chamber");

@@ -41,8 +41,8 @@ use std::path::Path;
 
 use firmware::telemetry::{EventKind, Frame};
 
-use crate::capture::{classify, CaptureLine};
-use crate::sequence::SeqTracker;
+use crate::board::capture::{classify, CaptureLine};
+use crate::board::sequence::SeqTracker;
 
 use crate::log::{Log, RowLayout, Sample};
 
@@ -307,13 +307,13 @@ impl Converter {
     }
 
     /// Converts one capture line (with or without its line terminator), classified by
-    /// [`capture::classify`](crate::capture::classify), the one reading of a captured line.
+    /// [`capture::classify`](crate::board::capture::classify), the one reading of a captured line.
     fn line(&mut self, bytes: &[u8]) {
         self.item(classify(bytes));
     }
 
     /// Converts one item of the capture: a classified text line, or a packet of the binary
-    /// stream ([`crate::packets`]); each counts as one capture line.
+    /// stream ([`crate::board::packets`]); each counts as one capture line.
     fn item(&mut self, item: CaptureLine<'_>) {
         self.rec.lines += 1;
         let no = self.rec.lines;
@@ -507,11 +507,11 @@ pub fn convert(mut reader: impl BufRead, source: &str) -> Result<Recording, Reco
     })
 }
 
-/// Converts a capture of the binary serial stream ([`crate::packets`]) in memory, like
+/// Converts a capture of the binary serial stream ([`crate::board::packets`]) in memory, like
 /// [`convert`] does a text capture.
 pub fn convert_packets(input: impl std::io::Read, source: &str) -> Result<Recording, RecordError> {
     convert_with(source, |c| {
-        crate::packets::read_all::<std::io::Error>(input, |item| {
+        crate::board::packets::read_all::<std::io::Error>(input, |item| {
             c.item(item);
             Ok(())
         })
@@ -592,7 +592,7 @@ impl<W: Write> Recorder<W> {
     }
 
     /// Converts one item (a classified text line, or a packet of the binary stream read by
-    /// [`crate::packets::PacketReader`]) and writes what it gives, like [`line`](Self::line).
+    /// [`crate::board::packets::PacketReader`]) and writes what it gives, like [`line`](Self::line).
     pub fn item(&mut self, item: CaptureLine<'_>) -> std::io::Result<()> {
         self.conv.item(item);
         for (s, extra) in self.conv.rows.drain(..) {

@@ -14,8 +14,8 @@
 //! effect chain (`model_core::chain`: hysteresis, sensor and delivery lag, transport delay,
 //! backlash, leak, air compliance, … in a causal `f32` form, at most
 //! [`model_core::chain::MAX_EFFECTS`] of them). Each effect says whether the board can run it
-//! ([`super::EffectModel::device_support`]) and, for a chain effect, its parameters in the
-//! chain's form ([`super::EffectModel::device_params`], in the effect's own file); inertance is
+//! ([`crate::residual::EffectModel::device_support`]) and, for a chain effect, its parameters in the
+//! chain's form ([`crate::residual::EffectModel::device_params`], in the effect's own file); inertance is
 //! folded into the polynomial (below). Effects tied to the log's clock (ripple in time, offset
 //! and volume drift) and pump ripple stay on the host and are listed by name with the reason.
 //!
@@ -26,7 +26,7 @@
 //! coefficients. The chain's effects are causal where the loop's may look a frame or two ahead
 //! (Akima slopes, sub-frame play on frame means), so the lags' τ is searched again in the
 //! board's form (`device_form`); the exported model's error is measured as the board computes
-//! it, by running the firmware's estimator over the log ([`crate::replay`]), and reported next
+//! it, by running the firmware's estimator over the log ([`crate::board::replay`]), and reported next
 //! to the loop's.
 //!
 //! # Inertance as an AR(1) term
@@ -56,9 +56,12 @@
 
 use model_core::poly::PolyModel;
 
-use super::effects::{Effect, Prepared};
-use super::search::{brent, fit_stage, sse_of, Stage};
-use super::{diagnose, Config, DiagnoseError, Diagnosis, EffectKind, PolyBasis, Series};
+use crate::board::replay;
+use crate::dataset::median_dt;
+
+use crate::residual::effects::{Effect, Prepared};
+use crate::residual::search::{brent, fit_stage, sse_of, Stage};
+use crate::residual::{diagnose, Config, DiagnoseError, Diagnosis, EffectKind, PolyBasis, Series};
 
 /// Why an augmented export failed.
 #[derive(Debug, thiserror::Error)]
@@ -189,21 +192,14 @@ impl AugmentedExport {
     }
 }
 
-/// Median sample interval (s): the device's frame interval, as the log recorded it.
-pub fn median_dt(t: &[f64]) -> f64 {
-    let mut d: Vec<f64> = t.windows(2).map(|w| w[1] - w[0]).collect();
-    d.sort_by(f64::total_cmp);
-    d.get(d.len() / 2).copied().unwrap_or(f64::NAN)
-}
-
 /// Whether this exporter can fold `kind` into a [`PolyModel`] (see the module docs): the effect
-/// says so ([`super::EffectModel::folds_into_polynomial`]).
+/// says so ([`crate::residual::EffectModel::folds_into_polynomial`]).
 pub fn foldable(kind: EffectKind) -> bool {
     kind.folds_into_polynomial() && kind.device_support().runs_on_device
 }
 
 /// The board's chain effect `kind` exports to, when `kind` runs on the board as one (not folded
-/// into the polynomial): the effect says which ([`super::EffectModel::device_kind`]).
+/// into the polynomial): the effect says which ([`crate::residual::EffectModel::device_kind`]).
 pub fn chain_kind(kind: EffectKind) -> Option<model_core::chain::EffectKind> {
     if !kind.device_support().runs_on_device {
         return None;
@@ -224,13 +220,13 @@ pub fn augmented_export(series: Series, cfg: &Config) -> Result<AugmentedExport,
 }
 
 /// One chamber of a log as `vfp export --augmented` exports it: the loop's series from the data
-/// set ([`super::series_from_dataset`], its held-out cycles included), the loop and the export
+/// set ([`crate::residual::series_from_dataset`], its held-out cycles included), the loop and the export
 /// ([`augmented_export`]). `vfp force --augmented` builds its board models through the same call.
 pub fn export_dataset(
     ds: &crate::dataset::Dataset,
     cfg: &Config,
 ) -> Result<AugmentedExport, ExportError> {
-    augmented_export(super::series_from_dataset(ds)?, cfg)
+    augmented_export(crate::residual::series_from_dataset(ds)?, cfg)
 }
 
 /// The diagnosis' kept effects sorted by how the device takes them: folded into the polynomial
@@ -456,7 +452,7 @@ fn device_prepared(
 /// rebuilt from that frame alone ([`Effect::board_form`]), its delay on the volume's cubic Hermite
 /// ([`Effect::point_sampled`], the form the loop also fits point samples in). The loop may have
 /// kept the frame-mean form, whose τ is not the best device τ, so the τ of each effect whose
-/// [`super::EffectModel::device_retune`] says so (the lags, whose causal form trails further
+/// [`crate::residual::EffectModel::device_retune`] says so (the lags, whose causal form trails further
 /// than the loop's at the same τ; the play and the delay are the loop's own point-sample forms,
 /// and the play's error is discontinuous in its width, so a search would put the width on an
 /// edge where f32 and f64 may fall on different sides) is searched again in the device form
@@ -477,7 +473,7 @@ fn device_form(prep: &Prepared, effects: &mut [Effect], first: usize) {
         if kind.device_retune() && th > 0.0 {
             set_damping(prep, effects, i);
             let (lo, hi) = match kind.search(&prep.scales) {
-                super::effects::Search::Log(lo, hi) => (lo.ln(), hi.ln()),
+                crate::residual::effects::Search::Log(lo, hi) => (lo.ln(), hi.ln()),
                 _ => (f64::NEG_INFINITY, f64::INFINITY),
             };
             let mut trial = effects.to_vec();
@@ -532,7 +528,7 @@ fn set_damping(prep: &Prepared, effects: &mut [Effect], i: usize) {
 }
 
 /// The damping per sample of the polynomial refitted with `effects`, as the board schedules it
-/// for `effects[i]` ([`super::EffectModel::device_damping`], the air pocket's in its own file);
+/// for `effects[i]` ([`crate::residual::EffectModel::device_damping`], the air pocket's in its own file);
 /// `None` when the refit fails or the effect keeps the loop's schedule.
 fn device_damping(
     prep: &Prepared,
@@ -558,7 +554,7 @@ fn from_row(e: &Effect, k0: usize) -> Effect {
 }
 
 /// The board's chain from the refit's chain effects (`effects`, the design's effects from index
-/// `first`), each mapped by its [`super::EffectModel::device_params`].
+/// `first`), each mapped by its [`crate::residual::EffectModel::device_params`].
 fn board_chain(
     refit: &Stage,
     effects: &[Effect],
@@ -584,13 +580,13 @@ fn board_chain(
 }
 
 /// The board's frames over `series` loaded as chamber 0 (the other chambers unplugged), at the
-/// series' frame rate: the firmware's own estimator ([`crate::replay::run`]); `None` when the
+/// series' frame rate: the firmware's own estimator ([`crate::board::replay::run`]); `None` when the
 /// series' sample interval is no board frame rate.
 pub fn board_frames(
     model: &firmware::store::Model,
     series: &Series,
-) -> Option<Vec<crate::replay::BoardFrame>> {
-    let hz = crate::replay::frame_hz(median_dt(&series.t)).ok()?;
+) -> Option<Vec<replay::BoardFrame>> {
+    let hz = replay::frame_hz(median_dt(&series.t)).ok()?;
     let nan = (f32::NAN, f32::NAN, f32::NAN);
     let frames = (0..series.len()).map(|k| {
         let x = (
@@ -600,7 +596,7 @@ pub fn board_frames(
         );
         (series.t[k], [x, nan, nan])
     });
-    Some(crate::replay::run(&[Some(*model), None, None], hz, frames))
+    Some(replay::run(&[Some(*model), None, None], hz, frames))
 }
 
 /// Held-out RMSE of the board's `model` (polynomial and chain) run over the series in order by

@@ -1,7 +1,7 @@
 //! One captured line at a time: what a line of `probe-rs run` output (or a raw `$F`/`$E` line)
 //! holds, for readers that act on each line as it arrives (`vfp monitor`).
 //!
-//! The rules are those of [`crate::record::convert`], which reads a whole capture: ANSI colour
+//! The rules are those of [`crate::board::record::convert`], which reads a whole capture: ANSI colour
 //! codes are removed, the telemetry part starts at its `$F`/`$E` marker and ends before a
 //! location suffix (`… (src/x.rs:12)`, `… @ src/x.rs:12`, `… └─ …`), and the firmware's own
 //! parser ([`firmware::telemetry::parse_line`]) decodes it. A line with a marker that does not
@@ -125,7 +125,7 @@ mod tests {
             None
         );
     }
-    use crate::record::convert;
+    use crate::board::record::convert;
 
     fn frame_line(seq: u32) -> String {
         let f = Frame {

@@ -7,16 +7,16 @@
 //! Rust's shortest round-trip formatting so the device parses back exactly the exported values.
 //!
 //! The augmented export (`vfp export --augmented`) first runs the residual loop of `vfp diagnose` on
-//! each chamber and exports the model it ends with ([`crate::residual::export`]): terms the device can run are folded into the
+//! each chamber and exports the model it ends with ([`crate::board::augmented`]): terms the device can run are folded into the
 //! exported model (inertance as an AR(1) flow term), the others are named with the reason, and
 //! `//` comment lines above each chamber's model state the held-out RMSE of the full augmented
 //! model, of the exported model as the device evaluates it, and of the baseline. `vfp deploy`
 //! skips those comments.
 
+use crate::board::augmented::AugmentedExport;
 use crate::dataset::Dataset;
 use crate::poly::{self, Scaling, Xy};
 use crate::polyar;
-use crate::residual::export::AugmentedExport;
 use model_core::poly::PolyModel;
 use std::fmt::Write;
 use std::path::Path;
@@ -373,10 +373,10 @@ pub fn f32_loss(e: &Exported, v: &[f64], vdot: &[f64], p: &[f64]) -> F32Loss {
 }
 
 /// A warning when the board's own command parser (`firmware::command`, through
-/// [`crate::deploy::parse_lines`]) refuses `lines`: a log far from a syringe rig's scales (a
+/// [`crate::board::deploy::parse_lines`]) refuses `lines`: a log far from a syringe rig's scales (a
 /// ventilator's flows of 10⁵–10⁶ mm³/s) gives a scaling beyond the bounds its commands accept.
 fn board_refusal(lines: &[String]) -> Option<String> {
-    crate::deploy::parse_lines(&lines.join("\n"), "export").err().map(|e| {
+    crate::board::deploy::parse_lines(&lines.join("\n"), "export").err().map(|e| {
         format!(
             "WARNING: the board would refuse these lines ({e}); its commands take volumes within ±1e6 mm³ and flows within ±1e4 mm³/s, so they are for the record only"
         )

@@ -23,9 +23,10 @@ use std::collections::VecDeque;
 use std::io::{Read, Write};
 
 use firmware::command::{self, Command, ModelCmd};
+use firmware::hal::AXES;
 
-use crate::capture::CaptureLine;
-use crate::packets::PacketReader;
+use crate::board::capture::CaptureLine;
+use crate::board::packets::PacketReader;
 
 /// Everything sent to one channel, and the values it should hold afterwards.
 #[derive(Debug, Clone, PartialEq)]
@@ -66,6 +67,31 @@ impl Upload {
         }
         Ok(firmware::store::Model { poly, chain })
     }
+}
+
+/// Why a file's uploads do not make the board's models ([`board_models`]).
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("{0}")]
+pub struct UploadError(pub String);
+
+/// The models a file of uploads installs, by chamber (`None`: the board's boot model), as the
+/// board would install them on `commit`.
+pub fn board_models(
+    uploads: &[Upload],
+) -> Result<[Option<firmware::store::Model>; AXES], UploadError> {
+    let mut out = [None; AXES];
+    for up in uploads {
+        let slot = out
+            .get_mut(up.ch as usize)
+            .ok_or_else(|| UploadError(format!("chamber {}: the board has 0..=2", up.ch)))?;
+        *slot = Some(up.model().map_err(|e| {
+            UploadError(format!(
+                "chamber {}: the board would refuse the model ({e})",
+                up.ch
+            ))
+        })?);
+    }
+    Ok(out)
 }
 
 /// Why a deploy failed.

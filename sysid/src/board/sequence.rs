@@ -1,5 +1,5 @@
 //! A frame's place in the stream: gaps, reboots, duplicates and drops, decided in one place for
-//! every reader of the board's telemetry (`vfp record`'s [`crate::record`], `vfp monitor`).
+//! every reader of the board's telemetry (`vfp record`'s [`crate::board::record`], `vfp monitor`).
 //!
 //! The rules, for a frame after the previous decoded frame (`seq₀`, `t₀`):
 //! - **reboot**: `seq ≤ seq₀` and either a `boot` event came since that frame or `seq` is 0. The

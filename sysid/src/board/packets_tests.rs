@@ -1,5 +1,5 @@
 use super::*;
-use crate::record::{Recorder, Recording};
+use crate::board::record::{Recorder, Recording};
 use firmware::telemetry::{Event, EventKind, Frame};
 use firmware::wire::{encode_event, encode_frame, Packet};
 use proptest::prelude::*;
@@ -131,7 +131,8 @@ fn both_paths_give_the_same_log_and_the_same_gaps() {
     // Every item is one capture line on both paths, so even the comments' line numbers agree.
     assert_eq!(csv_a, csv_b);
     assert_eq!(b.other_lines, 2, "the two replies");
-    let whole = crate::record::convert_packets(binary_stream(&items).as_slice(), "test").unwrap();
+    let whole =
+        crate::board::record::convert_packets(binary_stream(&items).as_slice(), "test").unwrap();
     assert_eq!((whole.counts, whole.frames), (b.counts, b.frames));
     assert!(csv_b.lines().filter(|l| !l.starts_with('#')).count() > 60 * 3);
 }
