@@ -88,7 +88,10 @@ fn a_second_order_sensor_lag_has_the_first_orders_delay_and_another_shape() {
     };
     // Steady trail deep into a long ramp: within 3 % of each other.
     let (one, two) = (sensed(false, 5_000), sensed(true, 5_000));
-    assert!(one > 0.1 && (two - one).abs() < 0.03 * one, "{one} vs {two}");
+    assert!(
+        one > 0.1 && (two - one).abs() < 0.03 * one,
+        "{one} vs {two}"
+    );
     // 10 ms after the trail starts to build (a ramp from rest, 25 steps), the two-stage sensor
     // has followed more closely.
     let start = |second_order: bool| {
@@ -105,7 +108,12 @@ fn a_second_order_sensor_lag_has_the_first_orders_delay_and_another_shape() {
         p.advance_to(t);
         p.truth(0).sensed_kpa - base
     };
-    assert!(start(true) < 0.8 * start(false), "{} vs {}", start(true), start(false));
+    assert!(
+        start(true) < 0.8 * start(false),
+        "{} vs {}",
+        start(true),
+        start(false)
+    );
 }
 
 /// The pitch error with a second harmonic k: at a quarter turn (2 mm³ of an 8 mm³ period)
@@ -144,9 +152,18 @@ fn an_orifice_leak_loses_volume_at_its_own_rate() {
     let q = |p: f64| p / (1.0 + p / 2.0).sqrt();
     let expect = -0.01 * 0.5 * (q(a.pressure_kpa) + q(b.pressure_kpa));
     let got = b.chamber_mm3 - a.chamber_mm3;
-    assert!((b.leaked_mm3 - a.leaked_mm3 + got).abs() < 1e-9, "mass balance");
-    assert!((got - expect).abs() < 0.02 * expect.abs(), "{got} vs {expect}");
-    assert!(got.abs() < 0.7 * 0.01 * a.pressure_kpa, "below the laminar rate");
+    assert!(
+        (b.leaked_mm3 - a.leaked_mm3 + got).abs() < 1e-9,
+        "mass balance"
+    );
+    assert!(
+        (got - expect).abs() < 0.02 * expect.abs(),
+        "{got} vs {expect}"
+    );
+    assert!(
+        got.abs() < 0.7 * 0.01 * a.pressure_kpa,
+        "below the laminar rate"
+    );
 }
 
 /// The ramp drift reads D/2 at τ_D (the exponential: D·(1 − e⁻¹)) and D from 2τ_D on.
@@ -213,6 +230,14 @@ fn an_overdamped_delivery_lag_follows_a_step_with_its_two_poles() {
     };
     let e1 = (-1.0f64).exp();
     let two_poles = 4.0 / 3.0 * (-1.0f64 / 1.6).exp() - 1.0 / 3.0 * (-2.5f64).exp();
-    assert!((delivered(true) + 0.04 * two_poles).abs() < 1e-9, "{}", delivered(true));
-    assert!((delivered(false) + 0.04 * 2.0 * e1).abs() < 1e-9, "{}", delivered(false));
+    assert!(
+        (delivered(true) + 0.04 * two_poles).abs() < 1e-9,
+        "{}",
+        delivered(true)
+    );
+    assert!(
+        (delivered(false) + 0.04 * 2.0 * e1).abs() < 1e-9,
+        "{}",
+        delivered(false)
+    );
 }

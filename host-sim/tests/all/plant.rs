@@ -7,7 +7,6 @@ use host_sim::plant::{
     ForcePush, Hysteresis, Plant, PlantConfig, Ripple, ATMOSPHERE_KPA, CHAMBERS,
 };
 
-
 fn quiet() -> PlantConfig {
     let mut c = PlantConfig::default();
     c.sensor.noise_kpa = 0.0;

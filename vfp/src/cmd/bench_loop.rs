@@ -390,20 +390,19 @@ fn run_rig(spec: &RigSpec, keep: Option<&Path>, result: &mut RigResult) -> Resul
                     truth_params(p, span)
                 })
                 .into_iter()
-                    .map(|(name, truth)| ParamCompare {
-                        name: name.into(),
-                        truth,
-                        named: named.and_then(|e| {
-                            e.params.iter().find(|q| q.name == name).map(|q| q.value)
-                        }),
-                        ci95: named.and_then(|e| {
-                            e.params
-                                .iter()
-                                .find(|q| q.name == name)
-                                .and_then(|q| q.ci95)
-                        }),
-                    })
-                    .collect(),
+                .map(|(name, truth)| ParamCompare {
+                    name: name.into(),
+                    truth,
+                    named: named
+                        .and_then(|e| e.params.iter().find(|q| q.name == name).map(|q| q.value)),
+                    ci95: named.and_then(|e| {
+                        e.params
+                            .iter()
+                            .find(|q| q.name == name)
+                            .and_then(|q| q.ci95)
+                    }),
+                })
+                .collect(),
             }
         })
         .collect();
