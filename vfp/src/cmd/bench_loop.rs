@@ -287,6 +287,11 @@ fn run_rig(spec: &RigSpec, keep: Option<&Path>, result: &mut RigResult) -> Resul
                     .and_then(|p| p.ci95)
                     .is_some_and(|[lo, hi]| lo <= 0.0 && 0.0 <= hi)
             }),
+            alternatives: e
+                .alternatives
+                .iter()
+                .map(|a| a.effect.split(" + ").map(str::to_string).collect())
+                .collect(),
         })
         .collect();
 
