@@ -26,8 +26,14 @@
 //!   (the air pocket and sensor lag for a delivery lag kept), where the rest of the model is
 //!   still the one they were fitted with.
 //!
-//! An alternative must be physical ([`search::unphysical`]). It is not re-tuned with the rest,
+//! An alternative must be an explanation: in the kept effect's place it must win back at least
+//! [`super::LOOK_ALIKE_GAIN`] (half) of the kept effect's held-out gain over the model without
+//! it, as a look-alike of its round must; on a short log with few held-out cycles the paired
+//! test has little power, and a candidate that explains next to nothing would otherwise be
+//! "within the noise" of a strong effect. It must be physical ([`search::unphysical`]). It is not re-tuned with the rest,
 //! which can only make it look worse than it could be: the list errs towards telling apart.
+
+use std::cell::RefCell;
 
 use serde::Serialize;
 
@@ -120,6 +126,8 @@ pub(super) struct Inputs<'a> {
     pub model: &'a Stage,
     /// Each effect of the final model's leads, in the model's order.
     pub leads: Vec<&'a Leads>,
+    /// Each effect of the final model's name in the report, in the model's order.
+    pub names: Vec<&'static str>,
     /// The swaps' outs.
     pub replaced: &'a [Replaced],
     /// Pairs tried in a kept effect's place and not taken: the effect, and the model with the
@@ -141,16 +149,36 @@ pub(super) fn alternatives(prep: &Prepared, inp: &Inputs) -> Vec<Vec<Alternative
     }
     let kept_sq = squares(&model.resid);
     let in_model = |k: EffectKind| model.effects.iter().any(|e| e.kind == k);
-    let name = |k: EffectKind| prep.scales.rig.effect_name(k.name());
     let without = |drop: &[usize]| -> Vec<Effect> {
         (0..n)
             .filter(|j| !drop.contains(j))
             .map(|j| model.effects[j].clone())
             .collect()
     };
-    // Judges `alt` (a model with `added` effects last) in the place of the effects at `at`.
+    // The rest of the model without the effects at `at`, fitted once for all that is tried in
+    // their place.
+    let bases: RefCell<Vec<(Vec<usize>, Option<Stage>)>> = RefCell::new(Vec::new());
+    let base = |at: &[usize]| -> Option<Stage> {
+        let mut b = bases.borrow_mut();
+        if let Some((_, s)) = b.iter().find(|(a, _)| a == at) {
+            return s.clone();
+        }
+        let s = search::fit_stage(prep, &without(at));
+        b.push((at.to_vec(), s.clone()));
+        s
+    };
+    let search_in = |at: &[usize], k: EffectKind| -> Option<Stage> {
+        search::search(prep, &base(at)?, k).map(|c| c.stage)
+    };
+    // Judges `alt` (a model with `added` effects last) in the place of the effects at `at`: an
+    // explanation (at least [`super::LOOK_ALIKE_GAIN`] of their held-out gain over the model
+    // without them), physical, and within the noise of the kept model.
     let judge = |alt: &Stage, added: usize, at: &[usize]| -> Option<Alternative> {
-        if search::unphysical(alt, &prep.scales).is_some() {
+        let rest = base(at)?;
+        let gain = rest.rmse_heldout - model.rmse_heldout;
+        if rest.rmse_heldout - alt.rmse_heldout < super::LOOK_ALIKE_GAIN * gain
+            || search::unphysical(alt, &prep.scales).is_some()
+        {
             return None;
         }
         let z = validate::paired_z(&squares(&alt.resid), &kept_sq, &blocks);
@@ -159,13 +187,16 @@ pub(super) fn alternatives(prep: &Prepared, inp: &Inputs) -> Vec<Vec<Alternative
         }
         let m = alt.effects.len();
         let idx: Vec<usize> = (m - added..m).collect();
-        let names: Vec<&str> = idx.iter().map(|&i| name(alt.effects[i].kind)).collect();
+        let names: Vec<&str> = idx
+            .iter()
+            .map(|&i| super::report_name(prep, &alt.effects[i]))
+            .collect();
         let params = idx
             .iter()
-            .flat_map(|&i| {
+            .zip(&names)
+            .flat_map(|(&i, e)| {
                 let mut p = search::effect_params(prep, alt, i);
                 if added > 1 {
-                    let e = name(alt.effects[i].kind);
                     p.iter_mut()
                         .for_each(|p| p.name = format!("{e}.{}", p.name));
                 }
@@ -174,7 +205,7 @@ pub(super) fn alternatives(prep: &Prepared, inp: &Inputs) -> Vec<Vec<Alternative
             .collect();
         Some(Alternative {
             effect: names.join(" + "),
-            replaces: at.iter().map(|&j| name(model.effects[j].kind)).collect(),
+            replaces: at.iter().map(|&j| inp.names[j]).collect(),
             params,
             rmse_heldout: alt.rmse_heldout,
             z,
@@ -182,19 +213,6 @@ pub(super) fn alternatives(prep: &Prepared, inp: &Inputs) -> Vec<Vec<Alternative
         })
     };
     let mut found: Vec<(Vec<usize>, Alternative)> = Vec::new();
-    // The rest of the model without the effects at `at`, fitted once for the searches.
-    let mut bases: Vec<(Vec<usize>, Option<Stage>)> = Vec::new();
-    let mut search_in = |at: &[usize], k: EffectKind| -> Option<Stage> {
-        let i = match bases.iter().position(|(a, _)| a == at) {
-            Some(i) => i,
-            None => {
-                bases.push((at.to_vec(), search::fit_stage(prep, &without(at))));
-                bases.len() - 1
-            }
-        };
-        let base = bases[i].1.as_ref()?;
-        search::search(prep, base, k).map(|c| c.stage)
-    };
     for (i, leads) in inp.leads.iter().enumerate() {
         let rest = without(&[i]);
         for c in &leads.close {

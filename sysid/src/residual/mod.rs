@@ -592,7 +592,13 @@ struct KeptStep {
 
 /// Share of a kept effect's held-out gain another candidate of its round must reach to be its
 /// look-alike: one that explains most of the same structure.
-const LOOK_ALIKE_GAIN: f64 = 0.5;
+pub(crate) const LOOK_ALIKE_GAIN: f64 = 0.5;
+
+/// The name effect `e` is reported under: its neutral name where its parameters or the rig call
+/// for one ([`neutral`]), else its own.
+pub(crate) fn report_name(prep: &effects::Prepared, e: &Effect) -> &'static str {
+    neutral_of(prep, e).map_or(e.kind.name(), |n| n.0)
+}
 
 /// What forward selection ends with.
 struct Selection {
@@ -661,6 +667,12 @@ pub fn diagnose(series: Series, cfg: &Config) -> Result<Diagnosis, DiagnoseError
         &alternatives::Inputs {
             model: &selection.model,
             leads: selection.kept.iter().map(|k| &k.leads).collect(),
+            names: selection
+                .model
+                .effects
+                .iter()
+                .map(|e| report_name(&prep, e))
+                .collect(),
             replaced: &selection.replaced,
             pair_trials: &selection.pair_trials,
         },
@@ -1281,7 +1293,11 @@ fn neutral(
     sel: &Selection,
     i: usize,
 ) -> Option<(&'static str, &'static str)> {
-    let e = sel.model.effects.get(i)?;
+    neutral_of(prep, sel.model.effects.get(i)?)
+}
+
+/// The neutral name and story of effect `e` ([`neutral`]).
+fn neutral_of(prep: &effects::Prepared, e: &Effect) -> Option<(&'static str, &'static str)> {
     e.kind.neutral(e, &prep.scales).or_else(|| {
         (prep.scales.rig == Rig::Generic)
             .then(|| e.kind.generic())
