@@ -397,10 +397,11 @@ fn alternatives_line(e: &EffectReport) -> String {
                 .iter()
                 .map(|p| format!("{} = {:.4e} {}", p.name, p.value, p.unit))
                 .collect();
+            let plural = |k: i64| if k == 1 { "" } else { "s" };
             let simpler = match a.extra_params {
                 0 => String::new(),
-                k if k < 0 => format!(", {} parameters fewer", -k),
-                k => format!(", {k} parameters more"),
+                k if k < 0 => format!(", {} parameter{} fewer", -k, plural(-k)),
+                k => format!(", {k} parameter{} more", plural(k)),
             };
             format!(
                 "{}{place} ({}; held-out {:.4} kPa, z = {:+.2}{simpler})",
