@@ -182,7 +182,7 @@ pub(super) fn alternatives(prep: &Prepared, inp: &Inputs) -> Vec<Vec<Alternative
             return None;
         }
         let z = validate::paired_z(&squares(&alt.resid), &kept_sq, &blocks);
-        if !(z.abs() < ALT_Z) {
+        if z.is_nan() || z.abs() >= ALT_Z {
             return None;
         }
         let m = alt.effects.len();
