@@ -6,7 +6,11 @@
 //! A planted effect is **found** when the loop names the kind it corresponds to
 //! ([`PlantedResult::expects`]). A named effect is **right** when it is the expected name of an
 //! effect planted in its rig. Precision = right named / all named (clean rigs included); recall =
-//! found / planted.
+//! found / planted. Counting alternatives (issue 34), a named effect is also right when every
+//! effect of one of the alternatives the loop could not tell from it was planted ("cannot tell
+//! apart, the truth among the alternatives"); both precisions are reported, with how often
+//! "cannot tell" was said, the mean number of alternatives per named effect and the share of
+//! right names right only through them, so that listing alternatives everywhere shows.
 //!
 //! # Confusion matrix
 //! Rows: planted kinds, `clean` (a rig without effects) and `(extra)`; columns: the loop's names
@@ -90,6 +94,16 @@ pub struct NamedResult {
 }
 
 impl NamedResult {
+    /// The name, with the alternatives the loop could not tell from it: `sensor_lag (or
+    /// delivery_lag | air_compliance + sensor_lag)`.
+    pub fn label(&self) -> String {
+        if self.alternatives.is_empty() {
+            return self.name.clone();
+        }
+        let alts: Vec<String> = self.alternatives.iter().map(|a| a.join(" + ")).collect();
+        format!("{} (or {})", self.name, alts.join(" | "))
+    }
+
     /// Whether the name is right in `rig`: the expected name of an effect planted there.
     fn right(&self, rig: &RigResult) -> bool {
         rig.planted.iter().any(|p| p.expects == self.name)
@@ -861,7 +875,7 @@ pub fn markdown(command: &str, s: &Summary, results: &[RigResult]) -> String {
 
     let _ = writeln!(
         o,
-        "\n## Rigs\n\nShape: the baseline (n, m) the loop selected. Oracle / σ: the held-out RMSE of the chamber law's shape (3, 2) plus every planted effect's true contribution. ✗: missed.\n\n| rig | planted (oracle gain, RMS/σ) | named | shape | final / σ | oracle / σ | CPU s |\n|---|---|---|---|---|---|---|"
+        "\n## Rigs\n\nNamed: each name with, in brackets, the alternatives the loop could not tell from it on held-out data. Shape: the baseline (n, m) the loop selected. Oracle / σ: the held-out RMSE of the chamber law's shape (3, 2) plus every planted effect's true contribution. ✗: missed.\n\n| rig | planted (oracle gain, RMS/σ) | named | shape | final / σ | oracle / σ | CPU s |\n|---|---|---|---|---|---|---|"
     );
     for r in results {
         if let Some(e) = &r.error {
@@ -881,7 +895,7 @@ pub fn markdown(command: &str, s: &Summary, results: &[RigResult]) -> String {
                 )
             })
             .collect();
-        let named: Vec<&str> = r.named.iter().map(|n| n.name.as_str()).collect();
+        let named: Vec<String> = r.named.iter().map(NamedResult::label).collect();
         let _ = writeln!(
             o,
             "| {} | {} | {} | ({}, {}) | {:.3} | {:.3} | {} |",

@@ -514,7 +514,7 @@ fn progress_line(r: &RigResult, n: usize) -> String {
         .iter()
         .map(|p| format!("{}{}", if p.found { "" } else { "✗" }, p.kind))
         .collect();
-    let named: Vec<&str> = r.named.iter().map(|n| n.name.as_str()).collect();
+    let named: Vec<String> = r.named.iter().map(NamedResult::label).collect();
     format!(
         "[{}/{n}] {}: planted [{}], named [{}], {:.3} σ, {} CPU s",
         r.index + 1,
