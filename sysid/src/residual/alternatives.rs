@@ -17,7 +17,8 @@
 //!   no fit): a candidate far worse in its round is not tried again. Where the rest of the model
 //!   is still the one that round searched it on (the same effects at the same parameters: a model
 //!   of one effect, or the last one kept without a re-tune that moved the others), the round's
-//!   fit is the alternative as it stands; otherwise it is searched again in the final model's
+//!   fit is the alternative as it stands (fitted again from its effects: one least-squares
+//!   fit; the round keeps the effects only, not a fit over every sample); otherwise it is searched again in the final model's
 //!   company ([`search::search`], one candidate's search);
 //! - an effect a look-alike swap took out ([`super::SwapReport`]), in the place of what came in
 //!   (one effect, or the two that together replaced it: the air pocket and the sensor lag that
@@ -76,8 +77,11 @@ pub struct Alternative {
 /// A kept effect's candidates to try again (module docs).
 #[derive(Clone, Debug, Default)]
 pub(super) struct Leads {
-    /// Close candidates of its round, each as the round fitted it (the candidate last).
-    pub close: Vec<Stage>,
+    /// Close candidates of its round, each as the round fitted it: the model's effects with the
+    /// candidate last (effects only, not the fit: a fit holds its prediction and residual over
+    /// every sample, megabytes on a long log; where it can be reused it is fitted again, one
+    /// least-squares fit).
+    pub close: Vec<Vec<Effect>>,
 }
 
 /// An effect a look-alike swap took out, and the model it was in.
@@ -100,11 +104,11 @@ pub(super) fn screen<'a>(
     blocks: &[Vec<usize>],
     winner: &Stage,
     others: impl Iterator<Item = &'a Stage>,
-) -> Vec<Stage> {
+) -> Vec<Vec<Effect>> {
     let win = squares(&winner.resid);
     others
         .filter(|s| validate::paired_z(&squares(&s.resid), &win, blocks) < SCREEN_Z)
-        .cloned()
+        .map(|s| s.effects.clone())
         .collect()
 }
 
@@ -130,9 +134,9 @@ pub(super) struct Inputs<'a> {
     pub names: Vec<&'static str>,
     /// The swaps' outs.
     pub replaced: &'a [Replaced],
-    /// Pairs tried in a kept effect's place and not taken: the effect, and the model with the
-    /// pair last.
-    pub pair_trials: &'a [(EffectKind, Stage)],
+    /// Pairs tried in a kept effect's place and not taken: the effect, and the model's effects
+    /// with the pair last.
+    pub pair_trials: &'a [(EffectKind, Vec<Effect>)],
 }
 
 /// Each effect of the final model's alternatives, in the model's order (module docs).
@@ -216,15 +220,15 @@ pub(super) fn alternatives(prep: &Prepared, inp: &Inputs) -> Vec<Vec<Alternative
     for (i, leads) in inp.leads.iter().enumerate() {
         let rest = without(&[i]);
         for c in &leads.close {
-            let Some(k) = c.effects.last().map(|e| e.kind) else {
+            let Some(k) = c.last().map(|e| e.kind) else {
                 continue;
             };
             if in_model(k) {
                 continue;
             }
-            let m = c.effects.len();
-            let alt = if same_all(&c.effects[..m - 1], &rest) {
-                Some(c.clone())
+            let m = c.len();
+            let alt = if same_all(&c[..m - 1], &rest) {
+                search::fit_stage(prep, c)
             } else {
                 search_in(&[i], k)
             };
@@ -248,18 +252,21 @@ pub(super) fn alternatives(prep: &Prepared, inp: &Inputs) -> Vec<Vec<Alternative
             found.push((at, a));
         }
     }
-    for (k, stage) in inp.pair_trials {
+    for (k, effects) in inp.pair_trials {
         let Some(i) = model.effects.iter().position(|e| e.kind == *k) else {
             continue;
         };
-        let m = stage.effects.len();
-        if m < 2 || stage.effects[m - 2..].iter().any(|e| in_model(e.kind)) {
+        let m = effects.len();
+        if m < 2 || effects[m - 2..].iter().any(|e| in_model(e.kind)) {
             continue;
         }
-        if !same_all(&stage.effects[..m - 2], &without(&[i])) {
+        if !same_all(&effects[..m - 2], &without(&[i])) {
             continue;
         }
-        if let Some(a) = judge(stage, 2, &[i]) {
+        let Some(stage) = search::fit_stage(prep, effects) else {
+            continue;
+        };
+        if let Some(a) = judge(&stage, 2, &[i]) {
             found.push((vec![i], a));
         }
     }

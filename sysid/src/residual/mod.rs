@@ -620,8 +620,8 @@ struct Selection {
     /// Effects look-alike swaps took out, and what came in.
     replaced: Vec<alternatives::Replaced>,
     /// Pairs of look-alikes tried in a kept effect's place and not taken ([`swap_for_pair`]):
-    /// the effect, and the model with the pair last.
-    pair_trials: Vec<(EffectKind, Stage)>,
+    /// the effect, and the model's effects with the pair last.
+    pair_trials: Vec<(EffectKind, Vec<Effect>)>,
     /// Each final effect's alternatives, in the model's order ([`alternatives::alternatives`]).
     alternatives: Vec<Vec<alternatives::Alternative>>,
 }
@@ -906,7 +906,7 @@ fn swap_for_pair(
     cfg: &Config,
     sel: &Selection,
     banned: &[EffectKind],
-    tried: &mut Vec<(EffectKind, Stage)>,
+    tried: &mut Vec<(EffectKind, Vec<Effect>)>,
 ) -> Option<Swap> {
     let model = &sel.model;
     let mut best: Option<Swap> = None;
@@ -927,7 +927,7 @@ fn swap_for_pair(
         };
         let stage = search::retune_to_beat(prep, &start, model.fit.sse);
         // Kept for the alternatives ([`alternatives`]) whatever comes of it.
-        tried.push((step.kind, stage.clone()));
+        tried.push((step.kind, stage.effects.clone()));
         if !(stage.fit.sse < model.fit.sse && stage.rmse_heldout < model.rmse_heldout)
             || search::unphysical(&stage, &prep.scales).is_some()
             || best
