@@ -6,7 +6,11 @@
 //! A planted effect is **found** when the loop names the kind it corresponds to
 //! ([`PlantedResult::expects`]). A named effect is **right** when it is the expected name of an
 //! effect planted in its rig. Precision = right named / all named (clean rigs included); recall =
-//! found / planted.
+//! found / planted. Counting alternatives (issue 34), a named effect is also right when every
+//! effect of one of the alternatives the loop could not tell from it was planted ("cannot tell
+//! apart, the truth among the alternatives"); both precisions are reported, with how often
+//! "cannot tell" was said, the mean number of alternatives per named effect and the share of
+//! right names right only through them, so that listing alternatives everywhere shows.
 //!
 //! # Confusion matrix
 //! Rows: planted kinds, `clean` (a rig without effects) and `(extra)`; columns: the loop's names
@@ -85,6 +89,38 @@ pub struct NamedResult {
     /// Whether the 95 % interval of the effect's presence parameter (its gap, time constant,
     /// volume, amplitude: `EffectModel::presence`) reaches the value that means "absent", 0.
     pub reaches_absent: bool,
+    /// The explanations the loop could not tell from it on held-out data (issue 34), each as the
+    /// names of its effects (one, or two together).
+    #[serde(skip_serializing_if = "Vec::is_empty", default)]
+    pub alternatives: Vec<Vec<String>>,
+}
+
+impl NamedResult {
+    /// The name, with the alternatives the loop could not tell from it: `sensor_lag (or
+    /// delivery_lag | air_compliance + sensor_lag)`.
+    pub fn label(&self) -> String {
+        if self.alternatives.is_empty() {
+            return self.name.clone();
+        }
+        let alts: Vec<String> = self.alternatives.iter().map(|a| a.join(" + ")).collect();
+        format!("{} (or {})", self.name, alts.join(" | "))
+    }
+
+    /// Whether the name is right in `rig`: the expected name of an effect planted there.
+    fn right(&self, rig: &RigResult) -> bool {
+        rig.planted.iter().any(|p| p.expects == self.name)
+    }
+
+    /// Whether the name is right counting its alternatives: right, or one of its alternatives
+    /// has every one of its effects planted in `rig` (the truth among the alternatives).
+    fn right_with_alternatives(&self, rig: &RigResult) -> bool {
+        self.right(rig)
+            || self.alternatives.iter().any(|a| {
+                !a.is_empty()
+                    && a.iter()
+                        .all(|n| rig.planted.iter().any(|p| &p.expects == n))
+            })
+    }
 }
 
 /// One rig's outcome.
@@ -266,6 +302,17 @@ pub struct Summary {
     pub named_right: usize,
     /// named_right / named (1 when nothing was named).
     pub precision: f64,
+    /// Of the named effects, right counting their alternatives: the name, or every effect of
+    /// one of its alternatives, planted ("cannot tell apart, the truth among the alternatives").
+    pub named_right_with_alternatives: usize,
+    /// named_right_with_alternatives / named (1 when nothing was named).
+    pub precision_with_alternatives: f64,
+    /// Named effects reported with at least one alternative ("cannot tell apart").
+    pub named_with_alternatives: usize,
+    /// Alternatives listed per named effect, mean.
+    pub mean_alternatives: f64,
+    /// Of the named effects right counting alternatives, the share right only through them.
+    pub right_only_through_alternatives: f64,
     /// found / planted (1 when nothing was planted).
     pub recall: f64,
     /// Recall over planted effects whose oracle gain is at least 5 %.
@@ -379,11 +426,17 @@ pub fn summarise(results: &[RigResult]) -> Summary {
     let mut cells: BTreeMap<(String, String), usize> = BTreeMap::new();
     let mut add = |row: &str, col: &str| *cells.entry((row.into(), col.into())).or_default() += 1;
     let (mut planted, mut found, mut named, mut right) = (0, 0, 0, 0);
+    let (mut right_alt, mut with_alt, mut alts) = (0, 0, 0);
     let (mut clean, mut alarm_rigs, mut alarm_effects) = (0, 0, 0);
     for r in &ok {
         let unmatched = r.unmatched_named();
         named += r.named.len();
         right += r.named.len() - unmatched.len();
+        for n in &r.named {
+            right_alt += usize::from(n.right_with_alternatives(r));
+            with_alt += usize::from(!n.alternatives.is_empty());
+            alts += n.alternatives.len();
+        }
         if r.planted.is_empty() {
             clean += 1;
             alarm_rigs += usize::from(!r.named.is_empty());
@@ -521,6 +574,19 @@ pub fn summarise(results: &[RigResult]) -> Summary {
         named,
         named_right: right,
         precision: ratio(right, named),
+        named_right_with_alternatives: right_alt,
+        precision_with_alternatives: ratio(right_alt, named),
+        named_with_alternatives: with_alt,
+        mean_alternatives: if named == 0 {
+            0.0
+        } else {
+            alts as f64 / named as f64
+        },
+        right_only_through_alternatives: if right_alt == 0 {
+            0.0
+        } else {
+            (right_alt - right) as f64 / right_alt as f64
+        },
         recall: ratio(found, planted),
         recall_gain_5pct: ratio(strong_found, strong.len()),
         gain_5pct: (strong.len(), strong_found),
@@ -620,7 +686,7 @@ pub fn markdown(command: &str, s: &Summary, results: &[RigResult]) -> String {
     let mut o = String::new();
     let _ = writeln!(o, "# Loop benchmark\n\n`{command}`\n");
     let _ = writeln!(o, "| figure | value |\n|---|---|");
-    let rows: [(&str, String); 11] = [
+    let rows: [(&str, String); 13] = [
         ("rigs (failed)", format!("{} ({})", s.rigs, s.failed)),
         (
             "precision (right / named)",
@@ -630,6 +696,24 @@ pub fn markdown(command: &str, s: &Summary, results: &[RigResult]) -> String {
                 binomial_se(s.named_right, s.named),
                 s.named_right,
                 s.named
+            ),
+        ),
+        (
+            "precision counting alternatives (right or the truth among its alternatives / named)",
+            format!(
+                "{:.3} ± {:.3} ({} / {}); right only through alternatives: {}",
+                s.precision_with_alternatives,
+                binomial_se(s.named_right_with_alternatives, s.named),
+                s.named_right_with_alternatives,
+                s.named,
+                pct(s.right_only_through_alternatives)
+            ),
+        ),
+        (
+            "cannot tell apart (named effects with alternatives)",
+            format!(
+                "{} of {}; {:.2} alternatives per named effect",
+                s.named_with_alternatives, s.named, s.mean_alternatives
             ),
         ),
         (
@@ -793,7 +877,7 @@ pub fn markdown(command: &str, s: &Summary, results: &[RigResult]) -> String {
 
     let _ = writeln!(
         o,
-        "\n## Rigs\n\nShape: the baseline (n, m) the loop selected. Oracle / σ: the held-out RMSE of the chamber law's shape (3, 2) plus every planted effect's true contribution. ✗: missed.\n\n| rig | planted (oracle gain, RMS/σ) | named | shape | final / σ | oracle / σ | CPU s |\n|---|---|---|---|---|---|---|"
+        "\n## Rigs\n\nNamed: each name with, in brackets, the alternatives the loop could not tell from it on held-out data. Shape: the baseline (n, m) the loop selected. Oracle / σ: the held-out RMSE of the chamber law's shape (3, 2) plus every planted effect's true contribution. ✗: missed.\n\n| rig | planted (oracle gain, RMS/σ) | named | shape | final / σ | oracle / σ | CPU s |\n|---|---|---|---|---|---|---|"
     );
     for r in results {
         if let Some(e) = &r.error {
@@ -813,7 +897,7 @@ pub fn markdown(command: &str, s: &Summary, results: &[RigResult]) -> String {
                 )
             })
             .collect();
-        let named: Vec<&str> = r.named.iter().map(|n| n.name.as_str()).collect();
+        let named: Vec<String> = r.named.iter().map(NamedResult::label).collect();
         let _ = writeln!(
             o,
             "| {} | {} | {} | ({}, {}) | {:.3} | {:.3} | {} |",
@@ -860,8 +944,45 @@ mod tests {
                 name: (*n).into(),
                 params: Vec::new(),
                 reaches_absent: false,
+                alternatives: Vec::new(),
             })
             .collect()
+    }
+
+    /// Precision counting alternatives, by hand on the five rigs: rig 1's delivery_lag (leak
+    /// planted, missed) with the alternatives `leak` and `sensor_lag + air_compliance` is right
+    /// through the first; rig 3's sensor_lag on a clean rig with `air_compliance` stays wrong
+    /// (nothing planted); rig 4's ripple with `hysteresis + ripple` stays wrong (ripple not
+    /// planted: every effect of an alternative must be). Named 5, right 2 strictly, 3 with
+    /// alternatives; 3 of 5 named effects said "cannot tell", with 4 alternatives; 1 of the 3
+    /// right only through alternatives.
+    #[test]
+    fn precision_counting_alternatives_by_hand() {
+        let strs = |v: &[&str]| v.iter().map(|s| s.to_string()).collect::<Vec<_>>();
+        let mut r = rigs();
+        r[0].named[1].alternatives = vec![strs(&["leak"]), strs(&["sensor_lag", "air_compliance"])];
+        r[2].named[0].alternatives = vec![strs(&["air_compliance"])];
+        r[3].named[1].alternatives = vec![strs(&["hysteresis", "ripple"])];
+        let s = summarise(&r);
+        assert_eq!((s.named, s.named_right), (5, 2));
+        assert_eq!(s.named_right_with_alternatives, 3);
+        assert!((s.precision_with_alternatives - 0.6).abs() < 1e-12);
+        assert_eq!(s.named_with_alternatives, 3);
+        assert!((s.mean_alternatives - 0.8).abs() < 1e-12);
+        assert!((s.right_only_through_alternatives - 1.0 / 3.0).abs() < 1e-12);
+        let md = markdown("vfp bench-loop", &s, &r);
+        assert!(
+            md.contains("| 0.600 ± 0.219 (3 / 5); right only through alternatives: 33.3 % |"),
+            "{md}"
+        );
+        assert!(
+            md.contains("| 3 of 5; 0.80 alternatives per named effect |"),
+            "{md}"
+        );
+        // Without alternatives both precisions agree.
+        let s = summarise(&rigs());
+        assert_eq!(s.precision_with_alternatives, s.precision);
+        assert_eq!((s.named_with_alternatives, s.mean_alternatives), (0, 0.0));
     }
 
     fn rig(planted: Vec<PlantedResult>, names: &[&str], over_sigma: f64, cpu: f64) -> RigResult {

@@ -24,6 +24,7 @@
 // Index loops over several aligned signals read more plainly than zipped iterators here.
 #![allow(clippy::needless_range_loop)]
 
+pub mod alternatives;
 pub mod analysis;
 mod basis;
 pub mod effects;
@@ -334,6 +335,11 @@ pub struct EffectReport {
     /// of the others), with its verdict (`reason`: "passes too", "significance" or why it is
     /// unphysical): when two candidates explain the same structure, how close the other came.
     pub runner_up: Option<Rejected>,
+    /// Other explanations the held-out data cannot tell from this one (`|z| <`
+    /// [`alternatives::ALT_Z`]), fitted in its place with the rest of the final model kept
+    /// ([`alternatives`]); absent when the data tell it apart from every one tried.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub alternatives: Vec<alternatives::Alternative>,
 }
 
 /// Whether an effect term can run on the device.
@@ -510,6 +516,8 @@ pub struct Timings {
     pub pair_trials: f64,
     /// Putting a swap in place (leave-one-out drops, the steps rebuilt).
     pub apply_swaps: f64,
+    /// The kept effects' alternatives ([`alternatives`]).
+    pub alternatives: f64,
     /// The held-out residual analyses before and after, and the report's parameters.
     pub residual_analysis: f64,
     /// The whole loop.
@@ -521,7 +529,7 @@ pub struct Timings {
 impl Timings {
     /// The stages in the loop's order, each with its seconds and its name in the reports
     /// (`vfp diagnose --timings`, `vfp bench-loop`); `total` not included.
-    pub fn stages(&self) -> [(&'static str, f64); 8] {
+    pub fn stages(&self) -> [(&'static str, f64); 9] {
         [
             ("shape selection", self.shape_selection),
             ("baseline fit", self.baseline),
@@ -530,6 +538,7 @@ impl Timings {
             ("single swaps", self.single_swaps),
             ("pair trials", self.pair_trials),
             ("applying swaps", self.apply_swaps),
+            ("alternatives", self.alternatives),
             ("residual analysis", self.residual_analysis),
         ]
     }
@@ -576,11 +585,19 @@ struct KeptStep {
     /// [`LOOK_ALIKE_GAIN`] of the kept one's gain ([`swap_look_alike`] tries each in its place),
     /// each as its round fitted it.
     rivals: Vec<Effect>,
+    /// What its alternatives are sought among ([`alternatives::Leads`]).
+    leads: alternatives::Leads,
 }
 
 /// Share of a kept effect's held-out gain another candidate of its round must reach to be its
 /// look-alike: one that explains most of the same structure.
-const LOOK_ALIKE_GAIN: f64 = 0.5;
+pub(crate) const LOOK_ALIKE_GAIN: f64 = 0.5;
+
+/// The name effect `e` is reported under: its neutral name where its parameters or the rig call
+/// for one ([`neutral`]), else its own.
+pub(crate) fn report_name(prep: &effects::Prepared, e: &Effect) -> &'static str {
+    neutral_of(prep, e).map_or(e.kind.name(), |n| n.0)
+}
 
 /// What forward selection ends with.
 struct Selection {
@@ -599,6 +616,13 @@ struct Selection {
     /// The final model's joint covariance ([`interval::joint_cov`]), once [`drop_absent`] formed
     /// it.
     final_cov: Option<interval::JointCov>,
+    /// Effects look-alike swaps took out, and what came in.
+    replaced: Vec<alternatives::Replaced>,
+    /// Pairs of look-alikes tried in a kept effect's place and not taken ([`swap_for_pair`]):
+    /// the effect, and the model's effects with the pair last.
+    pair_trials: Vec<(EffectKind, Vec<Effect>)>,
+    /// Each final effect's alternatives, in the model's order ([`alternatives::alternatives`]).
+    alternatives: Vec<Vec<alternatives::Alternative>>,
 }
 
 /// One searched candidate of a round, judged against the model it would extend.
@@ -635,6 +659,24 @@ pub fn diagnose(series: Series, cfg: &Config) -> Result<Diagnosis, DiagnoseError
     let mut selection = select_effects(&prep, &baseline, cfg);
     selection.timing.baseline = baseline_s;
     drop_absent(&prep, cfg, &mut selection);
+    say("alternatives");
+    let t = std::time::Instant::now();
+    selection.alternatives = alternatives::alternatives(
+        &prep,
+        &alternatives::Inputs {
+            model: &selection.model,
+            leads: selection.kept.iter().map(|k| &k.leads).collect(),
+            names: selection
+                .model
+                .effects
+                .iter()
+                .map(|e| report_name(&prep, e))
+                .collect(),
+            replaced: &selection.replaced,
+            pair_trials: &selection.pair_trials,
+        },
+    );
+    selection.timing.alternatives = secs(t);
     say("residual analysis");
     let t = std::time::Instant::now();
     let mut d = report(&prep, cfg, &baseline, selection);
@@ -658,6 +700,9 @@ fn select_effects(prep: &effects::Prepared, baseline: &Stage, cfg: &Config) -> S
         swaps: Vec::new(),
         timing: Timings::default(),
         final_cov: None,
+        replaced: Vec::new(),
+        pair_trials: Vec::new(),
+        alternatives: Vec::new(),
     };
     // Each candidate's search time in the previous round, to schedule the next (`search_all`).
     let mut costs = std::collections::HashMap::new();
@@ -672,7 +717,9 @@ fn select_effects(prep: &effects::Prepared, baseline: &Stage, cfg: &Config) -> S
         // A pair is tried even where one look-alike wins: the one can leave the other's share to
         // an effect the plant does not have, taken in a later round.
         let t = std::time::Instant::now();
-        let two = swap_for_pair(prep, cfg, &sel, &banned);
+        let mut tried = Vec::new();
+        let two = swap_for_pair(prep, cfg, &sel, &banned, &mut tried);
+        sel.pair_trials.extend(tried);
         sel.timing.pair_trials += secs(t);
         let swap = match (one, two) {
             (Some(one), Some(two)) if two.stage.rmse_heldout < one.stage.rmse_heldout => two,
@@ -727,8 +774,18 @@ fn forward(
                     })
                     .filter_map(|r| r.cand.stage.effects.last().cloned())
                     .collect();
+                let leads = alternatives::Leads {
+                    close: alternatives::screen(
+                        &validate::held_out_blocks(prep),
+                        &winner.cand.stage,
+                        round
+                            .iter()
+                            .filter(|r| r.unphysical.is_none())
+                            .map(|r| &r.cand.stage),
+                    ),
+                };
                 let t = std::time::Instant::now();
-                keep(prep, sel, winner, runner_up, rivals);
+                keep(prep, sel, winner, runner_up, rivals, leads);
                 let retune = secs(t);
                 sel.timing.retune += retune;
                 if let Some(r) = sel.timing.rounds.last_mut() {
@@ -848,6 +905,7 @@ fn swap_for_pair(
     cfg: &Config,
     sel: &Selection,
     banned: &[EffectKind],
+    tried: &mut Vec<(EffectKind, Vec<Effect>)>,
 ) -> Option<Swap> {
     let model = &sel.model;
     let mut best: Option<Swap> = None;
@@ -867,6 +925,8 @@ fn swap_for_pair(
             continue;
         };
         let stage = search::retune_to_beat(prep, &start, model.fit.sse);
+        // Kept for the alternatives ([`alternatives`]) whatever comes of it.
+        tried.push((step.kind, stage.effects.clone()));
         if !(stage.fit.sse < model.fit.sse && stage.rmse_heldout < model.rmse_heldout)
             || search::unphysical(&stage, &prep.scales).is_some()
             || best
@@ -911,6 +971,10 @@ fn apply_swap(
     let Some(mut model) = search::fit_stage(prep, &effects) else {
         return;
     };
+    sel.replaced.push(alternatives::Replaced {
+        out: swap.out,
+        by: by.clone(),
+    });
     sel.swaps.push(SwapReport {
         replaced: swap.out.name(),
         by: by.iter().map(|k| k.name()).collect(),
@@ -964,6 +1028,7 @@ fn apply_swap(
             test: search::nested_test(prep, &prev, &after),
             runner_up,
             rivals: was.map(|k| k.rivals.clone()).unwrap_or_default(),
+            leads: was.map(|k| k.leads.clone()).unwrap_or_default(),
         });
         prev = after;
     }
@@ -1057,6 +1122,7 @@ fn keep(
     r: Ranked,
     runner_up: Option<Rejected>,
     rivals: Vec<Effect>,
+    leads: alternatives::Leads,
 ) {
     let tuned = search::retune(prep, &r.cand.stage);
     let model = if tuned.fit.sse <= r.cand.stage.fit.sse
@@ -1077,6 +1143,7 @@ fn keep(
         test: r.test,
         runner_up,
         rivals,
+        leads,
     });
     sel.model = model;
 }
@@ -1213,6 +1280,7 @@ fn effect_reports(prep: &effects::Prepared, sel: &Selection) -> Vec<EffectReport
             test: step.test,
             device: step.kind.device_support(),
             runner_up: step.runner_up.clone(),
+            alternatives: sel.alternatives.get(i).cloned().unwrap_or_default(),
         })
         .collect()
 }
@@ -1224,7 +1292,11 @@ fn neutral(
     sel: &Selection,
     i: usize,
 ) -> Option<(&'static str, &'static str)> {
-    let e = sel.model.effects.get(i)?;
+    neutral_of(prep, sel.model.effects.get(i)?)
+}
+
+/// The neutral name and story of effect `e` ([`neutral`]).
+fn neutral_of(prep: &effects::Prepared, e: &Effect) -> Option<(&'static str, &'static str)> {
     e.kind.neutral(e, &prep.scales).or_else(|| {
         (prep.scales.rig == Rig::Generic)
             .then(|| e.kind.generic())

@@ -277,7 +277,7 @@ pub const CARRY_MIN_UNITS: usize = 3;
 /// The held-out rows of `prep` in runs of consecutive rows (its held-out cycles), each cut into
 /// pieces of at most [`UNIT_S`], shorter where that gives fewer than [`MIN_UNITS`], never under
 /// [`MIN_UNIT_ROWS`] rows (a shorter run is one unit).
-fn held_out_blocks(prep: &Prepared) -> Vec<Vec<usize>> {
+pub(super) fn held_out_blocks(prep: &Prepared) -> Vec<Vec<usize>> {
     let (t, held) = (&prep.series.t, &prep.held_rows);
     let dt = prep.scales.dt;
     let held_s = held.len() as f64 * dt;
@@ -296,29 +296,31 @@ fn held_out_blocks(prep: &Prepared) -> Vec<Vec<usize>> {
     blocks
 }
 
-/// Held-out RMSEs, gain and paired z of `with` against `without` (squared errors per row).
-fn compare(effect: String, without: &[f64], with: &[f64], blocks: &[Vec<usize>]) -> CarryOver {
-    let rows: usize = blocks.iter().map(Vec::len).sum();
-    let rmse =
-        |e: &[f64]| (blocks.iter().flatten().map(|&k| e[k]).sum::<f64>() / rows as f64).sqrt();
-    let (without_rmse, with_rmse) = (rmse(without), rmse(with));
-    let gain = 1.0 - with_rmse / without_rmse;
-    // Per unit: the log ratio of the squared errors without and with (scale-free, so a unit
-    // where the effect's structure is large does not outweigh the rest; `carries` needs a
-    // consistent reduction, not one large one).
+/// The paired z of two models' squared errors per row, `a` against `b`, over `blocks` (units of
+/// consecutive held-out rows, [`held_out_blocks`]): per unit the log ratio of the sums of
+/// squared errors, `ln(Σ a / Σ b)` (scale-free, so a unit where the models' difference is large
+/// does not outweigh the rest: a consistent difference counts, not one large one), then its mean
+/// over its standard error with the units' lag-1 autocorrelation ρ taken into account (the
+/// variance of the mean of an AR(1) series, `s²/n · (1 + ρ)/(1 − ρ)`, ρ clamped to [0, 0.9]).
+/// Positive when `b` has the smaller errors. The one paired test of the loop: carry-over to
+/// another log ([`carry_over`]) and the alternatives the data cannot tell from a kept effect
+/// ([`super::alternatives`]).
+pub fn paired_z(a: &[f64], b: &[f64], blocks: &[Vec<usize>]) -> f64 {
     let d: Vec<f64> = blocks
         .iter()
-        .map(|b| {
-            let sum = |e: &[f64]| b.iter().map(|&k| e[k]).sum::<f64>().max(f64::MIN_POSITIVE);
-            (sum(without) / sum(with)).ln()
+        .map(|u| {
+            let sum = |e: &[f64]| u.iter().map(|&k| e[k]).sum::<f64>().max(f64::MIN_POSITIVE);
+            (sum(a) / sum(b)).ln()
         })
         .collect();
     let n = d.len() as f64;
+    if d.len() < 2 {
+        return 0.0;
+    }
     let mean = d.iter().sum::<f64>() / n;
     let var = d.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0);
-    // Neighbouring units of one cycle are alike: the variance of the mean with the lag-1
-    // autocorrelation ρ of the units' reductions (an AR(1) effective count n (1 − ρ)/(1 + ρ),
-    // ρ ≥ 0 only).
+    // Neighbouring units of one cycle are alike: an AR(1) effective count n (1 − ρ)/(1 + ρ),
+    // ρ ≥ 0 only.
     let rho = if var > 0.0 && d.len() > 2 {
         let c1 = d
             .windows(2)
@@ -330,13 +332,25 @@ fn compare(effect: String, without: &[f64], with: &[f64], blocks: &[Vec<usize>])
         0.0
     };
     let se = (var / n * (1.0 + rho) / (1.0 - rho)).sqrt();
-    let z = if se > 0.0 {
+    if se > 0.0 {
         mean / se
     } else if mean > 0.0 {
         f64::INFINITY
+    } else if mean < 0.0 {
+        f64::NEG_INFINITY
     } else {
         0.0
-    };
+    }
+}
+
+/// Held-out RMSEs, gain and paired z of `with` against `without` (squared errors per row).
+fn compare(effect: String, without: &[f64], with: &[f64], blocks: &[Vec<usize>]) -> CarryOver {
+    let rows: usize = blocks.iter().map(Vec::len).sum();
+    let rmse =
+        |e: &[f64]| (blocks.iter().flatten().map(|&k| e[k]).sum::<f64>() / rows as f64).sqrt();
+    let (without_rmse, with_rmse) = (rmse(without), rmse(with));
+    let gain = 1.0 - with_rmse / without_rmse;
+    let z = paired_z(without, with, blocks);
     CarryOver {
         effect,
         without_rmse,
@@ -407,6 +421,29 @@ pub fn validate_log(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The paired z by hand, with a lag-1 correlation: four units, the log ratios
+    /// d = ln 8, ln 4, ln 2, ln 1 = (3, 2, 1, 0) ln 2. Mean 1.5 ln 2, deviations (1.5, 0.5, −0.5,
+    /// −1.5) ln 2, s² = 5/3 (ln 2)², lag-1 sum (0.75 − 0.25 + 0.75)(ln 2)² = 1.25 (ln 2)², over
+    /// n − 1: 5/12 (ln 2)², ρ = (5/12)/(5/3) = 1/4. se² = s²/4 · (5/4)/(3/4) = 25/36 (ln 2)²,
+    /// se = 5/6 ln 2, z = 1.5 / (5/6) = 1.8. Swapping the models flips the sign; a single unit
+    /// gives 0 (no spread to judge by).
+    #[test]
+    fn the_paired_z_by_hand() {
+        let blocks = vec![vec![0], vec![1], vec![2], vec![3]];
+        let a = [8.0, 4.0, 2.0, 1.0];
+        let b = [1.0; 4];
+        let z = paired_z(&a, &b, &blocks);
+        assert!((z - 1.8).abs() < 1e-12, "{z}");
+        assert!((paired_z(&b, &a, &blocks) + 1.8).abs() < 1e-12);
+        assert_eq!(paired_z(&a, &b, &blocks[..1]), 0.0);
+        // Sums within a unit: rows of 4 and 4 against 0.5 and 0.5 is ln 8, as one row of 8 is.
+        let two = vec![vec![0, 1], vec![2, 3], vec![4, 5], vec![6, 7]];
+        let a2 = [4.0, 4.0, 2.0, 2.0, 1.0, 1.0, 0.5, 0.5];
+        assert!((paired_z(&a2, &[0.5; 8], &two) - 1.8).abs() < 1e-12);
+        // Equal errors: no difference.
+        assert_eq!(paired_z(&b, &b, &blocks), 0.0);
+    }
 
     #[test]
     fn the_paired_comparison_by_hand() {

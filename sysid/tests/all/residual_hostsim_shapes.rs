@@ -129,6 +129,12 @@ fn lags_on_irregular_strokes() {
 fn full_size_air_pocket_on_irregular_strokes() {
     let o = run(&strokes("air", preset("air"), gaussian(), 33));
     assert_eq!(names(&o.d), ["air_compliance"]);
+    // A strong single effect: the data tell it from every other explanation.
+    assert!(
+        o.d.effects[0].alternatives.is_empty(),
+        "{:?}",
+        o.d.effects[0].alternatives
+    );
     assert!((param(&o, "air_compliance", "air_volume_at_atmospheric_pressure") - 20.0).abs() < 0.6);
     check(&o, &["air_compliance"]);
 }
@@ -160,6 +166,17 @@ fn air_pocket_and_sensor_lag_are_not_taken_by_a_look_alike(seed: u64) {
     let air = param(&o, "air_compliance", "air_volume_at_atmospheric_pressure");
     assert!((air - 20.0).abs() < 0.6, "seed {seed}: air {air}");
     check(&o, &["sensor_lag", "air_compliance"]);
+    // The data decide between the pair and the delivery lag here.
+    for e in &o.d.effects {
+        assert!(
+            !e.alternatives
+                .iter()
+                .any(|a| a.effect.contains("delivery_lag")),
+            "seed {seed}: {} {:?}",
+            e.name,
+            e.alternatives
+        );
+    }
 }
 
 // One test per seed, so that the test threads share them.
@@ -261,4 +278,60 @@ fn heavy_tailed_noise_raises_no_effect() {
 fn lead_screw_ripple_on_irregular_strokes() {
     let o = run(&strokes("ripple", preset("ripple"), gaussian(), 40));
     check(&o, &["pump_ripple"]);
+}
+
+/// Issue 34, "cannot tell apart": a small air pocket (4 mm³) and a short sensor lag (4 ms) on a
+/// short log (40 moves). A delivery lag (two lags in series) is kept; the pair of the air pocket
+/// and the sensor lag, fitted in its place with the re-tune, does no better on the held-out
+/// cycles and no worse within their noise (paired z 1.5 over the held-out units), so the report
+/// lists it as an alternative the data cannot tell from the delivery lag: the truth is among the
+/// alternatives.
+#[test]
+fn air_pocket_and_sensor_lag_cannot_be_told_from_a_delivery_lag_on_a_short_log() {
+    let small = Effects {
+        air_pocket_mm3: [4.0; 3],
+        sensor_lag_s: 0.004,
+        ..Effects::default()
+    };
+    let plant = PlantConfig {
+        drive: Drive::Ideal,
+        effects: small,
+        sensor: gaussian(),
+        ..PlantConfig::default()
+    };
+    let sc = Scenario {
+        seed: 48,
+        ..Scenario::strokes(
+            "air + sensor lag, small, short",
+            plant,
+            &Strokes {
+                seed: 48,
+                moves: 40,
+                ..Strokes::default()
+            },
+        )
+    };
+    let o = run(&sc);
+    assert_eq!(names(&o.d), ["delivery_lag"]);
+    let alts = &o.d.effects[0].alternatives;
+    let pair = alts
+        .iter()
+        .find(|a| a.effect.contains("air_compliance") && a.effect.contains("sensor_lag"))
+        .unwrap_or_else(|| panic!("the pair is not among the alternatives: {alts:?}"));
+    assert!(
+        pair.z.abs() < sysid::residual::alternatives::ALT_Z,
+        "{pair:?}"
+    );
+    assert_eq!(pair.replaces, ["delivery_lag"]);
+    // Both effects' parameters, named for their effects.
+    for p in [
+        "air_compliance.air_volume_at_atmospheric_pressure",
+        "sensor_lag.time_constant",
+    ] {
+        assert!(
+            pair.params.iter().any(|q| q.name == p),
+            "{p} in {:?}",
+            pair.params
+        );
+    }
 }

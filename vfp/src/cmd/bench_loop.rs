@@ -295,6 +295,11 @@ fn run_rig(spec: &RigSpec, keep: Option<&Path>, result: &mut RigResult) -> Resul
                     .and_then(|p| p.ci95)
                     .is_some_and(|[lo, hi]| lo <= 0.0 && 0.0 <= hi)
             }),
+            alternatives: e
+                .alternatives
+                .iter()
+                .map(|a| a.effect.split(" + ").map(str::to_string).collect())
+                .collect(),
         })
         .collect();
 
@@ -532,7 +537,7 @@ fn progress_line(r: &RigResult, n: usize) -> String {
         .iter()
         .map(|p| format!("{}{}", if p.found { "" } else { "✗" }, p.kind))
         .collect();
-    let named: Vec<&str> = r.named.iter().map(|n| n.name.as_str()).collect();
+    let named: Vec<String> = r.named.iter().map(NamedResult::label).collect();
     format!(
         "[{}/{n}] {}: planted [{}], named [{}], {:.3} σ, {} CPU s",
         r.index + 1,

@@ -393,6 +393,62 @@ fn report_effect(s: &mut String, k: usize, e: &EffectReport, u: &DisplayUnits) {
             u.sentence(&r.reason)
         );
     }
+    if !e.alternatives.is_empty() {
+        let _ = writeln!(s, "   {}", alternatives_line(e));
+    }
+}
+
+/// The one line on the explanations the held-out data cannot tell from effect `e`.
+fn alternatives_line(e: &EffectReport) -> String {
+    let alts: Vec<String> = e
+        .alternatives
+        .iter()
+        .map(|a| {
+            let place = if a.replaces.len() > 1 {
+                format!(" in place of {}", a.replaces.join(" + "))
+            } else {
+                String::new()
+            };
+            let params: Vec<String> = a
+                .params
+                .iter()
+                .map(|p| format!("{} = {:.4e} {}", p.name, p.value, p.unit))
+                .collect();
+            let plural = |k: i64| if k == 1 { "" } else { "s" };
+            let simpler = match a.extra_params {
+                0 => String::new(),
+                k if k < 0 => format!(", {} parameter{} fewer", -k, plural(-k)),
+                k => format!(", {k} parameter{} more", plural(k)),
+            };
+            format!(
+                "{}{place} ({}; held-out {:.4} kPa, z = {:+.2}{simpler})",
+                a.effect,
+                params.join(", "),
+                a.rmse_heldout,
+                a.z
+            )
+        })
+        .collect();
+    let simpler = e
+        .alternatives
+        .iter()
+        .filter(|a| a.extra_params < 0)
+        .map(|a| a.effect.as_str())
+        .collect::<Vec<_>>();
+    let choice = if simpler.is_empty() {
+        format!("{} kept, as simple as any of them", e.name)
+    } else {
+        format!(
+            "{} kept (the loop's choice on the training rows), though {} is simpler",
+            e.name,
+            simpler.join(", ")
+        )
+    };
+    format!(
+        "cannot tell apart on held-out data (paired z over held-out cycles, |z| < {}) from: {}; {choice}",
+        sysid::residual::alternatives::ALT_Z,
+        alts.join("; ")
+    )
 }
 
 /// Writes `resid-before.<ext>` and `resid-after.<ext>` into `dir`.
