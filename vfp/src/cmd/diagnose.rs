@@ -394,12 +394,13 @@ fn report_effect(s: &mut String, k: usize, e: &EffectReport, u: &DisplayUnits) {
         );
     }
     if !e.alternatives.is_empty() {
-        let _ = writeln!(s, "   {}", alternatives_line(e));
+        let _ = writeln!(s, "   {}", alternatives_line(e, u));
     }
 }
 
-/// The one line on the explanations the held-out data cannot tell from effect `e`.
-fn alternatives_line(e: &EffectReport) -> String {
+/// The one line on the explanations the held-out data cannot tell from effect `e`, its numbers
+/// in `u`.
+fn alternatives_line(e: &EffectReport, u: &DisplayUnits) -> String {
     let alts: Vec<String> = e
         .alternatives
         .iter()
@@ -412,7 +413,10 @@ fn alternatives_line(e: &EffectReport) -> String {
             let params: Vec<String> = a
                 .params
                 .iter()
-                .map(|p| format!("{} = {:.4e} {}", p.name, p.value, p.unit))
+                .map(|p| {
+                    let (value, unit) = u.convert(p.value, &p.unit);
+                    format!("{} = {:.4e} {}", u.param_name(&p.name), value, unit)
+                })
                 .collect();
             let plural = |k: i64| if k == 1 { "" } else { "s" };
             let simpler = match a.extra_params {
@@ -421,10 +425,11 @@ fn alternatives_line(e: &EffectReport) -> String {
                 k => format!(", {k} parameter{} more", plural(k)),
             };
             format!(
-                "{}{place} ({}; held-out {:.4} kPa, z = {:+.2}{simpler})",
+                "{}{place} ({}; held-out {:.4} {}, z = {:+.2}{simpler})",
                 a.effect,
                 params.join(", "),
-                a.rmse_heldout,
+                u.p(a.rmse_heldout),
+                u.pressure(),
                 a.z
             )
         })

@@ -91,7 +91,13 @@ fn the_bag_log_reports_what_its_held_out_cycles_cannot_tell_apart() {
     assert_eq!(alt.replaces, ["pressure_dynamics"]);
     let gain = e.rmse_heldout_before - e.rmse_heldout_after;
     assert!(e.rmse_heldout_before - alt.rmse_heldout >= 0.5 * gain);
-    let text = report(&path, 0, &ds.split.to_string(), &d);
+    let text = report(
+        &path,
+        0,
+        &ds.split.to_string(),
+        &d,
+        &vfp::units::DisplayUnits::default(),
+    );
     let lines: Vec<&str> = text
         .lines()
         .filter(|l| l.contains("cannot tell apart"))
