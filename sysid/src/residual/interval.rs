@@ -325,6 +325,22 @@ pub fn attach(
     }
 }
 
+/// [`super::search::effect_params`] with each 95 % interval from `jc`, the final model's joint
+/// covariance ([`joint_cov`]).
+pub fn effect_params_ci(
+    prep: &Prepared,
+    stage: &Stage,
+    i: usize,
+    jc: Option<&JointCov>,
+) -> Vec<Param> {
+    let fitted = super::search::fitted(prep, stage, i);
+    let mut params = stage.effects[i].kind.params(&fitted);
+    if let Some(jc) = jc {
+        attach(jc, prep, stage, i, &fitted, &mut params);
+    }
+    params
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

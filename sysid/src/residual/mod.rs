@@ -1205,7 +1205,7 @@ fn drop_absent(prep: &effects::Prepared, cfg: &Config, sel: &mut Selection) {
             let Some(name) = sel.model.effects[i].kind.presence() else {
                 continue;
             };
-            let params = search::effect_params_ci(prep, &sel.model, i, Some(&jc));
+            let params = interval::effect_params_ci(prep, &sel.model, i, Some(&jc));
             let Some(p) = params.into_iter().find(|p| p.name == name) else {
                 continue;
             };
@@ -1271,7 +1271,7 @@ fn effect_reports(prep: &effects::Prepared, sel: &Selection) -> Vec<EffectReport
             kind: step.kind,
             name: neutral(prep, sel, i).map_or(step.kind.name(), |n| n.0),
             story: neutral(prep, sel, i).map_or(step.kind.story(), |n| n.1),
-            params: search::effect_params_ci(prep, &sel.model, i, jc),
+            params: interval::effect_params_ci(prep, &sel.model, i, jc),
             rmse_heldout_before: step.heldout_before,
             rmse_heldout_after: step.heldout_after,
             rmse_train_before: step.train_before,

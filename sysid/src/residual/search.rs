@@ -909,36 +909,26 @@ fn theta_se(prep: &Prepared, stage: &Stage, i: usize, inflate: f64) -> f64 {
 }
 
 /// Physical parameters of effect `i` of a fitted stage, with uncertainties
-/// ([`super::effects::EffectModel::params`]).
+/// ([`super::effects::EffectModel::params`]); their 95 % intervals are
+/// [`super::interval::effect_params_ci`]'s.
 pub fn effect_params(prep: &Prepared, stage: &Stage, i: usize) -> Vec<Param> {
-    effect_params_ci(prep, stage, i, None)
+    stage.effects[i].kind.params(&fitted(prep, stage, i))
 }
 
-/// [`effect_params`] with each 95 % interval from `jc`, the final model's joint covariance
-/// ([`super::interval::joint_cov`]).
-pub fn effect_params_ci(
-    prep: &Prepared,
-    stage: &Stage,
-    i: usize,
-    jc: Option<&super::interval::JointCov>,
-) -> Vec<Param> {
+/// Effect `i` of `stage` as its parameters are read from it: its columns, θ's standard error and
+/// the residual variance, both inflated for the autocorrelation (`n / n_eff`).
+pub(crate) fn fitted<'a>(prep: &'a Prepared, stage: &'a Stage, i: usize) -> Fitted<'a> {
     let n = prep.train_rows.len();
     let rho = lag1(&stage.resid, &prep.series.train);
     let inflate = n as f64 / n_eff(n, rho).max(1.0);
-    let e = &stage.effects[i];
-    let fitted = Fitted {
+    Fitted {
         prep,
         stage,
-        effect: e,
+        effect: &stage.effects[i],
         cols: stage.owned_columns(i),
         theta_se: theta_se(prep, stage, i, inflate),
         s2: stage.fit.sigma2() * inflate,
-    };
-    let mut params = e.kind.params(&fitted);
-    if let Some(jc) = jc {
-        super::interval::attach(jc, prep, stage, i, &fitted, &mut params);
     }
-    params
 }
 
 #[cfg(test)]
