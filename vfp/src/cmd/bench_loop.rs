@@ -73,6 +73,10 @@ pub struct Args {
     #[arg(long, default_value = "usual", value_parser = ["usual", "other", "mixed"],
           conflicts_with = "gate")]
     pub forms: String,
+    /// Run only these rigs of the `--rigs` drawn (indices from 0, as LIST of I,J,..): one rig or
+    /// a few looked at again, each the same as in the whole run.
+    #[arg(long, value_name = "LIST", value_delimiter = ',', conflicts_with = "gate")]
+    pub only: Vec<usize>,
 }
 
 /// The polynomial shape of the oracle's fits: host-sim's chamber law (`host_sim::law`, the paper's
@@ -482,18 +486,27 @@ pub fn run(args: &Args) -> Result<(), Error> {
     let command = match &args.gate {
         Some(g) => format!("vfp bench-loop --gate {}", g.display()),
         None => format!(
-            "vfp bench-loop --rigs {n} --seed {seed} --samples {},{}{}",
+            "vfp bench-loop --rigs {n} --seed {seed} --samples {},{}{}{}",
             samples.0,
             samples.1,
             if forms == FormChoice::Usual {
                 String::new()
             } else {
                 format!(" --forms {}", forms.name())
+            },
+            if args.only.is_empty() {
+                String::new()
+            } else {
+                let list: Vec<String> = args.only.iter().map(|i| i.to_string()).collect();
+                format!(" --only {}", list.join(","))
             }
         ),
     };
     let mut results = Vec::with_capacity(n);
-    for i in 0..n {
+    let indices: Vec<usize> = (0..n)
+        .filter(|i| args.only.is_empty() || args.only.contains(i))
+        .collect();
+    for (at, &i) in indices.iter().enumerate() {
         let spec = rigs::draw(seed, i, &opts).map_err(|e| Error::Usage(format!("--{e}")))?;
         let mut r = RigResult {
             index: i,
@@ -509,7 +522,7 @@ pub fn run(args: &Args) -> Result<(), Error> {
         }
         results.push(r);
         // The files hold the rigs so far after each one: a long run stopped early keeps them.
-        if i + 1 < n {
+        if at + 1 < indices.len() {
             write_outputs(args, &command, seed, samples, &results)?;
         }
     }
