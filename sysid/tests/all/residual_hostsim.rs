@@ -365,7 +365,11 @@ fn a_fast_overdamped_drive_lag_is_found_by_its_mean_delay() {
         panic!("rig 14 plants one effect: {}", spec.label());
     };
     assert_eq!(planted.kind, PlantedKind::DeliveryLag);
-    assert!(planted.other_form && planted.size < 0.002, "{}", spec.label());
+    assert!(
+        planted.other_form && planted.size < 0.002,
+        "{}",
+        spec.label()
+    );
     let o = run(&spec.scenario());
     let first = o.d.effects.first().expect("an effect is named");
     let delay = match first.name {

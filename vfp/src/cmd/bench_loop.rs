@@ -75,7 +75,12 @@ pub struct Args {
     pub forms: String,
     /// Run only these rigs of the `--rigs` drawn (indices from 0, as LIST of I,J,..): one rig or
     /// a few looked at again, each the same as in the whole run.
-    #[arg(long, value_name = "LIST", value_delimiter = ',', conflicts_with = "gate")]
+    #[arg(
+        long,
+        value_name = "LIST",
+        value_delimiter = ',',
+        conflicts_with = "gate"
+    )]
     pub only: Vec<usize>,
 }
 
