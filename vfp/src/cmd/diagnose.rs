@@ -414,7 +414,7 @@ fn alternatives_line(e: &EffectReport, u: &DisplayUnits) -> String {
                 .params
                 .iter()
                 .map(|p| {
-                    let (value, unit) = u.convert(p.value, &p.unit);
+                    let (value, unit) = u.convert(p.value, p.unit);
                     format!("{} = {:.4e} {}", u.param_name(&p.name), value, unit)
                 })
                 .collect();
