@@ -878,7 +878,8 @@ impl Plant {
         let e = &self.cfg.effects;
         let g = e.leak_mm3_per_s_per_kpa;
         let inert = e.inertance_kpa_s2_per_mm3;
-        let creep = e.volume_creep_mm3_per_s;
+        // The creep is a function of time alone: once per step, not per Newton iteration.
+        let (cv, cq) = self.creep(t_s);
         let (x0, _) = self.compression(i, c.p);
         let eval = |p: f64| -> (f64, f64, Solved) {
             let (x, dx) = self.compression(i, p);
@@ -888,15 +889,10 @@ impl Plant {
             } else {
                 (0.0, 0.0)
             };
-            let mut v = c.w - x - c.leak - lk;
+            let v = c.w - x - c.leak - lk - cv;
             let dv_dp = -dx - dlk;
             // ẇ exact, ẋ and L̇ backward-differenced.
-            let mut q = c.wdot - (x - x0 + lk) / h;
-            if creep != 0.0 {
-                let (cv, cq) = self.creep(t_s);
-                v -= cv;
-                q -= cq;
-            }
+            let q = c.wdot - (x - x0 + lk) / h - cq;
             let dq_dp = dv_dp / h;
             let law = self.law.eval(v, q);
             let (hy, dhy) = self.hysteresis(c.hyst, v - c.v);

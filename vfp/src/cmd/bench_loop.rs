@@ -70,7 +70,7 @@ pub struct Args {
     /// hysteresis, second-order sensor lag, ripple with a second harmonic, orifice leak, ramp
     /// drift, slowing creep, overdamped delivery lag) or `mixed` (each effect either, at even
     /// odds). Parameters are compared with the truth on usual forms only.
-    #[arg(long, default_value = "usual", value_parser = ["usual", "other", "mixed"],
+    #[arg(long, default_value = "usual", value_parser = clap::builder::PossibleValuesParser::new(FormChoice::ALL.map(FormChoice::name)),
           conflicts_with = "gate")]
     pub forms: String,
     /// Run only these rigs of the `--rigs` drawn (indices from 0, as LIST of I,J,..): one rig or
