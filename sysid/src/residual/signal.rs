@@ -526,8 +526,33 @@ pub const SUB_SAMPLES: usize = 8;
 /// the flow is flat); the play operator runs on those instants (started at rest), the plunger's
 /// flow is the nut's while the screw bears on it and zero in the dead band, and both are averaged
 /// back over each frame.
+///
+/// The instants are made and consumed one frame at a time ([`FrameMotion`]), never held whole.
 pub fn play_frames(t: &[f64], v: &[f64], f: &[f64], w: f64) -> (Vec<f64>, Vec<f64>) {
-    play_instants(&frame_instants(t, v, f), w)
+    play_instants(&FrameMotion::new(t, v, f, &ppm_edges(f)), w)
+}
+
+/// The play operator of half-width `h` over a frame's instants at a time, its plunger at `z`.
+struct Play {
+    h: f64,
+    z: f64,
+}
+
+impl Play {
+    /// Runs over one frame's instants `xs` (the nut) with flows `qs`; the frame means of the
+    /// plunger's position and flow.
+    fn frame(&mut self, xs: &[f64], qs: &[f64]) -> (f64, f64) {
+        let h = self.h;
+        let (mut zs, mut fs) = (0.0, 0.0);
+        for (&x, &q) in xs.iter().zip(qs) {
+            self.z = self.z.clamp(x - h, x + h);
+            let gap = x - self.z;
+            let engaged = gap.abs() >= h - 1e-9 * (1.0 + h) && gap * q > 0.0;
+            zs += self.z;
+            fs += if engaged { q } else { 0.0 };
+        }
+        (zs / SUB_SAMPLES as f64, fs / SUB_SAMPLES as f64)
+    }
 }
 
 /// Lead-screw backlash of width `w` as the board runs it (`model_core::chain`, backlash): the
@@ -572,26 +597,75 @@ pub fn play_frame_linear(t: &[f64], v: &[f64], f: &[f64], w: f64) -> (Vec<f64>, 
     (vo, fo)
 }
 
-/// [`play_frames`] on motion already rebuilt by [`frame_instants`] (it does not depend on the
-/// play, so a search computes it once).
-pub fn play_instants((x, q): &(Vec<f64>, Vec<f64>), w: f64) -> (Vec<f64>, Vec<f64>) {
+/// [`play_frames`] on motion at the instants of [`FrameMotion`], as held or as made
+/// ([`Instants`]; the motion does not depend on the play, so a search prepares it once).
+pub fn play_instants(sub: &impl Instants, w: f64) -> (Vec<f64>, Vec<f64>) {
     let h = 0.5 * w.max(0.0);
-    let n = x.len() / SUB_SAMPLES;
-    let mut z = x.first().copied().unwrap_or(0.0);
+    let n = sub.frames();
     let (mut vo, mut fo) = (Vec::with_capacity(n), Vec::with_capacity(n));
-    for (xs, qs) in x.chunks(SUB_SAMPLES).zip(q.chunks(SUB_SAMPLES)) {
-        let (mut zs, mut fs) = (0.0, 0.0);
-        for (&x, &q) in xs.iter().zip(qs) {
-            z = z.clamp(x - h, x + h);
-            let gap = x - z;
-            let engaged = gap.abs() >= h - 1e-9 * (1.0 + h) && gap * q > 0.0;
-            zs += z;
-            fs += if engaged { q } else { 0.0 };
-        }
-        vo.push(zs / SUB_SAMPLES as f64);
-        fo.push(fs / SUB_SAMPLES as f64);
-    }
+    let mut play: Option<Play> = None;
+    sub.each_frame(|xs, qs| {
+        let p = play.get_or_insert(Play { h, z: xs[0] });
+        let (z, q) = p.frame(xs, qs);
+        vo.push(z);
+        fo.push(q);
+    });
     (vo, fo)
+}
+
+/// Motion at [`SUB_SAMPLES`] instants per frame (position, flow), read a frame at a time in
+/// frame order: held whole (a pair of vectors, frame k's instants at `k·SUB_SAMPLES ..`) or made
+/// as it is read ([`FrameMotion`]).
+pub trait Instants {
+    /// Number of frames.
+    fn frames(&self) -> usize;
+    /// Calls `each(x, q)` with each frame's instants, in order.
+    fn each_frame(&self, each: impl FnMut(&[f64], &[f64]));
+}
+
+impl Instants for (Vec<f64>, Vec<f64>) {
+    fn frames(&self) -> usize {
+        self.0.len() / SUB_SAMPLES
+    }
+    fn each_frame(&self, mut each: impl FnMut(&[f64], &[f64])) {
+        for (xs, qs) in self.0.chunks(SUB_SAMPLES).zip(self.1.chunks(SUB_SAMPLES)) {
+            each(xs, qs);
+        }
+    }
+}
+
+/// The motion rebuilt at [`SUB_SAMPLES`] instants spread evenly over each frame's interval
+/// `[t_k − Δ/2, t_k + Δ/2]` (Δ the local frame spacing), treating each logged value as what it
+/// is, the mean over that interval: flow by the piecewise-parabolic reconstruction of the frame
+/// means ([`ppm_edges`]: flat where the flow is flat, no overshoot at a ramp's corner), position
+/// by integrating that flow exactly within the frame, placed so that its mean over the frame's
+/// instants is the logged volume.
+///
+/// Made a frame at a time as it is read, from the frame times, volumes and flows and the flow's
+/// parabola edges: 2 numbers per frame kept instead of 2·[`SUB_SAMPLES`].
+#[derive(Clone, Copy, Debug)]
+pub struct FrameMotion<'a> {
+    t: &'a [f64],
+    v: &'a [f64],
+    f: &'a [f64],
+    edges: &'a [(f64, f64)],
+}
+
+impl<'a> FrameMotion<'a> {
+    /// The motion of frame times `t`, volumes `v` and flows `f`, with `edges` the
+    /// [`ppm_edges`] of `f`.
+    pub fn new(t: &'a [f64], v: &'a [f64], f: &'a [f64], edges: &'a [(f64, f64)]) -> Self {
+        Self { t, v, f, edges }
+    }
+}
+
+impl Instants for FrameMotion<'_> {
+    fn frames(&self) -> usize {
+        self.t.len()
+    }
+    fn each_frame(&self, mut each: impl FnMut(&[f64], &[f64])) {
+        each_frame_instants_from(self.t, self.v, self.f, self.edges, |xs, qs| each(xs, qs));
+    }
 }
 
 /// Piecewise-parabolic reconstruction of cell averages (Colella & Woodward's PPM, 1984): for each
@@ -634,20 +708,34 @@ pub fn ppm_edges(mean: &[f64]) -> Vec<(f64, f64)> {
         .collect()
 }
 
-/// The motion rebuilt at [`SUB_SAMPLES`] instants spread evenly over each frame's interval
-/// `[t_k − Δ/2, t_k + Δ/2]` (Δ the local frame spacing), treating each logged value as what it
-/// is, the mean over that interval: flow by the piecewise-parabolic reconstruction of the frame
-/// means ([`ppm_edges`]: flat where the flow is flat, no overshoot at a ramp's corner), position
-/// by integrating that flow exactly within the frame, placed so that its mean over the frame's
-/// instants is the logged volume. Frame k's instants are `k·SUB_SAMPLES ..`, in time order.
+/// The motion of [`FrameMotion`] held whole: frame k's instants at `k·SUB_SAMPLES ..`, in time
+/// order.
+#[cfg(test)]
 pub fn frame_instants(t: &[f64], v: &[f64], f: &[f64]) -> (Vec<f64>, Vec<f64>) {
     let n = t.len();
-    let edges = ppm_edges(f);
     let (mut xo, mut qo) = (
         Vec::with_capacity(n * SUB_SAMPLES),
         Vec::with_capacity(n * SUB_SAMPLES),
     );
+    each_frame_instants_from(t, v, f, &ppm_edges(f), |xs, qs| {
+        xo.extend_from_slice(xs);
+        qo.extend_from_slice(qs);
+    });
+    (xo, qo)
+}
+
+/// [`FrameMotion`]'s instants, the flow's [`ppm_edges`] given: `each(x, q)` with frame k's
+/// instants (position, flow), k in order.
+fn each_frame_instants_from(
+    t: &[f64],
+    v: &[f64],
+    f: &[f64],
+    edges: &[(f64, f64)],
+    mut each: impl FnMut(&[f64; SUB_SAMPLES], &[f64; SUB_SAMPLES]),
+) {
+    let n = t.len();
     let mut pos = [0.0; SUB_SAMPLES];
+    let (mut xs, mut qs) = ([0.0; SUB_SAMPLES], [0.0; SUB_SAMPLES]);
     for k in 0..n {
         let span = match (k.checked_sub(1), (k + 1 < n).then_some(k + 1)) {
             (Some(a), Some(b)) => 0.5 * (t[b] - t[a]),
@@ -660,14 +748,16 @@ pub fn frame_instants(t: &[f64], v: &[f64], f: &[f64]) -> (Vec<f64>, Vec<f64>) {
         let mut mean_pos = 0.0;
         for (j, p) in pos.iter_mut().enumerate() {
             let x = (j as f64 + 0.5) / SUB_SAMPLES as f64;
-            qo.push(l + x * (d + c * (1.0 - x)));
+            qs[j] = l + x * (d + c * (1.0 - x));
             // ∫₀ˣ q = l x + Δ x²/2 + c (x²/2 − x³/3), in units of the frame's span.
             *p = span * (l * x + 0.5 * d * x * x + c * (0.5 * x * x - x * x * x / 3.0));
             mean_pos += *p / SUB_SAMPLES as f64;
         }
-        xo.extend(pos.iter().map(|p| v[k] + p - mean_pos));
+        for (x, p) in xs.iter_mut().zip(&pos) {
+            *x = v[k] + p - mean_pos;
+        }
+        each(&xs, &qs);
     }
-    (xo, qo)
 }
 
 /// Volume and flow delayed by `d`, `(v(t − d), v̇(t − d))`, reconstructed between samples by the

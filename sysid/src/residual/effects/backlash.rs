@@ -80,7 +80,7 @@ impl EffectModel for Backlash {
             }
             *v = z;
         } else if *raw {
-            (*v, *f) = signal::play_instants(&prep.subframe, e.theta);
+            (*v, *f) = signal::play_instants(&prep.subframe(), e.theta);
         } else {
             (*v, *f) = signal::play_frames(&prep.series.t, v, f, e.theta);
         }

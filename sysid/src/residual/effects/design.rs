@@ -157,8 +157,9 @@ pub struct Prepared {
     pub s: Vec<f64>,
     /// Data scales.
     pub scales: Scales,
-    /// The logged motion rebuilt at `signal::SUB_SAMPLES` instants per frame (position, flow).
-    pub subframe: (Vec<f64>, Vec<f64>),
+    /// The flow's parabola edges (`signal::ppm_edges`) from which [`Prepared::subframe`] makes
+    /// the logged motion inside each frame as it is read.
+    subframe_edges: Vec<(f64, f64)>,
     /// The motion at the same instants as the output lags see it inside the frames
     /// ([`Prepared::sub_motion`]), made on first use and shared by clones.
     sub_motion: std::sync::Arc<std::sync::OnceLock<SubMotion>>,
@@ -218,6 +219,14 @@ fn same_bits(a: &[f64], b: &[f64]) -> bool {
 }
 
 impl Prepared {
+    /// The logged motion rebuilt at `signal::SUB_SAMPLES` instants per frame (position, flow;
+    /// `signal::FrameMotion`), made a frame at a time as it is read: held whole, it would be
+    /// 16 numbers per sample for the whole run (34 MB on a 3-hour log).
+    pub fn subframe(&self) -> signal::FrameMotion<'_> {
+        let se = &self.series;
+        signal::FrameMotion::new(&se.t, &se.v, &se.vdot, &self.subframe_edges)
+    }
+
     /// The logged motion rebuilt at the instants each frame averages, with the fewest corners of
     /// flow (`inframe::sparse_motion`), where the output lags run ([`super::lag_in_frames`]).
     pub fn sub_motion(&self) -> &SubMotion {
@@ -337,9 +346,9 @@ impl Prepared {
         let p_integral = *p_int.last().unwrap_or(&0.0);
         let train_rows = (0..series.len()).filter(|&k| series.train[k]).collect();
         let held_rows = (0..series.len()).filter(|&k| !series.train[k]).collect();
-        let subframe = signal::frame_instants(&series.t, &series.v, &series.vdot);
+        let subframe_edges = signal::ppm_edges(&series.vdot);
         Self {
-            subframe,
+            subframe_edges,
             sub_motion: Default::default(),
             input_memo: Default::default(),
             ripple_memo: Default::default(),

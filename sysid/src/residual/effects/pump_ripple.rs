@@ -15,7 +15,7 @@ use super::{
 };
 use crate::residual::lsq;
 use crate::residual::search::{fit_stage, with};
-use crate::residual::signal;
+use crate::residual::signal::{self, Instants};
 
 /// Ripple periodic in plunger position (lead-screw pitch error, once per screw turn).
 pub struct PumpRipple;
@@ -76,14 +76,13 @@ impl EffectModel for PumpRipple {
         let mut key = memo_key(e);
         key.push(u64::from(inputs.raw));
         let made = prep.memo_ripple(key, &[], Some((&inputs.v, &inputs.f)), || {
-            let fresh;
-            let sub = if inputs.raw {
-                &prep.subframe
-            } else {
-                fresh = signal::frame_instants(&prep.series.t, &inputs.v, &inputs.f);
-                &fresh
-            };
-            pump_ripple_inputs(sub, e.theta, e.ripple_offset, &e.count_lag)
+            let (lambda, ab, lag) = (e.theta, e.ripple_offset, &e.count_lag);
+            if inputs.raw {
+                return pump_ripple_inputs(&prep.subframe(), lambda, ab, lag);
+            }
+            let edges = signal::ppm_edges(&inputs.f);
+            let sub = signal::FrameMotion::new(&prep.series.t, &inputs.v, &inputs.f, &edges);
+            pump_ripple_inputs(&sub, lambda, ab, lag)
         });
         (inputs.v, inputs.f) = (made.0.clone(), made.1.clone());
     }
@@ -92,7 +91,7 @@ impl EffectModel for PumpRipple {
         let zero = Arc::new(vec![0.0; prep.series.len()]);
         let k = e.stiffness.as_ref().unwrap_or(&zero);
         let c = e.damping.as_ref().unwrap_or(&zero);
-        let make = || pump_ripple_columns(&prep.subframe, k, c, e.theta, &e.count_lag);
+        let make = || pump_ripple_columns(&prep.subframe(), k, c, e.theta, &e.count_lag);
         let (a, b) = match (&e.stiffness, &e.damping) {
             (Some(k), Some(c)) => {
                 let made = prep.memo_ripple(memo_key(e), &[k, c], None, make);
@@ -258,7 +257,7 @@ pub fn cruise_speeds(vdot: &[f64]) -> Vec<f64> {
 /// instants (at 100 mm³/s an 8 mm³ period is 12.5 Hz, half the frame rate: the frame mean of the
 /// ripple is a fraction of its amplitude, which the average reproduces).
 pub fn pump_ripple_columns(
-    sub: &(Vec<f64>, Vec<f64>),
+    sub: &impl Instants,
     k: &[f64],
     c: &[f64],
     lambda: f64,
@@ -268,17 +267,22 @@ pub fn pump_ripple_columns(
     let ns = signal::SUB_SAMPLES;
     let n = k.len();
     let (mut a, mut b) = (Vec::with_capacity(n), Vec::with_capacity(n));
-    for f in 0..n {
+    let mut f = 0;
+    sub.each_frame(|xs, qs| {
+        if f >= n {
+            return;
+        }
         let (mut sa, mut sb) = (0.0, 0.0);
-        for j in f * ns..(f + 1) * ns {
-            let (sin, cos) = (w * plunger(sub.0[j], sub.1[j], count_lag)).sin_cos();
-            let q = c[f] * w * sub.1[j];
+        for (&x, &v) in xs.iter().zip(qs) {
+            let (sin, cos) = (w * plunger(x, v, count_lag)).sin_cos();
+            let q = c[f] * w * v;
             sa += k[f] * sin + q * cos;
             sb += k[f] * cos - q * sin;
         }
         a.push(sa / ns as f64);
         b.push(sb / ns as f64);
-    }
+        f += 1;
+    });
     (a, b)
 }
 
@@ -299,7 +303,7 @@ fn plunger(x: f64, q: f64, count_lag: &CountLag) -> f64 {
 /// `∂δ̇/∂ℓ = −s w² q (a sin φ + b cos φ)`, `w = 2π/Λ`, each weighted by the lag's share at the
 /// instant's speed. One Gauss–Newton step in the lags fits these columns with the model.
 pub fn count_lag_columns(
-    sub: &(Vec<f64>, Vec<f64>),
+    sub: &impl Instants,
     k: &[f64],
     c: &[f64],
     lambda: f64,
@@ -310,9 +314,12 @@ pub fn count_lag_columns(
     let ns = signal::SUB_SAMPLES;
     let n = k.len();
     let mut cols = vec![vec![0.0; n]; count_lag.lags.len()];
-    for f in 0..n {
-        for j in f * ns..(f + 1) * ns {
-            let (x, q) = (sub.0[j], sub.1[j]);
+    let mut f = 0;
+    sub.each_frame(|xs, qs| {
+        if f >= n {
+            return;
+        }
+        for (&x, &q) in xs.iter().zip(qs) {
             if q == 0.0 {
                 continue;
             }
@@ -324,34 +331,48 @@ pub fn count_lag_columns(
             cols[i0][f] += (1.0 - fr) * d;
             cols[i1][f] += fr * d;
         }
-    }
+        f += 1;
+    });
     cols
 }
 
 /// Frame means of the displaced volume `u = x + a sin φ + b cos φ`, `φ = 2π x/Λ`, and its rate
 /// `u̇ = ẋ (1 + (2π/Λ)(a cos φ − b sin φ))`, over the instants of each frame
-/// (`signal::frame_instants`): at 100 mm³/s an 8 mm³ period is 12.5 Hz, and the flow ripple
+/// (`signal::FrameMotion`): at 100 mm³/s an 8 mm³ period is 12.5 Hz, and the flow ripple
 /// (±16 % for 0.2 mm³) must be averaged where it happens, not at the frame's mean volume.
 fn pump_ripple_inputs(
-    (x, q): &(Vec<f64>, Vec<f64>),
+    sub: &impl Instants,
+    lambda: f64,
+    ab: (f64, f64),
+    count_lag: &CountLag,
+) -> (Vec<f64>, Vec<f64>) {
+    let n = sub.frames();
+    let (mut u, mut ud) = (Vec::with_capacity(n), Vec::with_capacity(n));
+    sub.each_frame(|xs, qs| {
+        let (a, b) = ripple_frame(xs, qs, lambda, ab, count_lag);
+        u.push(a);
+        ud.push(b);
+    });
+    (u, ud)
+}
+
+/// [`pump_ripple_inputs`] of one frame, its instants `xs` with flows `qs`.
+fn ripple_frame(
+    xs: &[f64],
+    qs: &[f64],
     lambda: f64,
     (a, b): (f64, f64),
     count_lag: &CountLag,
-) -> (Vec<f64>, Vec<f64>) {
+) -> (f64, f64) {
     let w = std::f64::consts::TAU / lambda;
     let ns = signal::SUB_SAMPLES as f64;
-    x.chunks(signal::SUB_SAMPLES)
-        .zip(q.chunks(signal::SUB_SAMPLES))
-        .map(|(xs, qs)| {
-            let (mut u, mut ud) = (0.0, 0.0);
-            for (&x, &q) in xs.iter().zip(qs) {
-                let (sin, cos) = (w * plunger(x, q, count_lag)).sin_cos();
-                u += x + a * sin + b * cos;
-                ud += q * (1.0 + w * (a * cos - b * sin));
-            }
-            (u / ns, ud / ns)
-        })
-        .unzip()
+    let (mut u, mut ud) = (0.0, 0.0);
+    for (&x, &q) in xs.iter().zip(qs) {
+        let (sin, cos) = (w * plunger(x, q, count_lag)).sin_cos();
+        u += x + a * sin + b * cos;
+        ud += q * (1.0 + w * (a * cos - b * sin));
+    }
+    (u / ns, ud / ns)
 }
 
 /// Candidate periods (mm³) of a pump ripple in `resid`, best first, with the spacing of the
@@ -488,7 +509,7 @@ fn count_lag_gauss_newton(prep: &Prepared, base: &[Effect], mut stage: Stage) ->
             break;
         };
         let ab = pump_ripple_error(&stage, last);
-        let extra = count_lag_columns(&prep.subframe, k, c, e.theta, ab, &e.count_lag);
+        let extra = count_lag_columns(&prep.subframe(), k, c, e.theta, ab, &e.count_lag);
         // The design lives only for this fit: the refit below builds its own.
         let (p0, fit) = {
             let mut design = stage.columns(prep);
