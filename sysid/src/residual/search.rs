@@ -695,8 +695,8 @@ fn one_form(prep: &Prepared, effects: Vec<Effect>, sse: f64) -> (Vec<Effect>, f6
 /// 91.0 against the 89.8 to beat, ten sweeps of 15 s for nothing; started from their rounds' fits
 /// ([`super::swap_for_pair`]) they go 666 → 116 → 103 and are given up there.
 fn descend(prep: &Prepared, effects: &mut Vec<Effect>, sse: f64, target: Option<f64>) -> f64 {
-    let (mut sse, beaten) = gauss_newton(prep, effects, sse, target);
-    if beaten {
+    let (mut sse, steps) = gauss_newton(prep, effects, sse, target);
+    if steps != Steps::Open {
         return sse;
     }
     let mut last_gain = f64::INFINITY;
@@ -728,16 +728,18 @@ fn descend(prep: &Prepared, effects: &mut Vec<Effect>, sse: f64, target: Option<
 /// that trade against each other take a sweep per bracket's width. The steps end where one had
 /// to be cut or none lowers the SSE (far from the optimum, where the objective is not near its
 /// quadratic model: the sweeps go on from there, and judge whether a `target` is in reach), where
-/// one gains less than [`RETUNE_TOL`], after [`GN_STEPS`] steps, or below `target`. Returns the
-/// SSE and whether it is below `target`.
+/// one gains less than [`RETUNE_TOL`], after [`GN_STEPS`] steps, below `target`, or, after full
+/// steps, once their gains show `target` out of reach (the sweeps' bound, [`descend`]). Returns
+/// the SSE and where the steps ended.
 fn gauss_newton(
     prep: &Prepared,
     effects: &mut Vec<Effect>,
     mut sse: f64,
     target: Option<f64>,
-) -> (f64, bool) {
+) -> (f64, Steps) {
     let y = &prep.series.p;
     let rows = &prep.train_rows;
+    let mut last_gain = f64::INFINITY;
     for _ in 0..GN_STEPS {
         let params: Vec<(usize, Coord, f64, f64)> = (0..effects.len())
             .filter_map(|i| {
@@ -805,15 +807,33 @@ fn gauss_newton(
         *effects = next;
         sse = s;
         if target.is_some_and(|t| sse < t) {
-            return (sse, true);
+            return (sse, Steps::Beaten);
         }
         // A step that had to be cut, or one that gains next to nothing, ends the steps: the
         // objective is not near enough to its quadratic model for them, or they have settled.
         if scale < 1.0 || gain < RETUNE_TOL * (sse + gain) {
             break;
         }
+        // Full steps gain less and less as they settle (quadratically near the optimum); the
+        // sweeps' bound on what is left ([`descend`]) holds for them a fortiori.
+        let ratio = (gain / last_gain).clamp(0.5, 0.9);
+        if target.is_some_and(|t| gain * ratio / (1.0 - ratio) < sse - t) {
+            return (sse, Steps::OutOfReach);
+        }
+        last_gain = gain;
     }
-    (sse, false)
+    (sse, Steps::Open)
+}
+
+/// Where [`gauss_newton`]'s steps ended.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Steps {
+    /// Below the target.
+    Beaten,
+    /// Above the target, which full steps show out of reach.
+    OutOfReach,
+    /// Settled, cut, or out of steps: the sweeps go on from there.
+    Open,
 }
 
 /// Most bytes of a design [`gauss_newton`] holds while it builds the moved ones.
