@@ -33,3 +33,5 @@ pub mod progress;
 pub mod residual;
 pub mod select;
 pub mod synth;
+#[cfg(test)]
+mod test_motion;

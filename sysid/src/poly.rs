@@ -1294,17 +1294,10 @@ mod tests {
     /// Two incommensurate tones (so (v, v̇) fills an area) and a pressure of degree (3, 2) plus a
     /// deterministic pseudo-noise; `squeeze` < 1 crowds the flow towards one value.
     fn data(len: usize, squeeze: f64) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
-        let t: Vec<f64> = (0..len).map(|k| 0.04 * k as f64).collect();
-        let v: Vec<f64> = t
+        let (_, v, q) = crate::test_motion::two_tones(len);
+        let f: Vec<f64> = q
             .iter()
-            .map(|&t| 275.0 + 150.0 * (0.3 * t).sin() + 80.0 * (0.71 * t).sin())
-            .collect();
-        let f: Vec<f64> = t
-            .iter()
-            .map(|&t| {
-                let q = 45.0 * (0.3 * t).cos() + 56.8 * (0.71 * t).cos();
-                q.signum() * (q.abs() / 102.0).powf(1.0 / squeeze) * 102.0
-            })
+            .map(|&q| q.signum() * (q.abs() / 102.0).powf(1.0 / squeeze) * 102.0)
             .collect();
         let p: Vec<f64> = (0..len)
             .map(|k| {

@@ -449,15 +449,7 @@ mod tests {
         let r = 0.3;
         let width = |sigma: f64| {
             let n = 2500;
-            let t: Vec<f64> = (0..n).map(|k| 0.04 * k as f64).collect();
-            let v: Vec<f64> = t
-                .iter()
-                .map(|&t| 275.0 + 150.0 * (0.3 * t).sin() + 80.0 * (0.71 * t).sin())
-                .collect();
-            let q: Vec<f64> = t
-                .iter()
-                .map(|&t| 45.0 * (0.3 * t).cos() + 56.8 * (0.71 * t).cos())
-                .collect();
+            let (t, v, q) = crate::test_motion::two_tones(n);
             let e = noise(n, 11);
             let p: Vec<f64> = (0..n)
                 .map(|k| {

@@ -1088,15 +1088,7 @@ mod tests {
     #[test]
     fn gauss_newton_finds_two_trading_parameters_of_a_known_plant() {
         let n = 3000;
-        let t: Vec<f64> = (0..n).map(|k| 0.04 * k as f64).collect();
-        let v: Vec<f64> = t
-            .iter()
-            .map(|&t| 275.0 + 150.0 * (0.3 * t).sin() + 80.0 * (0.71 * t).sin())
-            .collect();
-        let f: Vec<f64> = t
-            .iter()
-            .map(|&t| 45.0 * (0.3 * t).cos() + 56.8 * (0.71 * t).cos())
-            .collect();
+        let (t, v, f) = crate::test_motion::two_tones(n);
         let p0: Vec<f64> = (0..n)
             .map(|k| 2.0 + 0.01 * v[k] + 0.002 * f[k] + 1e-5 * v[k] * f[k])
             .collect();

@@ -757,15 +757,7 @@ mod tests {
     /// `len` frames at 25 Hz of two incommensurate tones, so (v, v̇) fills an area (one tone traces
     /// an ellipse, on which the tensor basis is rank-deficient), prepared for a (3, 2) baseline.
     fn two_tones(len: usize) -> Prepared {
-        let t: Vec<f64> = (0..len).map(|k| 0.04 * k as f64).collect();
-        let v: Vec<f64> = t
-            .iter()
-            .map(|&t| 275.0 + 150.0 * (0.3 * t).sin() + 80.0 * (0.71 * t).sin())
-            .collect();
-        let f: Vec<f64> = t
-            .iter()
-            .map(|&t| 45.0 * (0.3 * t).cos() + 56.8 * (0.71 * t).cos())
-            .collect();
+        let (t, v, f) = crate::test_motion::two_tones(len);
         let p: Vec<f64> = (0..len)
             .map(|k| 2.0 + 0.01 * v[k] + 0.002 * f[k] + 0.05 * (1.7 * t[k]).sin())
             .collect();
