@@ -7,7 +7,7 @@
 //! 3. **record** — `vfp record`'s converter turns the capture into a log (gaps and bad lines
 //!    would be reported).
 //! 4. **identify** — the model families on each chamber (the paper's Table II; see the report for
-//!    which families ran and their settings).
+//!    which families ran and their settings), the chambers side by side.
 //! 5. **diagnose** — the residual loop on chamber 0: what does the model lack?
 //! 6. **deploy** — each chamber's selected polynomial is exported (`vfp export`'s line generator)
 //!    and sent to a fresh simulated board through its serial port; every line must be
@@ -493,12 +493,22 @@ fn stage_identify(
         progress: None,
         ..identify::Options::default()
     };
-    let mut reports = Vec::new();
-    for ds in &datasets {
-        st.bar
-            .set_message(format!("chamber {} of {}", ds.chamber + 1, datasets.len()));
-        reports.push(identify::identify(ds, &opts));
-    }
+    // The chambers are independent: side by side, reported in the chambers' order.
+    st.bar
+        .set_message(format!("{} chambers side by side", datasets.len()));
+    let reports: Vec<_> = std::thread::scope(|s| {
+        let handles: Vec<_> = datasets
+            .iter()
+            .map(|ds| s.spawn(|| identify::identify(ds, &opts)))
+            .collect();
+        handles
+            .into_iter()
+            .map(|h| {
+                h.join()
+                    .map_err(|_| Error::Msg("a chamber's identification panicked".into()))
+            })
+            .collect::<Result<_, _>>()
+    })?;
     let sel: Vec<String> = reports
         .iter()
         .map(|r| {
@@ -607,16 +617,27 @@ fn stage_deploy(
         fits.push(fit);
     }
     let all_lines: Vec<String> = lines.iter().flatten().cloned().collect();
-    let (force_run, acked) = run_deployed(plan, seed, &all_lines)?;
-    let (aug_lines, augmented) = match diagnosis {
-        Some(d) => augmented_lines(datasets, d)?,
-        None => (Vec::new(), Vec::new()),
-    };
-    let aug_run = if aug_lines.is_empty() {
-        None
-    } else {
-        Some(run_deployed(plan, seed, &aug_lines)?)
-    };
+    // The bare board's run does not depend on the augmented models (the residual loop on the
+    // other chambers, then their board's run): the two go side by side, each as it would alone.
+    let (bare, aug) = std::thread::scope(|s| {
+        let bare = s.spawn(|| run_deployed(plan, seed, &all_lines));
+        let aug = (|| -> Result<_, Error> {
+            let (aug_lines, augmented) = match diagnosis {
+                Some(d) => augmented_lines(datasets, d)?,
+                None => (Vec::new(), Vec::new()),
+            };
+            let aug_run = if aug_lines.is_empty() {
+                None
+            } else {
+                Some(run_deployed(plan, seed, &aug_lines)?)
+            };
+            Ok((augmented, aug_run))
+        })();
+        (bare.join(), aug)
+    });
+    let (force_run, acked) =
+        bare.map_err(|_| Error::Msg("the bare board's simulation panicked".into()))??;
+    let (augmented, aug_run) = aug?;
     let deployed = compare_p_hat(datasets, &fits, &lines, &force_run);
     let worst = deployed
         .iter()
@@ -785,12 +806,10 @@ pub fn augmented_lines(
 ) -> Result<(Vec<String>, Vec<ChamberEffects>), Error> {
     use sysid::board::augmented::{augmented_export, from_diagnosis};
     let kept: Vec<residual::EffectKind> = diagnosis.effects.iter().map(|e| e.kind).collect();
-    let mut lines = Vec::new();
-    let mut carried = Vec::new();
-    for (i, ds) in datasets.iter().enumerate() {
+    let export_one = |i: usize, ds: &Dataset| -> Result<_, Error> {
         let wrap = |e: &dyn std::fmt::Display| Error::Msg(format!("chamber {}: {e}", ds.chamber));
         let series = residual::series_from_dataset(ds).map_err(|e| wrap(&e))?;
-        let x = if i == 0 {
+        if i == 0 {
             from_diagnosis(diagnosis.clone(), &series)
         } else {
             let cfg = residual::Config {
@@ -801,7 +820,27 @@ pub fn augmented_lines(
             };
             augmented_export(series, &cfg)
         }
-        .map_err(|e| wrap(&e))?;
+        .map_err(|e| wrap(&e))
+    };
+    // The chambers' loops are independent: side by side, in the chambers' order after.
+    let exports: Vec<Result<_, Error>> = std::thread::scope(|s| {
+        let handles: Vec<_> = datasets
+            .iter()
+            .enumerate()
+            .map(|(i, ds)| s.spawn(move || export_one(i, ds)))
+            .collect();
+        handles
+            .into_iter()
+            .map(|h| {
+                h.join()
+                    .unwrap_or_else(|_| Err(Error::Msg("a chamber's loop panicked".into())))
+            })
+            .collect()
+    });
+    let mut lines = Vec::new();
+    let mut carried = Vec::new();
+    for (ds, x) in datasets.iter().zip(exports) {
+        let x = x?;
         carried.push((
             ds.chamber,
             x.carried.iter().map(|c| c.name.to_string()).collect(),
