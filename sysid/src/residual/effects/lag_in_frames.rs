@@ -139,8 +139,6 @@ struct Frame {
     coef: Vec<(f64, f64)>,
     /// Column c's frame value before it was replaced (the cubic of the next frame needs it).
     prev: Vec<f64>,
-    /// The baseline's columns here: each one's degrees in volume and flow.
-    factors: Vec<(usize, usize)>,
     /// Per column: the shift to the frame's value, the running sum, the value passing the lags.
     shift: Vec<f64>,
     sum: Vec<f64>,
@@ -159,7 +157,6 @@ impl Frame {
             xin: vec![0.0; lags * nc],
             coef: vec![(0.0, 1.0); lags * S],
             prev: vec![0.0; nc],
-            factors: Vec::new(),
             shift: vec![0.0; nc],
             sum: vec![0.0; nc],
             u: vec![0.0; nc],
@@ -189,11 +186,8 @@ impl Frame {
             .map_or((0.0, 0.0), |(vi, fi)| (vi[k] - se.v[k], fi[k] - se.vdot[k]));
         let basis = &sh.prep.basis;
         let (dn, dm) = (basis.n, basis.m);
-        if self.factors.len() != end - self.c0 {
-            self.factors = (self.c0..end)
-                .map(|c| (c / (dm + 1), c % (dm + 1)))
-                .collect();
-        }
+        // Column c is T_a(v)·T_b(v̇) with (a, b) = (c / w, c % w): runs of consecutive b per a.
+        let w = dm + 1;
         let (mut tv, mut tf) = ([0.0; 16], [0.0; 16]);
         let (v, f) = (sh.sub.volumes(&se.t, &se.v, k), sh.sub.flows(k));
         for j in 0..S {
@@ -201,8 +195,16 @@ impl Frame {
             crate::poly::chebyshev(xs, &mut tv[..=dn]);
             crate::poly::chebyshev(ys, &mut tf[..=dm]);
             let row = &mut self.x[j * self.nc..j * self.nc + end - self.c0];
-            for (&(a, b), out) in self.factors.iter().zip(row) {
-                *out = tv[a] * tf[b];
+            let mut c = self.c0;
+            let mut at = 0;
+            while c < end {
+                let (a, b0) = (c / w, c % w);
+                let run = (w - b0).min(end - c);
+                let ta = tv[a];
+                for (out, &tb) in row[at..at + run].iter_mut().zip(&tf[b0..b0 + run]) {
+                    *out = ta * tb;
+                }
+                (c, at) = (c + run, at + run);
             }
         }
     }
