@@ -685,10 +685,11 @@ fn one_form(prep: &Prepared, effects: Vec<Effect>, sse: f64) -> (Vec<Effect>, f6
 }
 
 /// [`gauss_newton`]'s steps, then coordinate-descent sweeps with pattern moves ([`retune`]) from
-/// `effects` at training SSE `sse`; the SSE where they stop. They also stop at the sweep that brings the SSE below
-/// `target` ([`retune_to_beat`]), and while above it once the last sweep's gain
-/// shows the target out of reach: each further sweep is taken to gain at most the last one's gain
-/// times the ratio of the last two (at least a half), a geometric series. The SSE of a descent
+/// `effects` at training SSE `sse`; the SSE where they stop. They also stop at the sweep that
+/// brings the SSE below `target` ([`retune_to_beat`]), and while above it once the last sweep's
+/// gain shows the target out of reach ([`out_of_reach`]): each further sweep is taken to gain at
+/// most the last one's gain times the ratio of the last two (at least a half), a geometric
+/// series. The SSE of a descent
 /// that settles falls by such shrinking steps (`residual_hostsim_shapes`, air + sensor lag, seed
 /// 35: 91 → 47 → 17 → 14 → 6.9 …, the model to beat at 57); on the 3-hour log an air pocket and a
 /// sensor lag in a delivery lag's place, searched in turn, went 106 → 92.4 → 91.7 and settled at
@@ -708,13 +709,20 @@ fn descend(prep: &Prepared, effects: &mut Vec<Effect>, sse: f64, target: Option<
         }
         sse = pattern_move(prep, &start, effects, sse);
         let gain = before - sse;
-        let ratio = (gain / last_gain).clamp(0.5, 0.9);
-        if target.is_some_and(|t| sse < t || gain * ratio / (1.0 - ratio) < sse - t) {
+        if target.is_some_and(|t| sse < t || out_of_reach(gain, last_gain, sse, t)) {
             break;
         }
         last_gain = gain;
     }
     sse
+}
+
+/// Whether `target` is out of reach from training SSE `sse` after a sweep or step that gained
+/// `gain` (the one before it `last_gain`): each further one is taken to gain at most the last
+/// gain times the ratio of the last two (clamped to 0.5–0.9), a geometric series ([`descend`]).
+fn out_of_reach(gain: f64, last_gain: f64, sse: f64, target: f64) -> bool {
+    let ratio = (gain / last_gain).clamp(0.5, 0.9);
+    gain * ratio / (1.0 - ratio) < sse - target
 }
 
 /// Gauss–Newton steps on the searched parameters jointly, before [`descend`]'s coordinate
@@ -729,7 +737,7 @@ fn descend(prep: &Prepared, effects: &mut Vec<Effect>, sse: f64, target: Option<
 /// to be cut or none lowers the SSE (far from the optimum, where the objective is not near its
 /// quadratic model: the sweeps go on from there, and judge whether a `target` is in reach), where
 /// one gains less than [`RETUNE_TOL`], after [`GN_STEPS`] steps, below `target`, or, after full
-/// steps, once their gains show `target` out of reach (the sweeps' bound, [`descend`]). Returns
+/// steps, once their gains show `target` out of reach (the sweeps' bound, [`out_of_reach`]). Returns
 /// the SSE and where the steps ended.
 fn gauss_newton(
     prep: &Prepared,
@@ -816,8 +824,7 @@ fn gauss_newton(
         }
         // Full steps gain less and less as they settle (quadratically near the optimum); the
         // sweeps' bound on what is left ([`descend`]) holds for them a fortiori.
-        let ratio = (gain / last_gain).clamp(0.5, 0.9);
-        if target.is_some_and(|t| gain * ratio / (1.0 - ratio) < sse - t) {
+        if target.is_some_and(|t| out_of_reach(gain, last_gain, sse, t)) {
             return (sse, Steps::OutOfReach);
         }
         last_gain = gain;
