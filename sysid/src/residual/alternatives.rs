@@ -98,15 +98,25 @@ fn squares(resid: &[f64]) -> Vec<f64> {
     resid.iter().map(|r| r * r).collect()
 }
 
+/// Share of the round winner's held-out gain (over the model the round started from) a
+/// candidate must win back in the round to be tried again as an alternative: looser than the
+/// [`super::LOOK_ALIKE_GAIN`] an alternative must reach in the final model, as [`SCREEN_Z`] is
+/// looser than [`ALT_Z`].
+pub const SCREEN_GAIN: f64 = 0.25;
+
 /// The close candidates of a round (module docs): every physical candidate but the winner whose
-/// held-out errors are within [`SCREEN_Z`] of the winner's.
+/// held-out errors are within [`SCREEN_Z`] of the winner's and whose held-out gain over `from`
+/// (the round's starting model's held-out RMSE) is at least [`SCREEN_GAIN`] of the winner's.
 pub(super) fn screen<'a>(
     blocks: &[Vec<usize>],
+    from: f64,
     winner: &Stage,
     others: impl Iterator<Item = &'a Stage>,
 ) -> Vec<Vec<Effect>> {
     let win = squares(&winner.resid);
+    let gain = from - winner.rmse_heldout;
     others
+        .filter(|s| from - s.rmse_heldout >= SCREEN_GAIN * gain)
         .filter(|s| validate::paired_z(&squares(&s.resid), &win, blocks) < SCREEN_Z)
         .map(|s| s.effects.clone())
         .collect()

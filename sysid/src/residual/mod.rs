@@ -777,6 +777,7 @@ fn forward(
                 let leads = alternatives::Leads {
                     close: alternatives::screen(
                         &validate::held_out_blocks(prep),
+                        sel.model.rmse_heldout,
                         &winner.cand.stage,
                         round
                             .iter()
