@@ -1,4 +1,4 @@
-//! The application: its state, split by who needs it how fast, and the three tasks.
+//! The application: its state, split by who needs it how fast, and the four tasks.
 //!
 //! # Two halves, two kinds of lock
 //! - [`Control`], the motion side: the planner, the protocol, latched faults, safety limits, the
@@ -23,10 +23,12 @@
 //! | [`Shared::finish_frame`] | sampler task, every K-th conversion | estimation outside; one short lock to post its events, the new zero and read the latched flags |
 //! | [`Sampler::send_frame`], [`Shared::send_events`] | sampler task | formatting and hand-over outside; one short lock per event popped |
 //! | [`Shared::command_raw`], [`Shared::execute`] | command task, every line | short locks to check and hand over (a `move` is planned outside, then started in O(1)); replies formatted outside |
+//! | [`Shared::persist_begin`], [`Shared::persist_end`] | persist task, every [`PERSIST_POLL_MS`] | one short lock each, around the flash write; the CRC computed outside |
 //!
-//! The tasks ([`stepper_task`], [`sampler_task`], [`command_task`]) are thin async loops around
-//! these synchronous functions. The board binary wraps each in an `#[embassy_executor::task]`;
-//! the simulator runs them under embassy-time's mock driver.
+//! The tasks ([`stepper_task`], [`sampler_task`], [`command_task`], and [`persist_task`], which
+//! writes committed models to flash at rest) are thin async loops around these synchronous
+//! functions. The board binary wraps each in an `#[embassy_executor::task]`; the simulator runs
+//! the first three under embassy-time's mock driver (it has no flash).
 
 use core::cell::{Cell, RefCell};
 use core::fmt::Write;
@@ -38,6 +40,7 @@ use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::mutex::Mutex as AsyncMutex;
 use embassy_sync::signal::Signal;
 use embassy_time::{Duration, Instant, Ticker, Timer};
+use embedded_storage_async::nor_flash::NorFlash;
 use heapless::Deque;
 use model_core::chain::{Chain, ChainInput, ChainState, Effect, EffectKind};
 use model_core::poly::{ArHistory, PolyModel, Scaling, Shape, MAX_AR, MAX_TERMS};
@@ -52,7 +55,7 @@ use crate::hal::{Direction, PressureAdc, SerialPort, Steppers, TelemetrySink, Wa
 use crate::motion::{Motion, MotionConfig, MotionError, PlannedMove, StepBatch};
 use crate::protocol::{ProtocolPoll, ProtocolRun};
 use crate::reset::ResetCause;
-use crate::store::{Loaded, Model, Persist};
+use crate::store::{FlashGuard, Loaded, Model, ModelStore, Persist};
 use crate::telemetry::{ChamberFrame, Event, EventKind, Flags, Frame, LineBuf};
 use crate::wire::{SerialOut, SerialTelemetry};
 
@@ -2022,6 +2025,41 @@ async fn lines<U: SerialPort>(
         }
         let _ = reply.push_str("\r\n");
         port.write_all(reply.as_bytes()).await;
+    }
+}
+
+/// Poll period of [`persist_task`], ms.
+pub const PERSIST_POLL_MS: u64 = 100;
+
+/// One pass of [`persist_task`]: write one pending model if the board is at rest. Returns
+/// whether it wrote (or tried to).
+pub async fn persist_once<F: NorFlash, G: FlashGuard>(
+    shared: &Shared,
+    store: &mut ModelStore<F>,
+    guard: &mut G,
+) -> bool {
+    let now = Instant::now().as_micros();
+    let Some((ch, model)) = shared.persist_begin(now) else {
+        return false;
+    };
+    guard.before();
+    let r = store.save(ch, model).await;
+    guard.after();
+    let now = Instant::now().as_micros();
+    shared.persist_end(ch as usize, &model, r.is_ok(), now);
+    true
+}
+
+/// Write committed models to flash when the board is at rest ([`crate::store`]'s module docs:
+/// when the board writes, and why).
+pub async fn persist_task<F: NorFlash, G: FlashGuard>(
+    shared: &Shared,
+    mut store: ModelStore<F>,
+    mut guard: G,
+) -> ! {
+    loop {
+        Timer::after_millis(PERSIST_POLL_MS).await;
+        persist_once(shared, &mut store, &mut guard).await;
     }
 }
 

@@ -1,7 +1,7 @@
 //! Hardware-independent actuation firmware: everything here builds for the host and is tested there.
 //!
 //! - [`app`]: shared state ([`app::Shared`], [`app::Config`]) and the task entry points
-//!   [`app::stepper_task`], [`app::sampler_task`], [`app::command_task`].
+//!   [`app::stepper_task`], [`app::sampler_task`], [`app::command_task`], [`app::persist_task`].
 //! - [`motion`]: trapezoidal profiles → step instants; [`protocol`]: the characterisation cycles.
 //! - [`command`]: the serial line protocol; [`telemetry`]: frame and event lines; [`wire`]: the
 //!   same frames and events as binary packets over the command UART.

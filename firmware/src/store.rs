@@ -37,19 +37,21 @@
 //! [`QUIET_US`] after the last command so that a host talking in lock-step is waiting, not
 //! sending, when the stall comes), refuses motion while it writes, and lengthens the
 //! independent watchdog's window around the write ([`FlashGuard`]). A committed model that is
-//! not yet written shows as `pending` (flag 29).
+//! not yet written shows as `pending` (flag 29). The application's
+//! [`persist_task`](crate::app::persist_task) does the writing: this module has the store and
+//! the bookkeeping, and nothing of the application's state.
 
 use core::ops::Range;
 
 use embedded_storage_async::nor_flash::NorFlash;
 use model_core::chain::{Chain, Effect, EffectKind, MAX_EFFECTS, MAX_EFFECT_PARAMS};
+use model_core::flags::Flags;
 use model_core::poly::{PolyModel, Scaling, Shape, MAX_AR, MAX_TERMS};
 use sequential_storage::cache::{Cache, Uncached};
 use sequential_storage::map::{MapConfig, MapStorage, SerializationError, Value};
 
 use crate::hal::AXES;
 use crate::reset::CRC32;
-use crate::telemetry::Flags;
 
 /// Version byte of the serialised model without effects.
 pub const MODEL_VERSION: u8 = 1;
@@ -545,40 +547,6 @@ pub trait FlashGuard {
 impl FlashGuard for () {
     fn before(&mut self) {}
     fn after(&mut self) {}
-}
-
-/// Poll period of [`persist_task`], ms.
-pub const PERSIST_POLL_MS: u64 = 100;
-
-/// One pass of [`persist_task`]: write one pending model if the board is at rest. Returns
-/// whether it wrote (or tried to).
-pub async fn persist_once<F: NorFlash, G: FlashGuard>(
-    shared: &crate::app::Shared,
-    store: &mut ModelStore<F>,
-    guard: &mut G,
-) -> bool {
-    let now = embassy_time::Instant::now().as_micros();
-    let Some((ch, model)) = shared.persist_begin(now) else {
-        return false;
-    };
-    guard.before();
-    let r = store.save(ch, model).await;
-    guard.after();
-    let now = embassy_time::Instant::now().as_micros();
-    shared.persist_end(ch as usize, &model, r.is_ok(), now);
-    true
-}
-
-/// Write committed models to flash when the board is at rest (see the module docs).
-pub async fn persist_task<F: NorFlash, G: FlashGuard>(
-    shared: &crate::app::Shared,
-    mut store: ModelStore<F>,
-    mut guard: G,
-) -> ! {
-    loop {
-        embassy_time::Timer::after_millis(PERSIST_POLL_MS).await;
-        persist_once(shared, &mut store, &mut guard).await;
-    }
 }
 
 #[cfg(test)]

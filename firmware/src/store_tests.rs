@@ -2,7 +2,7 @@
 //! sequential-storage's mock flash, corrupt stores, and the application's write gating.
 
 use super::*;
-use crate::app::{CommandError, Config, Sampler, Shared};
+use crate::app::{persist_once, CommandError, Config, Sampler, Shared};
 use crate::command;
 use crate::reset::tests::crc32_bitwise;
 use embassy_futures::block_on;

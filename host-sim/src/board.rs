@@ -24,8 +24,7 @@ use firmware::hal::{
     Direction, PressureAdc, SerialError, SerialPort, Steppers, TelemetrySink, Watchdog, AXES,
 };
 
-use crate::plant::{ChamberTruth, Plant};
-use crate::sim::FrameTruth;
+use crate::plant::{ChamberTruth, Plant, CHAMBERS};
 
 /// Truth sampled at one ADC conversion.
 #[derive(Clone, Copy, Debug)]
@@ -36,6 +35,18 @@ pub struct ReadTruth {
     pub force_n: f64,
     /// Per chamber.
     pub chambers: [ChamberTruth; AXES],
+}
+
+/// The truth behind one telemetry frame: the mean over the frame's ADC conversions (the firmware
+/// averages the same conversions into the frame).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct FrameTruth {
+    /// Mean conversion instant, µs (equals the frame's `t_us`).
+    pub t_us: u64,
+    /// True external force, N.
+    pub force_n: f64,
+    /// Per chamber (each field the mean over the conversions).
+    pub chambers: [ChamberTruth; CHAMBERS],
 }
 
 /// State shared by the board's handles and the simulation loop.

@@ -41,6 +41,7 @@ pub mod rigs;
 pub mod scenario;
 pub mod sim;
 
+pub use board::FrameTruth;
 pub use law::Design;
 pub use plant::{
     ChamberTruth, Effects, ForcePush, NoiseTails, PlantConfig, SensorSpec, EFFECT_PRESETS,
@@ -49,7 +50,7 @@ pub use scenario::{
     Breathing, FaultInjection, Framing, PresetOptions, Protocol, Scenario, SerialFault,
     SerialFaultKind, Strokes, TelemetryStall, TimedCommand,
 };
-pub use sim::{simulate, simulate_with, FrameTruth, LogRow, RunStats, SimRun, LOG_COLUMNS};
+pub use sim::{simulate, simulate_with, LogRow, RunStats, SimRun, LOG_COLUMNS};
 
 /// Why a simulation could not run.
 #[derive(Debug, thiserror::Error)]

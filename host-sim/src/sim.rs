@@ -31,8 +31,10 @@ use firmware::telemetry::{Event, EventKind, Frame};
 use futures::stream::{FuturesUnordered, StreamExt};
 use futures::task::ArcWake;
 
-use crate::board::{ReadTruth, Rig, Rx, SimAdc, SimSerial, SimSteppers, SimTelemetry, SimWatchdog};
-use crate::plant::{ChamberTruth, Drive, Plant, CHAMBERS};
+use crate::board::{
+    FrameTruth, ReadTruth, Rig, Rx, SimAdc, SimSerial, SimSteppers, SimTelemetry, SimWatchdog,
+};
+use crate::plant::{Drive, Plant, CHAMBERS};
 use crate::scenario::Scenario;
 use crate::scenario::SerialFaultKind;
 use crate::SimError;
@@ -40,18 +42,6 @@ use firmware::hal::SerialError;
 
 /// One simulation at a time: the MockDriver is process-global.
 static SIM_LOCK: Mutex<()> = Mutex::new(());
-
-/// The truth behind one telemetry frame: the mean over the frame's ADC conversions (the firmware
-/// averages the same conversions into the frame).
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct FrameTruth {
-    /// Mean conversion instant, µs (equals the frame's `t_us`).
-    pub t_us: u64,
-    /// True external force, N.
-    pub force_n: f64,
-    /// Per chamber (each field the mean over the conversions).
-    pub chambers: [ChamberTruth; CHAMBERS],
-}
 
 /// Counters of one run.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]

@@ -387,7 +387,7 @@ mod device {
 
     #[embassy_executor::task]
     async fn persist(shared: &'static Shared, store: ModelStore<StoreFlash>) {
-        firmware::store::persist_task(shared, store, StoreGuard { saved: None }).await
+        app::persist_task(shared, store, StoreGuard { saved: None }).await
     }
 
     /// 180 MHz from the ST-LINK's 8 MHz clock (HSE bypass): 8 / 4 × 180 / 2.
