@@ -47,6 +47,8 @@ pub mod search;
 pub(crate) mod signal;
 mod state;
 mod swaps;
+#[cfg(test)]
+mod test_plant;
 pub mod validate;
 
 use serde::Serialize;
