@@ -790,7 +790,7 @@ fn one_form(prep: &Prepared, effects: Vec<Effect>, sse: f64) -> (Vec<Effect>, f6
 /// 35: 91 → 47 → 17 → 14 → 6.9 …, the model to beat at 57); on the 3-hour log an air pocket and a
 /// sensor lag in a delivery lag's place, searched in turn, went 106 → 92.4 → 91.7 and settled at
 /// 91.0 against the 89.8 to beat, ten sweeps of 15 s for nothing; started from their rounds' fits
-/// ([`super::swap_for_pair`]) they go 666 → 116 → 103 and are given up there.
+/// ([`super::swaps::swap_for_pair`]) they go 666 → 116 → 103 and are given up there.
 fn descend(prep: &Prepared, effects: &mut Vec<Effect>, sse: f64, target: Option<f64>) -> f64 {
     let (mut sse, steps) = gauss_newton(prep, effects, sse, target);
     if steps != Steps::Open {
