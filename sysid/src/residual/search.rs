@@ -1,10 +1,15 @@
-//! The loop's search for effects (step 4): forward selection, re-tunes and the tests that keep an
-//! effect. (`crate::select` is the baseline polynomial's shape; this module searches effects.)
+//! The loop's search for effects (step 4): each candidate's search, the re-tune's descent and the
+//! tests that keep an effect; the rounds of forward selection that call them are
+//! `super::forward`. (`crate::select` is the baseline polynomial's shape; this module searches
+//! effects.)
 //!
 //! Each round, every candidate not yet in the model has its nonlinear parameter θ searched on the
 //! *training* rows (a log grid of 8 points, or 5 magnitudes of each sign, over a range set by the data's own
 //! scales, then Brent's refinement between the best point's neighbours ([`brent`]); ripple starts from
 //! the peaks of the residual's Welch spectrum), all linear coefficients refitted jointly by QR.
+//! Behind a lag inside the frames, a candidate that moves the inputs is located on the model with
+//! that lag taken between samples (a stand-in several times cheaper per trial) and polished on
+//! the model itself (`Trials::polish`); every fit that is judged is on the model itself.
 //! Candidates are ranked by held-out RMSE, and the best one is kept only if **both**
 //!
 //! 1. a nested F-test on the training rows rejects "no effect" at level α, with
