@@ -1188,6 +1188,25 @@ mod tests {
     use crate::residual::effects::{Effect, EffectKind, Hysteresis, Prepared, SensorLag};
     use crate::residual::Series;
 
+    /// 3,000 frames of two incommensurate strokes: their count, the flow, a smooth (3, 2)
+    /// pressure on them, and the series with a given pressure prepared for a (3, 2) baseline (one
+    /// block of 300 frames in five held out).
+    fn two_tone_rig() -> (usize, Vec<f64>, Vec<f64>, impl Fn(Vec<f64>) -> Prepared) {
+        let n = 3000;
+        let (t, v, f) = crate::test_motion::two_tones(n);
+        let p0: Vec<f64> = (0..n)
+            .map(|k| 2.0 + 0.01 * v[k] + 0.002 * f[k] + 1e-5 * v[k] * f[k])
+            .collect();
+        let train: Vec<bool> = (0..n).map(|k| (k / 300) % 5 != 4).collect();
+        let flow = f.clone();
+        let make = move |p: Vec<f64>| {
+            let series = Series::new(t.clone(), v.clone(), f.clone(), p, train.clone()).unwrap();
+            let basis = PolyBasis::for_data(&series.v, &series.vdot, 3, 2).unwrap();
+            Prepared::new(series, basis)
+        };
+        (n, flow, p0, make)
+    }
+
     /// A plant inside the model class, known exactly: a (3, 2) polynomial with hysteresis of width
     /// 12 mm³ behind a sensor lag of 60 ms (1.5 frames: the two trade through the damping), on
     /// 3,000 frames of two incommensurate strokes. Started with both parameters 40 % off, the
@@ -1195,17 +1214,7 @@ mod tests {
     /// in a few steps (a coordinate sweep alone takes a bracket's width per sweep).
     #[test]
     fn gauss_newton_finds_two_trading_parameters_of_a_known_plant() {
-        let n = 3000;
-        let (t, v, f) = crate::test_motion::two_tones(n);
-        let p0: Vec<f64> = (0..n)
-            .map(|k| 2.0 + 0.01 * v[k] + 0.002 * f[k] + 1e-5 * v[k] * f[k])
-            .collect();
-        let train: Vec<bool> = (0..n).map(|k| (k / 300) % 5 != 4).collect();
-        let make = |p: Vec<f64>| {
-            let series = Series::new(t.clone(), v.clone(), f.clone(), p, train.clone()).unwrap();
-            let basis = PolyBasis::for_data(&series.v, &series.vdot, 3, 2).unwrap();
-            Prepared::new(series, basis)
-        };
+        let (n, f, p0, make) = two_tone_rig();
         let truth = [
             Effect::new(EffectKind(&Hysteresis), 12.0),
             Effect::new(EffectKind(&SensorLag), 0.06),
@@ -1248,17 +1257,7 @@ mod tests {
     fn a_delay_located_behind_a_lag_in_the_frames_lands_on_the_plant() {
         use super::{located_on, search, Trials};
         use crate::residual::effects::TransportDelay;
-        let n = 3000;
-        let (t, v, f) = crate::test_motion::two_tones(n);
-        let p0: Vec<f64> = (0..n)
-            .map(|k| 2.0 + 0.01 * v[k] + 0.002 * f[k] + 1e-5 * v[k] * f[k])
-            .collect();
-        let train: Vec<bool> = (0..n).map(|k| (k / 300) % 5 != 4).collect();
-        let make = |p: Vec<f64>| {
-            let series = Series::new(t.clone(), v.clone(), f.clone(), p, train.clone()).unwrap();
-            let basis = PolyBasis::for_data(&series.v, &series.vdot, 3, 2).unwrap();
-            Prepared::new(series, basis)
-        };
+        let (n, _, p0, make) = two_tone_rig();
         let lag = Effect::new(EffectKind(&SensorLag), 0.06);
         let delay = EffectKind(&TransportDelay);
         let truth = [lag.clone(), Effect::new(delay, 0.1)];

@@ -31,6 +31,25 @@ pub(super) struct KeptStep {
     pub(super) leads: alternatives::Leads,
 }
 
+impl KeptStep {
+    /// The step from `prev` to `after` (its last effect kept), with the nested test between them,
+    /// no runner-up, look-alikes or leads: those come from a round, where there was one.
+    pub(super) fn between(prep: &super::effects::Prepared, prev: &Stage, after: &Stage) -> Self {
+        Self {
+            kind: after.effects.last().expect("a step keeps an effect").kind,
+            model: validate::FittedModel::of(after),
+            heldout_before: prev.rmse_heldout,
+            heldout_after: after.rmse_heldout,
+            train_before: prev.rmse_train,
+            train_after: after.rmse_train,
+            test: super::search::nested_test(prep, prev, after),
+            runner_up: None,
+            rivals: Vec::new(),
+            leads: alternatives::Leads::default(),
+        }
+    }
+}
+
 /// What the loop has found so far: forward selection and the swaps extend it, leave-one-out
 /// takes from it, the report reads it.
 pub(super) struct Selection {

@@ -12,7 +12,6 @@ use super::prune;
 use super::retune;
 use super::search::{self, Stage};
 use super::state::{KeptStep, Selection};
-use super::validate;
 use super::{secs, Config, Rejected, SwapReport};
 use crate::progress::{tell, Progress};
 
@@ -283,16 +282,10 @@ fn rebuild_steps(
             was.and_then(|k| k.runner_up.clone())
         };
         sel.kept.push(KeptStep {
-            kind,
-            model: validate::FittedModel::of(&after),
-            heldout_before: prev.rmse_heldout,
-            heldout_after: after.rmse_heldout,
-            train_before: prev.rmse_train,
-            train_after: after.rmse_train,
-            test: search::nested_test(prep, &prev, &after),
             runner_up,
             rivals: was.map(|k| k.rivals.clone()).unwrap_or_default(),
             leads: was.map(|k| k.leads.clone()).unwrap_or_default(),
+            ..KeptStep::between(prep, &prev, &after)
         });
         prev = after;
     }

@@ -2,13 +2,12 @@
 //! (3, 2) polynomial with known effects planted at known parameters, on a few thousand frames of
 //! two tones, and the loop's state as forward selection would have left it with a given model.
 
-use super::alternatives::Leads;
 use super::basis::PolyBasis;
 use super::effects::{build, Effect, Prepared};
 use super::lsq;
 use super::search::{self, Stage};
 use super::state::{KeptStep, Selection};
-use super::{validate, Series};
+use super::Series;
 
 /// `n` frames at 25 Hz of two incommensurate strokes fast enough that lags of a few frames show
 /// (1.3 and 3.1 rad/s): times (s), volume (mm³) and flow (mm³/s).
@@ -86,16 +85,8 @@ pub(crate) fn kept(prep: &Prepared, model: &Stage, rivals: Vec<Vec<Effect>>) -> 
     for (j, rivals) in rivals.into_iter().enumerate() {
         let after = search::fit_stage(prep, &model.effects[..=j]).unwrap();
         sel.kept.push(KeptStep {
-            kind: model.effects[j].kind,
-            model: validate::FittedModel::of(&after),
-            heldout_before: prev.rmse_heldout,
-            heldout_after: after.rmse_heldout,
-            train_before: prev.rmse_train,
-            train_after: after.rmse_train,
-            test: search::nested_test(prep, &prev, &after),
-            runner_up: None,
             rivals,
-            leads: Leads::default(),
+            ..KeptStep::between(prep, &prev, &after)
         });
         prev = after;
     }
