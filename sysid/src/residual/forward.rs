@@ -11,7 +11,7 @@ use super::alternatives;
 use super::effects::{Effect, EffectKind, Prepared};
 use super::retune;
 use super::search::{self, NestedTest, Stage};
-use super::state::{passes, KeptStep, Selection};
+use super::state::{passes, KeptStep, Past, Selection};
 use super::validate;
 use super::{secs, Config, Rejected, RoundTiming, Signature, LOOK_ALIKE_GAIN};
 use crate::progress::{tell, Progress};
@@ -91,7 +91,7 @@ fn rank_round(
     prep: &Prepared,
     cur: &Stage,
     cfg: &Config,
-    costs: &mut HashMap<EffectKind, f64>,
+    costs: &mut HashMap<EffectKind, Past>,
     banned: &[EffectKind],
 ) -> (Vec<Ranked>, BTreeMap<&'static str, f64>) {
     let todo: Vec<EffectKind> = cfg
@@ -210,15 +210,16 @@ fn search_all(
     cur: &Stage,
     todo: &[EffectKind],
     cfg: &Config,
-    costs: &mut HashMap<EffectKind, f64>,
+    costs: &mut HashMap<EffectKind, Past>,
 ) -> (Vec<search::Candidate>, BTreeMap<&'static str, f64>) {
     let threads = cfg.threads.max(1).min(todo.len().max(1));
     let finished = std::sync::atomic::AtomicUsize::new(0);
     let guess = |k: EffectKind| k.cost_guess();
+    let hints: Vec<Option<f64>> = todo.iter().map(|k| costs.get(k).map(|p| p.theta)).collect();
     let mut order: Vec<usize> = (0..todo.len()).collect();
     // Stable sort: ties keep the library's order.
     order.sort_by(|&a, &b| {
-        let cost = |i: usize| costs.get(&todo[i]).copied().unwrap_or(guess(todo[i]));
+        let cost = |i: usize| costs.get(&todo[i]).map_or(guess(todo[i]), |p| p.secs);
         cost(b).total_cmp(&cost(a))
     });
     let next = std::sync::atomic::AtomicUsize::new(0);
@@ -233,7 +234,7 @@ fn search_all(
                         let j = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
                         let Some(&i) = order.get(j) else { break };
                         let start = std::time::Instant::now();
-                        let found = search::search(prep, cur, todo[i]);
+                        let found = search::search_from(prep, cur, todo[i], hints[i]);
                         mine.push((i, found, start.elapsed().as_secs_f64()));
                         let done = 1 + finished.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
                         let what = todo[i].name();
@@ -246,8 +247,12 @@ fn search_all(
         for h in handles {
             if let Ok(results) = h.join() {
                 for (i, c, secs) in results {
+                    let theta = c
+                        .as_ref()
+                        .and_then(|c| c.stage.effects.last())
+                        .map_or(f64::NAN, |e| e.theta);
+                    costs.insert(todo[i], Past { secs, theta });
                     out[i] = c;
-                    costs.insert(todo[i], secs);
                     times.insert(todo[i].name(), secs);
                 }
             }

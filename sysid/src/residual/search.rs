@@ -278,7 +278,24 @@ pub(crate) fn with(base: &[Effect], e: Effect) -> Vec<Effect> {
 /// Searches the nonlinear parameter of `kind` added to `cur`, returning the best augmented model
 /// (after the effect's own [`super::effects::EffectModel::refine`]).
 pub fn search(prep: &Prepared, cur: &Stage, kind: EffectKind) -> Option<Candidate> {
+    search_from(prep, cur, kind, None)
+}
+
+/// [`search`], started where the same candidate's search ended on the model before (`hint`, its
+/// θ, from the previous round), where the candidate's SSE has one minimum in θ
+/// ([`super::effects::EffectModel::one_minimum`]: a lag, a delay, a rate; not a width): its
+/// parameter is sought by descent along its grid from the grid point nearest `hint`
+/// ([`grid_descent`]), which walks on where the minimum lies beyond, instead of over the whole
+/// grid. A model one effect larger moves such a minimum little; where it moved far, the walk
+/// follows it a grid step at a time.
+pub fn search_from(
+    prep: &Prepared,
+    cur: &Stage,
+    kind: EffectKind,
+    hint: Option<f64>,
+) -> Option<Candidate> {
     let mut trials = Trials::new(prep, cur, kind);
+    trials.hint = hint.filter(|h| h.is_finite() && kind.one_minimum());
     let found = trials.best_theta()?;
     // The shortcut may hold the current design (an effect's `fast_sse`); the fits below build
     // their own, so let it go first.
@@ -315,6 +332,8 @@ struct Trials<'a> {
     /// Where the search locates θ on a stand-in for the current model ([`located_on`]): its
     /// lags inside the frames taken on instants.
     proxy: Option<Vec<Effect>>,
+    /// Where the previous round's search of the candidate ended ([`search_from`]).
+    hint: Option<f64>,
 }
 
 /// The current model's effects with its output lags inside the frames taken on instants, on
@@ -376,6 +395,7 @@ impl<'a> Trials<'a> {
             fast: kind.fast_sse(prep, cur),
             base: std::cell::OnceCell::new(),
             proxy: None,
+            hint: None,
         }
         .located()
     }
@@ -470,14 +490,14 @@ impl<'a> Trials<'a> {
                 return Some(self.both_forms(lo, hi))
             }
             Search::Log(lo, hi) => {
-                let theta = grid_search(Coord::Log, log_grid(lo, hi, 8), &objective);
+                let theta = self.on_grid(Coord::Log, log_grid(lo, hi, 8), &objective);
                 self.polish(theta, (hi / lo).ln() / 7.0, lo, hi)
             }
             Search::Signed(lo, hi) => {
                 let mags = log_grid(lo, hi, 5);
                 let mut g: Vec<f64> = mags.iter().rev().map(|m| -m).collect();
                 g.extend(mags);
-                let theta = grid_search(Coord::Lin, g, &objective);
+                let theta = self.on_grid(Coord::Lin, g, &objective);
                 self.polish(theta, (hi / lo).ln() / 4.0, lo, hi)
             }
             Search::VolumeSpectral => self.volume_scan()?,
@@ -487,6 +507,15 @@ impl<'a> Trials<'a> {
             theta,
             prefit: None,
         })
+    }
+
+    /// [`grid_search`] over `grid`, or with a hint ([`search_from`]) the descent along it from the
+    /// grid point nearest the hint.
+    fn on_grid(&self, coord: Coord, grid: Vec<f64>, objective: &impl Fn(f64) -> f64) -> f64 {
+        match self.hint {
+            Some(h) => grid_descent(coord, &grid, nearest(coord, &grid, h), objective),
+            None => grid_search(coord, grid, objective),
+        }
     }
 
     /// The degree `1..=max` of least training AICc.
@@ -518,10 +547,22 @@ impl<'a> Trials<'a> {
         let objective = |x: f64| self.objective(x);
         let grid = log_grid(lo, hi, 8);
         self.point.set(true);
-        let vals: Vec<f64> = grid.iter().map(|&g| objective(g)).collect();
-        let best = argmin(&vals);
         let step = (hi / lo).ln() / 7.0;
-        let instants = refine(Coord::Log, &grid, best, vals[best], &objective);
+        // From a hint, the descent on instants, and its value in the grid's place below.
+        let (best, at_best, instants) = match self.hint {
+            Some(h) => {
+                let instants =
+                    grid_descent(Coord::Log, &grid, nearest(Coord::Log, &grid, h), &objective);
+                let best = nearest(Coord::Log, &grid, instants);
+                (best, objective(instants), instants)
+            }
+            None => {
+                let vals: Vec<f64> = grid.iter().map(|&g| objective(g)).collect();
+                let best = argmin(&vals);
+                let instants = refine(Coord::Log, &grid, best, vals[best], &objective);
+                (best, vals[best], instants)
+            }
+        };
         let fit_instants = self.fit(instants);
         // An output lag inside the frames differs from one between samples only within a frame:
         // where the lag on instants takes no more off the training SSE than a free parameter
@@ -536,7 +577,7 @@ impl<'a> Trials<'a> {
             .kind
             .lag_time_constants(&self.make(grid[best]), self.prep)
             .is_some();
-        if inside_frames && self.cur.fit.sse - vals[best] <= chance {
+        if inside_frames && self.cur.fit.sse - at_best <= chance {
             return Found {
                 theta: instants,
                 prefit: fit_instants,
@@ -624,6 +665,17 @@ impl<'a> Trials<'a> {
 /// step) shrunk to 4.5 % of a step at worst; on a smooth minimum the parabolic steps reach far
 /// closer.
 const POLISH_ITERS: usize = 4;
+
+/// The index of the point of `grid` nearest `x` in the coordinate `coord`.
+fn nearest(coord: Coord, grid: &[f64], x: f64) -> usize {
+    let u = coord.from(x);
+    argmin(
+        &grid
+            .iter()
+            .map(|&g| (coord.from(g) - u).abs())
+            .collect::<Vec<_>>(),
+    )
+}
 
 fn log_grid(lo: f64, hi: f64, n: usize) -> Vec<f64> {
     let (a, b) = (lo.ln(), hi.ln());
@@ -1289,6 +1341,48 @@ mod tests {
             trials.exact(rough),
             found.fit.sse
         );
+    }
+
+    /// A search started from the previous round's θ ([`super::search_from`]): a delivery lag (one
+    /// minimum) started ten times too short walks along its grid to the planted 40 ms, as the
+    /// whole grid finds it; a hysteresis width (not one minimum) ignores the hint and is searched
+    /// over its whole grid, the same to the bit as without it.
+    #[test]
+    fn a_search_from_the_last_round_walks_to_the_minimum_and_widths_ignore_it() {
+        use super::{search, search_from};
+        use crate::residual::effects::DeliveryLag;
+        let (n, f, p0, make) = two_tone_rig();
+        let delay = EffectKind(&DeliveryLag);
+        let truth = [Effect::new(delay, 0.04)];
+        let prep = make(p0.clone());
+        let design = build(&prep, &truth);
+        let rows: Vec<usize> = (0..n).collect();
+        let beta = lsq::fit(&design.cols, &p0, &rows).unwrap().beta;
+        let prep = make(lsq::predict(&design.cols, &beta));
+        let cur = fit_stage(&prep, &[]).unwrap();
+        let theta = |c: Option<super::Candidate>| c.unwrap().stage.effects[0].theta;
+        let walked = theta(search_from(&prep, &cur, delay, Some(0.004)));
+        let whole = theta(search(&prep, &cur, delay));
+        assert!((walked / 0.04 - 1.0).abs() < 2e-3, "from 4 ms: {walked}");
+        assert!((whole / 0.04 - 1.0).abs() < 2e-3, "whole grid: {whole}");
+        let width = EffectKind(&Hysteresis);
+        let truth = [Effect::new(width, 12.0)];
+        let prep = make(p0.clone());
+        let design = build(&prep, &truth);
+        let mut p = p0.clone();
+        for (k, x) in p.iter_mut().enumerate() {
+            *x += 0.3 * (f[k] / 60.0).tanh();
+        }
+        let beta = lsq::fit(&design.cols, &p, &rows).unwrap().beta;
+        let prep = make(lsq::predict(&design.cols, &beta));
+        let cur = fit_stage(&prep, &[]).unwrap();
+        let hinted = theta(search_from(&prep, &cur, width, Some(200.0)));
+        let plain = theta(search(&prep, &cur, width));
+        assert!(
+            (plain / 12.0 - 1.0).abs() < 2e-2,
+            "hysteresis width {plain}"
+        );
+        assert_eq!(hinted.to_bits(), plain.to_bits(), "{hinted} vs {plain}");
     }
 
     /// Brent's refinement reaches the precision `iters` golden-section steps would, within as

@@ -50,6 +50,15 @@ impl KeptStep {
     }
 }
 
+/// A candidate's last search in forward selection.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct Past {
+    /// Its time, s.
+    pub(super) secs: f64,
+    /// Its searched parameter where it ended (NaN when it found none).
+    pub(super) theta: f64,
+}
+
 /// What the loop has found so far: forward selection and the swaps extend it, leave-one-out
 /// takes from it, the report reads it.
 pub(super) struct Selection {
@@ -65,9 +74,9 @@ pub(super) struct Selection {
     pub(super) swaps: Vec<SwapReport>,
     /// Where the time went so far.
     pub(super) timing: Timings,
-    /// Each candidate's search time in its last round, to schedule the next
-    /// (`forward::search_all`).
-    pub(super) costs: HashMap<EffectKind, f64>,
+    /// Each candidate's last search: its time, to schedule the next, and where it ended, where
+    /// the next starts (`forward::search_all`).
+    pub(super) costs: HashMap<EffectKind, Past>,
     /// The final model's joint covariance ([`interval::joint_cov`]), once
     /// `prune::drop_absent` formed it.
     pub(super) final_cov: Option<interval::JointCov>,

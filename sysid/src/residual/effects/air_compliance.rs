@@ -28,6 +28,11 @@ impl EffectModel for AirCompliance {
         "A trapped air bubble compresses as pressure rises (Boyle's law), so the chamber receives less volume than the syringe delivers and the pressure lags the plunger, most at low pressure."
     }
 
+    /// One pocket, one time scale: a single minimum of the SSE over the search range.
+    fn one_minimum(&self) -> bool {
+        true
+    }
+
     fn search(&self, sc: &Scales) -> Search {
         Search::Log(0.002 * sc.v_range, 1.0 * sc.v_range)
     }

@@ -59,6 +59,11 @@ impl EffectModel for DeliveryLag {
         ))
     }
 
+    /// One time constant: a single minimum of the SSE over the search range.
+    fn one_minimum(&self) -> bool {
+        true
+    }
+
     fn search(&self, sc: &Scales) -> Search {
         Search::Log(0.05 * sc.dt, (0.75f64).min(sc.duration / 40.0).max(sc.dt))
     }

@@ -19,6 +19,11 @@ impl EffectModel for Leak {
     }
 
     /// λ from the volume range over `∫P dt`; no search when the pressure never rose.
+    /// One conductance: a single minimum of the SSE over the search range.
+    fn one_minimum(&self) -> bool {
+        true
+    }
+
     fn search(&self, sc: &Scales) -> Search {
         if sc.p_integral > 0.0 {
             Search::Log(

@@ -299,6 +299,15 @@ pub trait EffectModel: Send + Sync {
         false
     }
 
+    /// Whether a round's search of θ may start where the previous round's ended
+    /// (`search::search_from`) instead of over the whole grid: true where the training SSE has
+    /// one minimum in θ over the search range (one time constant, delay or rate), which one more
+    /// effect in the model moves but does not split. A width (a hysteresis loop, a dead band)
+    /// fits other features at other sizes, and is searched over the whole grid every round.
+    fn one_minimum(&self) -> bool {
+        false
+    }
+
     /// Guessed cost of the search relative to a plain one, before its first round is timed (to
     /// start the costliest first).
     fn cost_guess(&self) -> f64 {

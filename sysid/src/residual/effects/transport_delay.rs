@@ -19,6 +19,11 @@ impl EffectModel for TransportDelay {
         "Pressure is reported a fixed time after the volume that caused it (a sampling offset or pressure-wave travel), so the whole pressure trace is shifted in time."
     }
 
+    /// One delay: a single minimum of the SSE over the search range.
+    fn one_minimum(&self) -> bool {
+        true
+    }
+
     fn search(&self, sc: &Scales) -> Search {
         Search::Log(0.25 * sc.dt, (1.5f64).min(sc.duration / 20.0).max(sc.dt))
     }

@@ -17,6 +17,11 @@ impl EffectModel for VolumeDrift {
         "The volume reading creeps away from the true volume at a steady rate (an integrated flow-sensor bias or miscounted steps), so the same pressure appears at a sliding volume."
     }
 
+    /// One rate: a single minimum of the SSE over the search range.
+    fn one_minimum(&self) -> bool {
+        true
+    }
+
     fn search(&self, sc: &Scales) -> Search {
         Search::Signed(
             0.002 * sc.v_range / sc.duration,
