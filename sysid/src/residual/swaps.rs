@@ -340,6 +340,12 @@ mod tests {
     fn close(x: f64, truth: f64, rel: f64) -> bool {
         (x / truth - 1.0).abs() < rel
     }
+    /// The plant of these tests: `lags` and an offset drift of 2 kPa over the log, with noise.
+    fn drifting(lags: &[Effect]) -> Prepared {
+        let mut truth = lags.to_vec();
+        truth.push(Effect::new(OD, 2.0));
+        plant(N, &truth, drift, SIGMA)
+    }
 
     /// A plant with a sensor lag of 80 ms (2 frames) and a drift, where the delivery lag, its
     /// look-alike, was kept first (its other look-alike an inertance, which the plant does not
@@ -350,12 +356,7 @@ mod tests {
     /// in.
     #[test]
     fn a_look_alike_that_fits_better_takes_the_kept_effects_place() {
-        let prep = plant(
-            N,
-            &[Effect::new(SL, 0.08), Effect::new(OD, 2.0)],
-            drift,
-            SIGMA,
-        );
+        let prep = drifting(&[Effect::new(SL, 0.08)]);
         let cfg = Config::default();
         let baseline = search::fit_stage(&prep, &[]).unwrap();
 
@@ -407,12 +408,7 @@ mod tests {
     /// swapped; the pair tried is recorded (for the alternatives) all the same.
     #[test]
     fn no_look_alike_takes_the_place_of_the_plants_own_effect() {
-        let prep = plant(
-            N,
-            &[Effect::new(DL, 0.04), Effect::new(OD, 2.0)],
-            drift,
-            SIGMA,
-        );
+        let prep = drifting(&[Effect::new(DL, 0.04)]);
         let cfg = Config::default();
         let mut sel = delivery_lag_kept_first(&prep, [SL, TD]);
         let tau = theta(&sel.model, DL);
@@ -431,12 +427,7 @@ mod tests {
     /// place, each at its planted value, and each passes the loop's test in the other's company.
     #[test]
     fn two_look_alikes_together_replace_the_one_that_held_both() {
-        let truth = [
-            Effect::new(SL, 0.1),
-            Effect::new(TD, 0.04),
-            Effect::new(OD, 2.0),
-        ];
-        let prep = plant(N, &truth, drift, SIGMA);
+        let prep = drifting(&[Effect::new(SL, 0.1), Effect::new(TD, 0.04)]);
         let cfg = Config::default();
         let baseline = search::fit_stage(&prep, &[]).unwrap();
         // The premise: alone on the baseline, the delivery lag does best.
@@ -481,12 +472,7 @@ mod tests {
     /// do better still, and they are the swap made, each at its planted value.
     #[test]
     fn a_pair_that_does_better_than_one_look_alike_is_preferred() {
-        let truth = [
-            Effect::new(SL, 0.08),
-            Effect::new(TD, 0.08),
-            Effect::new(OD, 2.0),
-        ];
-        let prep = plant(N, &truth, drift, SIGMA);
+        let prep = drifting(&[Effect::new(SL, 0.08), Effect::new(TD, 0.08)]);
         let cfg = Config::default();
         let mut sel = delivery_lag_kept_first(&prep, [SL, TD]);
         let one = swap_look_alike(&prep, &sel, &[]).expect("the transport delay alone");
