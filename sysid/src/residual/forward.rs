@@ -11,7 +11,7 @@ use super::alternatives;
 use super::effects::{Effect, EffectKind, Prepared};
 use super::retune;
 use super::search::{self, NestedTest, Stage};
-use super::state::{passes, KeptStep, Past, Selection};
+use super::state::{passes, Findings, KeptStep, Past};
 use super::validate;
 use super::{secs, Config, Rejected, RoundTiming, Signature, LOOK_ALIKE_GAIN};
 use crate::progress::{tell, Progress};
@@ -27,7 +27,7 @@ struct Ranked {
 }
 
 /// Rounds of forward selection from `sel`'s model, with the kinds in `banned` left out.
-pub(super) fn rounds(prep: &Prepared, cfg: &Config, sel: &mut Selection, banned: &[EffectKind]) {
+pub(super) fn rounds(prep: &Prepared, cfg: &Config, sel: &mut Findings, banned: &[EffectKind]) {
     while sel.model.effects.len() < cfg.max_effects {
         let t = std::time::Instant::now();
         let (mut round, candidates) = rank_round(prep, &sel.model, cfg, &mut sel.costs, banned);
@@ -139,7 +139,7 @@ fn rank_round(
 /// step's "before").
 fn keep(
     prep: &Prepared,
-    sel: &mut Selection,
+    sel: &mut Findings,
     r: Ranked,
     runner_up: Option<Rejected>,
     rivals: Vec<Effect>,
@@ -163,7 +163,7 @@ fn keep(
 
 /// Records the last round's candidates as rejected; what an inadmissible candidate would have
 /// absorbed is structure the model lacks, reported with the fit it would have needed.
-fn reject_round(sel: &mut Selection, round: &[Ranked]) {
+fn reject_round(sel: &mut Findings, round: &[Ranked]) {
     sel.unphysical.clear();
     sel.rejected.clear();
     let cur = &sel.model;

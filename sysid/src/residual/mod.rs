@@ -629,7 +629,7 @@ pub fn diagnose(series: Series, cfg: &Config) -> Result<Diagnosis, DiagnoseError
                 .into(),
         )
     })?;
-    let mut sel = state::Selection::new(&baseline);
+    let mut sel = state::Findings::new(&baseline);
     sel.timing.baseline = secs(started);
     // After a swap the replaced kind is out of the running, and forward selection goes on from
     // the swapped model.

@@ -7,7 +7,7 @@
 use super::effects::Prepared;
 use super::interval;
 use super::search::{self, Param, Stage};
-use super::state::{passes, Selection};
+use super::state::{passes, Findings};
 use super::validate;
 use super::{Config, Signature};
 
@@ -58,7 +58,7 @@ pub(super) fn drop_unused(prep: &Prepared, cfg: &Config, mut model: Stage) -> St
 /// taken out one at a time, the one whose removal costs least first; what an effect taken out
 /// followed is reported in `remaining` (`indistinct_from_absent`). Leaves the final model's
 /// covariance in `sel.final_cov`.
-pub(super) fn drop_absent(prep: &Prepared, cfg: &Config, sel: &mut Selection) {
+pub(super) fn drop_absent(prep: &Prepared, cfg: &Config, sel: &mut Findings) {
     while !sel.kept.is_empty() {
         let Some(jc) = interval::joint_cov(prep, &sel.model) else {
             return;

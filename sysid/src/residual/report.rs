@@ -6,14 +6,14 @@ use super::analysis;
 use super::effects::{ripple, Prepared};
 use super::interval;
 use super::search::Stage;
-use super::state::Selection;
+use super::state::Findings;
 use super::validate;
 use super::{
     neutral_of, BaselineReport, Config, Diagnosis, EffectReport, FinalReport, ResidualAnalysis,
 };
 
 /// Each kept effect's report, its parameters from the final model.
-fn effect_reports(prep: &Prepared, sel: &Selection) -> Vec<EffectReport> {
+fn effect_reports(prep: &Prepared, sel: &Findings) -> Vec<EffectReport> {
     let formed;
     let jc = match &sel.final_cov {
         Some(jc) => Some(jc),
@@ -47,7 +47,7 @@ fn effect_reports(prep: &Prepared, sel: &Selection) -> Vec<EffectReport> {
 /// The neutral name and story of the final model's `i`-th effect, if its parameters call for one
 /// ([`super::EffectModel::neutral`]) or the rig does ([`super::EffectModel::generic`] off a
 /// syringe rig).
-fn neutral(prep: &Prepared, sel: &Selection, i: usize) -> Option<(&'static str, &'static str)> {
+fn neutral(prep: &Prepared, sel: &Findings, i: usize) -> Option<(&'static str, &'static str)> {
     neutral_of(prep, sel.model.effects.get(i)?)
 }
 
@@ -66,7 +66,7 @@ fn analyse_heldout(prep: &Prepared, resid: &[f64]) -> ResidualAnalysis {
 }
 
 /// The diagnosis of a finished selection (step 5: what structure remains).
-pub(super) fn report(prep: &Prepared, cfg: &Config, baseline: &Stage, sel: Selection) -> Diagnosis {
+pub(super) fn report(prep: &Prepared, cfg: &Config, baseline: &Stage, sel: Findings) -> Diagnosis {
     let effects = effect_reports(prep, &sel);
     let analysis_before = analyse_heldout(prep, &baseline.resid);
     let analysis_after = analyse_heldout(prep, &sel.model.resid);

@@ -297,9 +297,6 @@ pub fn search_from(
     let mut trials = Trials::new(prep, cur, kind);
     trials.hint = hint.filter(|h| h.is_finite() && kind.one_minimum());
     let found = trials.best_theta()?;
-    // The shortcut may hold the current design (an effect's `fast_sse`); the fits below build
-    // their own, so let it go first.
-    trials.fast = None;
     let stage = match found.prefit.or_else(|| trials.fit(found.theta)) {
         Some(stage) => stage,
         // The searches' SSE tolerates a rank-deficient design, the reported QR fit does not
@@ -324,8 +321,6 @@ struct Trials<'a> {
     /// Whether the samples are taken as instants rather than frame means (tried both ways where
     /// the effect asks, [`super::effects::EffectModel::tries_point_sampled`]).
     point: std::cell::Cell<bool>,
-    /// The effect's shortcut to the SSE, if it has one.
-    fast: Option<Box<dyn Fn(f64) -> f64 + 'a>>,
     /// The current model's design through its output filters, made at the first trial that can
     /// use it ([`super::effects::design::sse_adding_columns`]).
     base: std::cell::OnceCell<Option<super::effects::design::FilteredBase>>,
@@ -392,7 +387,6 @@ impl<'a> Trials<'a> {
             damping: needs.damping.then(|| damping_of(prep, cur)),
             stiffness: needs.stiffness.then(|| stiffness_of(prep, cur)),
             point: std::cell::Cell::new(false),
-            fast: kind.fast_sse(prep, cur),
             base: std::cell::OnceCell::new(),
             proxy: None,
             hint: None,
@@ -418,9 +412,6 @@ impl<'a> Trials<'a> {
 
     /// Training SSE of the current model with the effect at `theta` added.
     fn objective(&self, theta: f64) -> f64 {
-        if let Some(f) = &self.fast {
-            return f(theta);
-        }
         if let Some(proxy) = &self.proxy {
             return sse_of(self.prep, &with(proxy, self.make(theta)));
         }
@@ -613,7 +604,7 @@ impl<'a> Trials<'a> {
     /// [`Search::VolumeSpectral`]: the effect's scan, each start refined in `1/θ` within one
     /// scan step either side.
     fn volume_scan(&self) -> Option<f64> {
-        let scan = self.kind.scan(self.prep, self.cur, &self.make(0.0));
+        let scan = self.kind.scan(self.prep, &self.cur.resid, &self.make(0.0));
         let mut best = (f64::INFINITY, f64::NAN);
         for lambda in scan.starts {
             let kappa = 1.0 / lambda;

@@ -61,7 +61,7 @@ pub(super) struct Past {
 
 /// What the loop has found so far: forward selection and the swaps extend it, leave-one-out
 /// takes from it, the report reads it.
-pub(super) struct Selection {
+pub(super) struct Findings {
     /// The model so far.
     pub(super) model: Stage,
     /// The effects kept, in order.
@@ -89,7 +89,7 @@ pub(super) struct Selection {
     pub(super) alternatives: Vec<Vec<alternatives::Alternative>>,
 }
 
-impl Selection {
+impl Findings {
     /// Nothing found yet: the baseline, no effect kept.
     pub(super) fn new(baseline: &Stage) -> Self {
         Self {

@@ -11,7 +11,7 @@ use super::effects::{Effect, EffectKind, Prepared};
 use super::prune;
 use super::retune;
 use super::search::{self, Stage};
-use super::state::{KeptStep, Selection};
+use super::state::{Findings, KeptStep};
 use super::{secs, Config, Rejected, SwapReport};
 use crate::progress::{tell, Progress};
 
@@ -32,7 +32,7 @@ pub(super) struct Swap {
 pub(super) fn best_swap(
     prep: &Prepared,
     cfg: &Config,
-    sel: &mut Selection,
+    sel: &mut Findings,
     banned: &[EffectKind],
 ) -> Option<Swap> {
     let what = "comparing look-alikes";
@@ -63,7 +63,7 @@ pub(super) fn best_swap(
 /// pair of look-alikes, [`swap_for_pair`]).
 pub(super) fn swap_look_alike(
     prep: &Prepared,
-    sel: &Selection,
+    sel: &Findings,
     banned: &[EffectKind],
 ) -> Option<Swap> {
     let model = &sel.model;
@@ -144,7 +144,7 @@ fn open_rivals<'a>(
 pub(super) fn swap_for_pair(
     prep: &Prepared,
     cfg: &Config,
-    sel: &Selection,
+    sel: &Findings,
     banned: &[EffectKind],
     tried: &mut Vec<(EffectKind, Vec<Effect>)>,
 ) -> Option<Swap> {
@@ -217,7 +217,7 @@ pub(super) fn apply_swap(
     prep: &Prepared,
     cfg: &Config,
     baseline: &Stage,
-    sel: &mut Selection,
+    sel: &mut Findings,
     swap: Swap,
 ) {
     let t = std::time::Instant::now();
@@ -263,7 +263,7 @@ pub(super) fn apply_swap(
 fn rebuild_steps(
     prep: &Prepared,
     baseline: &Stage,
-    sel: &mut Selection,
+    sel: &mut Findings,
     model: Stage,
     by: &[EffectKind],
     replaced: &Rejected,
@@ -321,7 +321,7 @@ mod tests {
     /// The loop's state as forward selection leaves it when the delivery lag wins the first round,
     /// with `rivals` as its look-alikes (each as that round fitted it, alone on the baseline), and
     /// the offset drift the second round.
-    fn delivery_lag_kept_first(prep: &Prepared, rivals: [EffectKind; 2]) -> Selection {
+    fn delivery_lag_kept_first(prep: &Prepared, rivals: [EffectKind; 2]) -> Findings {
         let base = search::fit_stage(prep, &[]).unwrap();
         let alone = |k| search::search(prep, &base, k).unwrap().stage;
         let model = search::search(prep, &alone(DL), OD).unwrap().stage;

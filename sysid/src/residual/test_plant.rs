@@ -6,7 +6,7 @@ use super::basis::PolyBasis;
 use super::effects::{build, Effect, Prepared};
 use super::lsq;
 use super::search::{self, Stage};
-use super::state::{KeptStep, Selection};
+use super::state::{Findings, KeptStep};
 use super::Series;
 
 /// `n` frames at 25 Hz of two incommensurate strokes fast enough that lags of a few frames show
@@ -78,9 +78,9 @@ pub(crate) fn plant(
 
 /// The loop's state as forward selection leaves it with `model` kept, one effect a round in the
 /// model's order, the `i`-th effect's round having found `rivals[i]` as its look-alikes.
-pub(crate) fn kept(prep: &Prepared, model: &Stage, rivals: Vec<Vec<Effect>>) -> Selection {
+pub(crate) fn kept(prep: &Prepared, model: &Stage, rivals: Vec<Vec<Effect>>) -> Findings {
     let baseline = search::fit_stage(prep, &[]).unwrap();
-    let mut sel = Selection::new(&baseline);
+    let mut sel = Findings::new(&baseline);
     let mut prev = baseline;
     for (j, rivals) in rivals.into_iter().enumerate() {
         let after = search::fit_stage(prep, &model.effects[..=j]).unwrap();

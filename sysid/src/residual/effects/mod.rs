@@ -314,19 +314,9 @@ pub trait EffectModel: Send + Sync {
         1.0
     }
 
-    /// The training SSE as a function of θ when the effect knows a shortcut around building the
-    /// design with it added to `cur` (default: none).
-    fn fast_sse<'a>(
-        &self,
-        _prep: &'a Prepared,
-        _cur: &'a Stage,
-    ) -> Option<Box<dyn Fn(f64) -> f64 + 'a>> {
-        None
-    }
-
-    /// [`Search::VolumeSpectral`]: candidate θ from a scan of `cur`'s residual, `trial` carrying
-    /// the [`Self::needs`] data (default: none).
-    fn scan(&self, _prep: &Prepared, _cur: &Stage, _trial: &Effect) -> Scan {
+    /// [`Search::VolumeSpectral`]: candidate θ from a scan of the current model's residual
+    /// `resid` (per sample, kPa), `trial` carrying the [`Self::needs`] data (default: none).
+    fn scan(&self, _prep: &Prepared, _resid: &[f64], _trial: &Effect) -> Scan {
         Scan::default()
     }
 

@@ -51,11 +51,11 @@ impl EffectModel for PumpRipple {
         }
     }
 
-    fn scan(&self, prep: &Prepared, cur: &Stage, trial: &Effect) -> Scan {
+    fn scan(&self, prep: &Prepared, resid: &[f64], trial: &Effect) -> Scan {
         let (Some(k), Some(c)) = (&trial.stiffness, &trial.damping) else {
             return Scan::default();
         };
-        pump_ripple_periods(prep, &cur.resid, k, c)
+        pump_ripple_periods(prep, resid, k, c)
     }
 
     fn refine(&self, prep: &Prepared, base: &[Effect], stage: Stage) -> Stage {
