@@ -30,7 +30,7 @@ struct Ranked {
 pub(super) fn rounds(prep: &Prepared, cfg: &Config, sel: &mut Findings, banned: &[EffectKind]) {
     while sel.model.effects.len() < cfg.max_effects {
         let t = std::time::Instant::now();
-        let (mut round, candidates) = rank_round(prep, &sel.model, cfg, &mut sel.costs, banned);
+        let (mut round, candidates) = rank_round(prep, &sel.model, cfg, &mut sel.past, banned);
         let searches = secs(t);
         sel.timing.searches += searches;
         sel.timing.rounds.push(RoundTiming {
@@ -91,7 +91,7 @@ fn rank_round(
     prep: &Prepared,
     cur: &Stage,
     cfg: &Config,
-    costs: &mut HashMap<EffectKind, Past>,
+    past: &mut HashMap<EffectKind, Past>,
     banned: &[EffectKind],
 ) -> (Vec<Ranked>, BTreeMap<&'static str, f64>) {
     let todo: Vec<EffectKind> = cfg
@@ -112,7 +112,7 @@ fn rank_round(
             total: todo.len(),
         },
     );
-    let (found, times) = search_all(prep, cur, &todo, cfg, costs);
+    let (found, times) = search_all(prep, cur, &todo, cfg, past);
     let mut ranked: Vec<Ranked> = found
         .into_iter()
         .map(|cand| {
@@ -200,7 +200,7 @@ fn verdict(r: &Ranked) -> Rejected {
 
 /// Searches every candidate on `threads` workers. Each worker takes the next candidate from a
 /// shared queue, costliest first (longest-processing-time-first scheduling), with each
-/// candidate's cost its search time in the previous round (`costs`, updated here; before the first
+/// candidate's cost its search time in the previous round (`past`, updated here; before the first
 /// round the output filters, which rebuild and filter the whole design at every trial θ, are
 /// guessed costliest, [`super::EffectModel::cost_guess`]). Dealing the candidates out in a fixed order had left one worker with both
 /// filters while the other idled. Each search is independent of the schedule, so the results are
@@ -210,16 +210,16 @@ fn search_all(
     cur: &Stage,
     todo: &[EffectKind],
     cfg: &Config,
-    costs: &mut HashMap<EffectKind, Past>,
+    past: &mut HashMap<EffectKind, Past>,
 ) -> (Vec<search::Candidate>, BTreeMap<&'static str, f64>) {
     let threads = cfg.threads.max(1).min(todo.len().max(1));
     let finished = std::sync::atomic::AtomicUsize::new(0);
     let guess = |k: EffectKind| k.cost_guess();
-    let hints: Vec<Option<f64>> = todo.iter().map(|k| costs.get(k).map(|p| p.theta)).collect();
+    let hints: Vec<Option<f64>> = todo.iter().map(|k| past.get(k).map(|p| p.theta)).collect();
     let mut order: Vec<usize> = (0..todo.len()).collect();
     // Stable sort: ties keep the library's order.
     order.sort_by(|&a, &b| {
-        let cost = |i: usize| costs.get(&todo[i]).map_or(guess(todo[i]), |p| p.secs);
+        let cost = |i: usize| past.get(&todo[i]).map_or(guess(todo[i]), |p| p.secs);
         cost(b).total_cmp(&cost(a))
     });
     let next = std::sync::atomic::AtomicUsize::new(0);
@@ -251,7 +251,7 @@ fn search_all(
                         .as_ref()
                         .and_then(|c| c.stage.effects.last())
                         .map_or(f64::NAN, |e| e.theta);
-                    costs.insert(todo[i], Past { secs, theta });
+                    past.insert(todo[i], Past { secs, theta });
                     out[i] = c;
                     times.insert(todo[i].name(), secs);
                 }

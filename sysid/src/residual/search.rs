@@ -388,16 +388,9 @@ impl<'a> Trials<'a> {
             stiffness: needs.stiffness.then(|| stiffness_of(prep, cur)),
             point: std::cell::Cell::new(false),
             base: std::cell::OnceCell::new(),
-            proxy: None,
+            proxy: located_on(prep, cur, kind, &Effect::new(kind, 0.0)),
             hint: None,
         }
-        .located()
-    }
-
-    /// With the stand-in the search locates θ on, if any ([`located_on`]).
-    fn located(mut self) -> Self {
-        self.proxy = located_on(self.prep, self.cur, self.kind, &self.make(0.0));
-        self
     }
 
     /// The effect at `theta`.
@@ -504,7 +497,7 @@ impl<'a> Trials<'a> {
     /// grid point nearest the hint.
     fn on_grid(&self, coord: Coord, grid: Vec<f64>, objective: &impl Fn(f64) -> f64) -> f64 {
         match self.hint {
-            Some(h) => grid_descent(coord, &grid, nearest(coord, &grid, h), objective),
+            Some(h) => grid_descent(coord, &grid, nearest(coord, &grid, h), objective).0,
             None => grid_search(coord, grid, objective),
         }
     }
@@ -542,10 +535,9 @@ impl<'a> Trials<'a> {
         // From a hint, the descent on instants, and its value in the grid's place below.
         let (best, at_best, instants) = match self.hint {
             Some(h) => {
-                let instants =
+                let (instants, at) =
                     grid_descent(Coord::Log, &grid, nearest(Coord::Log, &grid, h), &objective);
-                let best = nearest(Coord::Log, &grid, instants);
-                (best, objective(instants), instants)
+                (nearest(Coord::Log, &grid, instants), at, instants)
             }
             None => {
                 let vals: Vec<f64> = grid.iter().map(|&g| objective(g)).collect();
@@ -575,7 +567,7 @@ impl<'a> Trials<'a> {
             };
         }
         self.point.set(false);
-        let averaged = grid_descent(Coord::Log, &grid, best, &objective);
+        let (averaged, _) = grid_descent(Coord::Log, &grid, best, &objective);
         let fit_averaged = self.fit(averaged);
         let heldout = |s: &Option<Stage>| s.as_ref().map_or(f64::INFINITY, |s| s.rmse_heldout);
         let found = if heldout(&fit_instants) < heldout(&fit_averaged) {
@@ -697,15 +689,20 @@ fn argmin(vals: &[f64]) -> usize {
 /// its neighbours, and where the best point found lies at an end of that bracket (the minimum
 /// may lie beyond it), the same a grid step that way, until it lies inside or the grid ends. On
 /// an objective unimodal over the grid that lands where the whole grid and the refinement do,
-/// evaluating a few points near `start` instead of the grid.
-fn grid_descent(coord: Coord, grid: &[f64], start: usize, objective: &impl Fn(f64) -> f64) -> f64 {
+/// evaluating a few points near `start` instead of the grid. Returns the point and its value.
+fn grid_descent(
+    coord: Coord,
+    grid: &[f64],
+    start: usize,
+    objective: &impl Fn(f64) -> f64,
+) -> (f64, f64) {
     let u: Vec<f64> = grid.iter().map(|&g| coord.from(g)).collect();
     let last = u.len() - 1;
     let mut i = start.min(last);
     let mut way = 0i8;
     loop {
         let (lo, hi) = (u[i.saturating_sub(1)], u[(i + 1).min(last)]);
-        let (x, _) = brent(lo, hi, 9, |x| objective(coord.to(x)));
+        let (x, at_x) = brent(lo, hi, 9, |x| objective(coord.to(x)));
         // Within 2 % of the bracket from an end: as far as the refinement tells ends apart.
         let near = 0.02 * (hi - lo);
         if x - lo <= near && i > 1 && way <= 0 {
@@ -713,7 +710,7 @@ fn grid_descent(coord: Coord, grid: &[f64], start: usize, objective: &impl Fn(f6
         } else if hi - x <= near && i + 1 < last && way >= 0 {
             (i, way) = (i + 1, 1);
         } else {
-            return coord.to(x);
+            return (coord.to(x), at_x);
         }
     }
 }

@@ -76,7 +76,7 @@ pub(super) struct Findings {
     pub(super) timing: Timings,
     /// Each candidate's last search: its time, to schedule the next, and where it ended, where
     /// the next starts (`forward::search_all`).
-    pub(super) costs: HashMap<EffectKind, Past>,
+    pub(super) past: HashMap<EffectKind, Past>,
     /// The final model's joint covariance ([`interval::joint_cov`]), once
     /// `prune::drop_absent` formed it.
     pub(super) final_cov: Option<interval::JointCov>,
@@ -99,7 +99,7 @@ impl Findings {
             unphysical: Vec::new(),
             swaps: Vec::new(),
             timing: Timings::default(),
-            costs: HashMap::new(),
+            past: HashMap::new(),
             final_cov: None,
             replaced: Vec::new(),
             pair_trials: Vec::new(),
