@@ -276,9 +276,20 @@ pub(crate) fn with(base: &[Effect], e: Effect) -> Vec<Effect> {
 }
 
 /// Searches the nonlinear parameter of `kind` added to `cur`, returning the best augmented model
-/// (after the effect's own [`super::effects::EffectModel::refine`]).
+/// (after the effect's own [`super::effects::EffectModel::refine`], [`refined`]).
 pub fn search(prep: &Prepared, cur: &Stage, kind: EffectKind) -> Option<Candidate> {
-    search_from(prep, cur, kind, None)
+    search_from(prep, cur, kind, None).map(|c| refined(prep, cur, c))
+}
+
+/// A searched candidate on `cur` after its effect's own refinement
+/// ([`super::effects::EffectModel::refine`]; most effects have none). A round refines only the
+/// candidates that can matter (`forward::search_all`): a refinement corrects a fit, it does not
+/// make one.
+pub fn refined(prep: &Prepared, cur: &Stage, cand: Candidate) -> Candidate {
+    Candidate {
+        kind: cand.kind,
+        stage: cand.kind.refine(prep, &cur.effects, cand.stage),
+    }
 }
 
 /// [`search`], started where the same candidate's search ended on the model before (`hint`, its
@@ -287,7 +298,7 @@ pub fn search(prep: &Prepared, cur: &Stage, kind: EffectKind) -> Option<Candidat
 /// parameter is sought by descent along its grid from the grid point nearest `hint`
 /// ([`grid_descent`]), which walks on where the minimum lies beyond, instead of over the whole
 /// grid. A model one effect larger moves such a minimum little; where it moved far, the walk
-/// follows it a grid step at a time.
+/// follows it a grid step at a time. The search's best fit, not yet refined ([`refined`]).
 pub fn search_from(
     prep: &Prepared,
     cur: &Stage,
@@ -304,10 +315,7 @@ pub fn search_from(
         // the QR accepts, so the candidate is still tested and reported.
         None => trials.best_grid_fit()?,
     };
-    Some(Candidate {
-        kind,
-        stage: kind.refine(prep, &cur.effects, stage),
-    })
+    Some(Candidate { kind, stage })
 }
 
 /// The trials of one candidate on top of the current model: the effect at each θ with the data
