@@ -87,6 +87,7 @@ fn a_ripple_at_a_harmonic_of_the_cycle_is_not_a_ripple() {
         dt: 0.01,
         duration: 41.0,
         p_integral: 100.0,
+        p_range: 10.0,
         cycle_s,
         rig: sysid::residual::Rig::Generic,
     };
@@ -116,6 +117,7 @@ fn a_lag_of_a_good_part_of_the_cycle_is_named_pressure_dynamics() {
         dt: 0.01,
         duration: 233.0,
         p_integral: 100.0,
+        p_range: 10.0,
         cycle_s,
         rig: sysid::residual::Rig::Generic,
     };
@@ -141,6 +143,7 @@ fn a_play_leak_or_air_pocket_of_a_large_part_of_the_stroke_is_not_kept() {
         dt: 0.04,
         duration: 2000.0,
         p_integral: 20_000.0,
+        p_range: 10.0,
         cycle_s: None,
         rig: sysid::residual::Rig::Syringe,
     };

@@ -23,5 +23,6 @@ mod residual_effects;
 mod residual_gen;
 mod residual_hostsim;
 mod residual_hostsim_shapes;
+mod residual_range;
 mod residual_shapes;
 mod selection_other_rigs;

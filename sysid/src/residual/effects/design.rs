@@ -21,6 +21,8 @@ pub struct Scales {
     pub duration: f64,
     /// `∫ P dt` over the log (kPa·s).
     pub p_integral: f64,
+    /// Range of the measured pressure over the log, max − min (kPa).
+    pub p_range: f64,
     /// The period of the log's cycles when they repeat regularly (s; `Series::cycle_s`).
     pub cycle_s: Option<f64>,
     /// The rig the log comes from (`Series::rig`): the effects' names.
@@ -344,6 +346,12 @@ impl Prepared {
         let dt = dts[dts.len() / 2];
         let v_range = 2.0 * basis.scaling.v_scale;
         let p_integral = *p_int.last().unwrap_or(&0.0);
+        let (p_lo, p_hi) = series
+            .p
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &p| {
+                (lo.min(p), hi.max(p))
+            });
         let train_rows = (0..series.len()).filter(|&k| series.train[k]).collect();
         let held_rows = (0..series.len()).filter(|&k| !series.train[k]).collect();
         let subframe_edges = signal::ppm_edges(&series.vdot);
@@ -362,6 +370,7 @@ impl Prepared {
                 dt,
                 duration,
                 p_integral,
+                p_range: p_hi - p_lo,
                 cycle_s: series.cycle_s,
                 rig: series.rig,
             },

@@ -22,6 +22,27 @@ impl EffectModel for OffsetDrift {
         Search::Degree(3)
     }
 
+    /// A drift that moves the sensor's zero over the log by less than the measured pressure's
+    /// range. The drift is in the reading, so the logged pressure holds it: its range is the
+    /// law's swing plus the drift's excursion, and a true drift moves less than it. A fitted
+    /// excursion (max − min of `Σ c_d P_d(s)` over the log) beyond the whole range is cancelled by
+    /// the law: the "drift" trades against a trend of the inputs (a volume reading creeping), not
+    /// a zero.
+    fn unphysical(&self, e: &Effect, coefs: &[f64], sc: &Scales) -> Option<String> {
+        let x = excursion(coefs);
+        if !x.is_finite() {
+            return Some("offset drift is not finite".into());
+        }
+        (x > sc.p_range).then(|| {
+            format!(
+                "an offset drift of degree {} moves the sensor's zero by {x:.4} kPa over the log, {:.1} times the range of the measured pressure ({:.4} kPa): a drift of the reading is inside the reading's range",
+                e.theta as usize,
+                x / sc.p_range,
+                sc.p_range
+            )
+        })
+    }
+
     fn columns(&self, e: &Effect, prep: &Prepared, _v: &[f64]) -> Vec<Column> {
         (1..=(e.theta as usize))
             .map(|d| {
@@ -56,6 +77,21 @@ impl EffectModel for OffsetDrift {
     }
 }
 
+/// How far the drift `Σ_d c_d P_d(s)` (`coefs[d − 1] = c_d`) moves over the log: max − min over
+/// `s ∈ [−1, 1]`, on 401 points (a cubic at most: to a few parts in 10⁵ of its span).
+fn excursion(coefs: &[f64]) -> f64 {
+    let (lo, hi) = (0..=400).fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), i| {
+        let s = i as f64 / 200.0 - 1.0;
+        let y: f64 = coefs
+            .iter()
+            .enumerate()
+            .map(|(k, c)| c * legendre(k + 1, s))
+            .sum();
+        (lo.min(y), hi.max(y))
+    });
+    hi - lo
+}
+
 /// Legendre polynomial `P_d(s)` by Bonnet's recurrence,
 /// `(k + 1) P_{k+1} = (2k + 1) s P_k − k P_{k−1}`.
 fn legendre(d: usize, s: f64) -> f64 {
@@ -73,7 +109,44 @@ fn legendre(d: usize, s: f64) -> f64 {
 
 #[cfg(test)]
 mod tests {
-    use super::legendre;
+    use super::*;
+    use crate::residual::effects::EffectKind;
+
+    /// The excursion of the fitted drift against the measured pressure's range (2 kPa): a ramp
+    /// `c₁ s` moves by 2|c₁|, an arch `c₂ P₂(s)` by 1.5|c₂| (P₂ runs from −1/2 to 1), the two
+    /// together by what their sum spans; beyond the range the drift is refused with its numbers,
+    /// inside it kept.
+    #[test]
+    fn a_drift_larger_than_the_pressure_range_is_not_kept() {
+        let sc = Scales {
+            v_range: 500.0,
+            dt: 0.01,
+            duration: 200.0,
+            p_integral: 1000.0,
+            p_range: 2.0,
+            cycle_s: None,
+            rig: crate::residual::Rig::Syringe,
+        };
+        let kind = EffectKind(&OffsetDrift);
+        let judge =
+            |coefs: &[f64]| kind.unphysical(&Effect::new(kind, coefs.len() as f64), coefs, &sc);
+        assert!((excursion(&[1.5]) - 3.0).abs() < 1e-12);
+        assert!((excursion(&[0.0, -2.0]) - 3.0).abs() < 1e-12);
+        // s + P₂(s) = 1.5 s² + s − 0.5: from −2/3 at s = −1/3 to 2 at s = 1.
+        assert!((excursion(&[1.0, 1.0]) - 8.0 / 3.0).abs() < 1e-4);
+        let why = judge(&[1.5]).expect("3 kPa against 2");
+        assert!(
+            why.contains("3.0000 kPa") && why.contains("1.5 times"),
+            "{why}"
+        );
+        assert!(why.contains("2.0000 kPa"), "{why}");
+        assert!(judge(&[0.0, -2.0]).is_some());
+        assert!(judge(&[1.0, 1.0]).is_some());
+        assert_eq!(judge(&[0.9]), None);
+        assert_eq!(judge(&[0.0, 1.2]), None);
+        assert_eq!(judge(&[0.5, 0.3, -0.1]), None);
+        assert!(judge(&[f64::NAN]).is_some());
+    }
 
     #[test]
     fn legendre_known_values() {

@@ -29,6 +29,28 @@ impl EffectModel for VolumeDrift {
         )
     }
 
+    /// A drift over the log smaller than the volume range the log covers. A drift of the reading
+    /// is in the reading, `v_logged = v_chamber + r·(t − t₀)`: the logged range holds the chamber's
+    /// own swing plus the drift, so a true drift is smaller than it. A fit at the whole range or
+    /// beyond (the search's end is exactly one range, [`Self::search`]; to rounding) is no reading
+    /// creeping: no volume the chamber held at the log's start would be held at its end, and the
+    /// "drift" trades against a trend of the pressure (a PEEP step, a sensor's zero) instead.
+    fn unphysical(&self, e: &Effect, _coefs: &[f64], sc: &Scales) -> Option<String> {
+        if !e.theta.is_finite() {
+            return Some("volume drift rate is not finite".into());
+        }
+        let drift = e.theta * sc.duration;
+        (drift.abs() >= (1.0 - 1e-9) * sc.v_range).then(|| {
+            format!(
+                "a volume drift of {drift:.4e} mm³ over the log ({:.4e} mm³/s for {:.1} s) is {:.0} % of the volume range the log covers ({:.4e} mm³): a drift of the reading is inside the reading's range",
+                e.theta,
+                sc.duration,
+                100.0 * drift.abs() / sc.v_range,
+                sc.v_range
+            )
+        })
+    }
+
     fn has_nonlinear(&self) -> bool {
         true
     }
@@ -61,5 +83,48 @@ impl EffectModel for VolumeDrift {
         DeviceSupport::host_only(
             "depends on wall-clock time since the log began; correct the volume source instead",
         )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::residual::effects::{EffectKind, Search};
+
+    fn scales() -> Scales {
+        Scales {
+            v_range: 500.0,
+            dt: 0.01,
+            duration: 200.0,
+            p_integral: 1000.0,
+            p_range: 2.0,
+            cycle_s: Some(5.0),
+            rig: crate::residual::Rig::Generic,
+        }
+    }
+
+    /// A drift over the log as large as the volume range (2.5 mm³/s for 200 s on 500 mm³) is
+    /// refused, whatever its sign, with the numbers named; the search's end (exactly one range,
+    /// to rounding) is refused too; a drift of a tenth of the range is kept.
+    #[test]
+    fn a_drift_as_large_as_the_volume_range_is_not_kept() {
+        let sc = scales();
+        let kind = EffectKind(&VolumeDrift);
+        let judge = |rate: f64| kind.unphysical(&Effect::new(kind, rate), &[], &sc);
+        let why = judge(3.0).expect("600 mm³ over the log");
+        assert!(
+            why.contains("6.0000e2 mm³") && why.contains("120 %"),
+            "{why}"
+        );
+        assert!(why.contains("5.0000e2 mm³"), "{why}");
+        assert!(judge(-3.0).is_some());
+        let Search::Signed(_, top) = kind.search(&sc) else {
+            panic!("a signed rate")
+        };
+        assert!(judge(top).is_some() && judge(-top).is_some());
+        assert_eq!(judge(0.25), None);
+        assert_eq!(judge(-0.25), None);
+        assert_eq!(judge(0.98 * top), None);
+        assert!(judge(f64::NAN).is_some());
     }
 }
