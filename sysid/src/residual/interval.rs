@@ -267,7 +267,8 @@ pub fn attach(
     let values = |stage: &Stage, eff: &super::effects::Effect| -> Vec<f64> {
         let f = Fitted {
             prep,
-            stage,
+            beta: &stage.fit.beta,
+            xtx_inv: &stage.fit.xtx_inv,
             effect: eff,
             cols: fitted.cols.clone(),
             theta_se: fitted.theta_se,

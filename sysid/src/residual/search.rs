@@ -47,7 +47,7 @@ use statrs::distribution::{ContinuousCDF, FisherSnedecor};
 
 use super::analysis::{self, lag1, n_eff};
 use super::basis::PolyBasis;
-use super::effects::{build, Design, Effect, EffectKind, Fitted, Prepared, Search};
+use super::effects::{build, Design, Effect, EffectKind, Fitted, ModelView, Prepared, Search};
 use super::lsq::{self, LsFit};
 
 /// One fitted model: effects, design, coefficients and errors.
@@ -94,6 +94,16 @@ impl Stage {
         (0..self.design.owner.len())
             .filter(|&c| self.design.owner[c] == Some(idx))
             .collect()
+    }
+
+    /// The model as an effect sees it: its effects and the numbers of its fit.
+    pub fn view(&self) -> ModelView<'_> {
+        ModelView {
+            effects: &self.effects,
+            beta: &self.fit.beta,
+            owner: &self.design.owner,
+            sse: self.fit.sse,
+        }
     }
 }
 
@@ -288,7 +298,7 @@ pub fn search(prep: &Prepared, cur: &Stage, kind: EffectKind) -> Option<Candidat
 pub fn refined(prep: &Prepared, cur: &Stage, cand: Candidate) -> Candidate {
     Candidate {
         kind: cand.kind,
-        stage: cand.kind.refine(prep, &cur.effects, cand.stage),
+        stage: refine_stage(prep, &cur.effects, cand.kind, cand.stage),
     }
 }
 
@@ -316,6 +326,28 @@ pub fn search_from(
         None => trials.best_grid_fit()?,
     };
     Some(Candidate { kind, stage })
+}
+
+/// [`refined`]: `stage`, the fit the search found with its effect (of `kind`) last after `base`, with that
+/// effect as it refines itself ([`super::effects::EffectModel::refine`]): the model refitted with
+/// the refined effect where that lowers the training SSE, else as found; then the effect completed
+/// with the parameters it has that its fit does not move
+/// ([`super::effects::EffectModel::complete`]).
+fn refine_stage(prep: &Prepared, base: &[Effect], kind: EffectKind, stage: Stage) -> Stage {
+    let Some(found) = stage.effects.last() else {
+        return stage;
+    };
+    let mut stage = match kind.refine(prep, base, found, &stage.view()) {
+        Some(e) => match fit_stage(prep, &with(base, e)) {
+            Some(better) if better.fit.sse < stage.fit.sse => better,
+            _ => stage,
+        },
+        None => stage,
+    };
+    if let Some(e) = stage.effects.last_mut() {
+        kind.complete(prep, e);
+    }
+    stage
 }
 
 /// The trials of one candidate on top of the current model: the effect at each θ with the data
@@ -782,8 +814,13 @@ fn retune_inner(prep: &Prepared, stage: &Stage, target: Option<f64>) -> Stage {
     for _ in 0..RETUNE_REFRESHES {
         let mut fresh = effects.clone();
         let mut any = false;
+        let model = tuned.view();
         for (i, e) in effects.iter().enumerate() {
-            if let Some(f) = e.kind.refresh(prep, &tuned, i) {
+            if let Some(f) = model
+                .effects
+                .get(i)
+                .and_then(|t| e.kind.reanchored(prep, t, &model))
+            {
                 fresh[i] = f;
                 any = true;
             }
@@ -1221,7 +1258,8 @@ pub(crate) fn fitted<'a>(prep: &'a Prepared, stage: &'a Stage, i: usize) -> Fitt
     let inflate = n as f64 / n_eff(n, rho).max(1.0);
     Fitted {
         prep,
-        stage,
+        beta: &stage.fit.beta,
+        xtx_inv: &stage.fit.xtx_inv,
         effect: &stage.effects[i],
         cols: stage.owned_columns(i),
         theta_se: theta_se(prep, stage, i, inflate),

@@ -10,10 +10,10 @@
 use std::sync::Arc;
 
 use super::{
-    param, DeviceSupport, Effect, EffectModel, Fitted, Inputs, Needs, Param, Prepared, Scales,
-    Search, Stage, P_ATM_KPA,
+    param, DeviceSupport, Effect, EffectModel, Fitted, Inputs, ModelView, Needs, Param, Prepared,
+    Scales, Search, P_ATM_KPA,
 };
-use crate::residual::search::{brent, fit_stage, sse_of, with};
+use crate::residual::search::{brent, sse_of, with};
 use crate::residual::signal;
 
 /// Compressible air between plunger and chamber.
@@ -82,10 +82,17 @@ impl EffectModel for AirCompliance {
     /// the pocket takes much of the flow (`residual_hostsim_shapes`: 20 mm³ on irregular strokes,
     /// 1.105 → 1.040 σ). `ẋ` enters only through the damping's slope in flow, so the slopes' noise
     /// does not reach the fit.
-    fn refine(&self, prep: &Prepared, base: &[Effect], mut stage: Stage) -> Stage {
-        let Some(fresh) = self.refresh(prep, &stage, stage.effects.len().saturating_sub(1)) else {
-            return stage;
-        };
+    ///
+    /// The air volume returned is re-tuned on that damping; the engine keeps it where the refit
+    /// lowers the training SSE.
+    fn refine(
+        &self,
+        prep: &Prepared,
+        base: &[Effect],
+        found: &Effect,
+        model: &ModelView,
+    ) -> Option<Effect> {
+        let fresh = self.reanchored(prep, found, model)?;
         let remake = |th: f64| Effect {
             theta: th,
             ..fresh.clone()
@@ -94,23 +101,17 @@ impl EffectModel for AirCompliance {
         let (u, _) = brent(va.ln() - 0.7, va.ln() + 0.7, 10, |x| {
             sse_of(prep, &with(base, remake(x.exp())))
         });
-        if let Some(s2) = fit_stage(prep, &with(base, remake(u.exp()))) {
-            if s2.fit.sse < stage.fit.sse {
-                stage = s2;
-            }
-        }
-        stage
+        Some(remake(u.exp()))
     }
 
-    /// The damping at the chamber's volume and the midway flow ([`Self::refine`]) from `stage`'s
-    /// polynomial and pressure schedule, with the pocket `stage` has.
-    fn refresh(&self, prep: &Prepared, stage: &Stage, idx: usize) -> Option<Effect> {
-        let e = stage.effects.get(idx)?;
+    /// The damping at the chamber's volume and the midway flow ([`Self::refine`]) from `model`'s
+    /// polynomial and pressure schedule, with the pocket `e` has.
+    fn reanchored(&self, prep: &Prepared, e: &Effect, model: &ModelView) -> Option<Effect> {
         let va = e.theta;
-        let beta = &stage.fit.beta[..prep.basis.len()];
+        let beta = model.polynomial(prep);
         let se = &prep.series;
         // The chamber's pressure behind the model's sensor lags, as the design will schedule it.
-        let sched = super::design::pressure_schedule(prep, &stage.effects);
+        let sched = super::design::pressure_schedule(prep, model.effects);
         let sched = sched.as_deref().unwrap_or(&prep.p_sched);
         let dp = signal::akima_slopes(&se.t, sched);
         let damping = (0..se.len())

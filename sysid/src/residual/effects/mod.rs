@@ -111,6 +111,16 @@
 //! let k = d.effects[0].params[0].value;
 //! assert!((k - 4e-5).abs() < 0.05 * 4e-5, "K = {k}");
 //! ```
+//!
+//! The trait's methods take data and give back data (columns, a search, a verdict on
+//! plausibility, a device form, an [`Effect`]), never the loop's fitted stages. An effect that
+//! takes something from the model it is added to (its damping or stiffness, [`EffectModel::needs`])
+//! is handed that model read only, a [`ModelView`] (its effects, the polynomial's coefficients and
+//! those of every column, its training SSE), in two places: [`EffectModel::refine`] improves the
+//! effect the search found beyond its searched θ (an air pocket re-tuned on the damping of the
+//! model that has it, a pump ripple's volume error applied exactly) and the loop refits the model
+//! with it, keeping the refit only where it lowers the training SSE; [`EffectModel::reanchored`]
+//! takes that data again from a model the re-tune has moved.
 
 use serde::Serialize;
 
@@ -147,7 +157,7 @@ pub use sensor_lag::SensorLag;
 pub use transport_delay::TransportDelay;
 pub use volume_drift::VolumeDrift;
 
-pub use super::search::{param, Param, Stage};
+pub use super::search::{param, Param};
 pub use super::DeviceSupport;
 
 /// Atmospheric pressure (kPa) for the isothermal air pocket.
@@ -231,8 +241,11 @@ pub struct Scan {
 pub struct Fitted<'a> {
     /// The data.
     pub prep: &'a Prepared,
-    /// The fitted model the effect belongs to.
-    pub stage: &'a Stage,
+    /// Every coefficient of the fitted model the effect belongs to (the polynomial's, then the
+    /// effects' columns').
+    pub beta: &'a [f64],
+    /// That fit's `(XᵀX)⁻¹`, over the same coefficients.
+    pub xtx_inv: &'a nalgebra::DMatrix<f64>,
     /// The effect.
     pub effect: &'a Effect,
     /// Design indices of the effect's columns, in order.
@@ -246,7 +259,7 @@ pub struct Fitted<'a> {
 impl Fitted<'_> {
     /// Coefficient of the effect's `k`-th column.
     pub fn coef(&self, k: usize) -> f64 {
-        self.stage.fit.beta[self.cols[k]]
+        self.beta[self.cols[k]]
     }
 
     /// Standard error of [`Self::coef`].
@@ -256,7 +269,7 @@ impl Fitted<'_> {
 
     /// `(XᵀX)⁻¹` between the effect's columns `a` and `b` (multiply by [`Self::s2`]).
     pub fn cov(&self, a: usize, b: usize) -> f64 {
-        self.stage.fit.xtx_inv[(self.cols[a], self.cols[b])]
+        self.xtx_inv[(self.cols[a], self.cols[b])]
     }
 
     /// Backlash, transport delay: 1 when the samples fitted best as frame means (an averaging
@@ -264,6 +277,38 @@ impl Fitted<'_> {
     pub fn frame_averaged(&self) -> Param {
         let v = if self.effect.point_sampled { 0.0 } else { 1.0 };
         param("frame_averaged", v, f64::NAN, "1")
+    }
+}
+
+/// A fitted model as an effect sees it, read only: its effects and the numbers of its fit. What
+/// the engine hands an effect that takes something from the model it sits in
+/// ([`EffectModel::refine`], [`EffectModel::reanchored`]).
+#[derive(Clone, Copy, Debug)]
+pub struct ModelView<'a> {
+    /// The model's effects, in the order added.
+    pub effects: &'a [Effect],
+    /// Every coefficient: the polynomial's Chebyshev coefficients over `prep.basis` first
+    /// ([`Self::polynomial`]), then those of the effects' columns.
+    pub beta: &'a [f64],
+    /// Per coefficient, the index in [`Self::effects`] of the effect whose column it is (`None`:
+    /// the polynomial's).
+    pub owner: &'a [Option<usize>],
+    /// Training SSE.
+    pub sse: f64,
+}
+
+impl<'a> ModelView<'a> {
+    /// The polynomial's Chebyshev coefficients over `prep.basis`.
+    pub fn polynomial(&self, prep: &Prepared) -> &'a [f64] {
+        &self.beta[..prep.basis.len()]
+    }
+
+    /// The coefficients of effect `idx`'s columns, in order.
+    pub fn coefs(&self, idx: usize) -> Vec<f64> {
+        (0..self.owner.len())
+            .filter(|&c| self.owner[c] == Some(idx))
+            .map(|c| self.beta[c])
+            .collect()
     }
 }
 
@@ -320,16 +365,30 @@ pub trait EffectModel: Send + Sync {
         Scan::default()
     }
 
-    /// Refines the best fit the search found with the effect last in `stage` added to `base`
-    /// (default: as found).
-    fn refine(&self, _prep: &Prepared, _base: &[Effect], stage: Stage) -> Stage {
-        stage
+    /// The effect the search found (`found`, last in `model`, the fitted model it was found in,
+    /// with the rest of that model `base` before it) improved beyond its searched θ, or `None` to
+    /// keep it as found (default). The engine refits the model with the returned effect in
+    /// `found`'s place and keeps that fit only where its training SSE is lower than `model`'s.
+    fn refine(
+        &self,
+        _prep: &Prepared,
+        _base: &[Effect],
+        _found: &Effect,
+        _model: &ModelView,
+    ) -> Option<Effect> {
+        None
     }
 
-    /// Effect `idx` of `stage` with the data it took from the model it was added to
-    /// ([`Self::needs`]) taken again from `stage` itself, once re-tuning has moved that model;
-    /// `None` where the effect keeps nothing of the model (default).
-    fn refresh(&self, _prep: &Prepared, _stage: &Stage, _idx: usize) -> Option<Effect> {
+    /// Gives the effect the model keeps (after [`Self::refine`]) the parameters it has that its
+    /// fit has not moved from their start, which the model counts and the report lists: a pump
+    /// ripple's count lag, 0 at each cruise speed where refinement fitted none. The fit stays as
+    /// it is (default: nothing to add).
+    fn complete(&self, _prep: &Prepared, _e: &mut Effect) {}
+
+    /// `e`, one of `model`'s effects, re-anchored on `model`: what it took from the model it was
+    /// added to ([`Self::needs`]) taken again from `model` itself, once re-tuning has moved that
+    /// model; `None` where the effect keeps nothing of the model (default).
+    fn reanchored(&self, _prep: &Prepared, _e: &Effect, _model: &ModelView) -> Option<Effect> {
         None
     }
 

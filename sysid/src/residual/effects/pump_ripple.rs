@@ -10,11 +10,11 @@ use std::sync::Arc;
 
 use super::ripple::amplitude;
 use super::{
-    param, Column, DeviceSupport, Effect, EffectModel, Fitted, Inputs, Needs, Param, Prepared,
-    Scales, Scan, Search, Stage,
+    build, param, Column, DeviceSupport, Effect, EffectModel, Fitted, Inputs, ModelView, Needs,
+    Param, Prepared, Scales, Scan, Search,
 };
 use crate::residual::lsq;
-use crate::residual::search::{fit_stage, with};
+use crate::residual::search::{fit_stage, with, Stage};
 use crate::residual::signal::{self, Instants};
 
 /// Ripple periodic in plunger position (lead-screw pitch error, once per screw turn).
@@ -81,9 +81,28 @@ impl EffectModel for PumpRipple {
         pump_ripple_periods(prep, resid, k, c)
     }
 
-    fn refine(&self, prep: &Prepared, base: &[Effect], stage: Stage) -> Stage {
-        let stage = ripple_gauss_newton(prep, base, stage);
-        count_lag_gauss_newton(prep, base, stage)
+    /// The volume error the columns fitted applied exactly (`ripple_gauss_newton`), then the
+    /// count lag at each cruise speed (`count_lag_gauss_newton`): the last effect whose fit
+    /// lowered the training SSE, `None` where none did.
+    fn refine(
+        &self,
+        prep: &Prepared,
+        base: &[Effect],
+        found: &Effect,
+        model: &ModelView,
+    ) -> Option<Effect> {
+        let at = GaussNewton::of(found, model);
+        let sse = at.sse;
+        let at = ripple_gauss_newton(prep, base, at);
+        let at = count_lag_gauss_newton(prep, base, at);
+        (at.sse < sse).then_some(at.effect)
+    }
+
+    /// A count lag of 0 at each cruise speed where refinement fitted none (as it starts from).
+    fn complete(&self, prep: &Prepared, e: &mut Effect) {
+        if e.count_lag.lags.is_empty() {
+            e.count_lag = CountLag::zero(prep.cruise_speeds.clone());
+        }
     }
 
     fn input_stage(&self) -> Option<u32> {
@@ -172,15 +191,32 @@ fn memo_key(e: &Effect) -> Vec<u64> {
     key
 }
 
-/// The volume error `(a, b)` (mm³) of the pump ripple at `idx` of `stage`: what is applied
-/// exactly as an input transform plus the first-order correction its two columns fitted.
-fn pump_ripple_error(stage: &Stage, idx: usize) -> (f64, f64) {
-    let cols = stage.owned_columns(idx);
-    let off = stage.effects[idx].ripple_offset;
-    (
-        off.0 + stage.fit.beta[cols[0]],
-        off.1 + stage.fit.beta[cols[1]],
-    )
+/// Where the Gauss–Newton steps of a pump ripple's refinement stand: the effect last fitted, the
+/// volume error `(a, b)` (mm³) of that fit (what is applied exactly as an input transform plus the
+/// first-order correction its two columns fitted) and its training SSE.
+struct GaussNewton {
+    effect: Effect,
+    error: (f64, f64),
+    sse: f64,
+}
+
+impl GaussNewton {
+    /// The pump ripple `e`, last in the fitted model `model`.
+    fn of(e: &Effect, model: &ModelView) -> Self {
+        let coefs = model.coefs(model.effects.len() - 1);
+        let off = e.ripple_offset;
+        Self {
+            effect: e.clone(),
+            error: (off.0 + coefs[0], off.1 + coefs[1]),
+            sse: model.sse,
+        }
+    }
+
+    /// The pump ripple last in `stage`.
+    fn fitted(stage: &Stage) -> Self {
+        let last = stage.effects.len() - 1;
+        Self::of(&stage.effects[last], &stage.view())
+    }
 }
 
 /// How far (mm³) a logged step count trails the plunger while it moves, which shifts a pump
@@ -497,15 +533,14 @@ pub const RIPPLE_SCAN_STEPS: usize = 6000;
 /// The pump ripple's two columns fit the volume error to first order (stiffness × δ + damping ×
 /// δ̇); apply what they found exactly, as an input transform, and fit what is left: a few
 /// Gauss–Newton steps, kept while the training SSE falls by more than 0.1 %.
-fn ripple_gauss_newton(prep: &Prepared, base: &[Effect], mut stage: Stage) -> Stage {
+fn ripple_gauss_newton(prep: &Prepared, base: &[Effect], mut at: GaussNewton) -> GaussNewton {
     for _ in 0..4 {
-        let last = stage.effects.len() - 1;
-        let mut e = stage.effects[last].clone();
-        e.ripple_offset = pump_ripple_error(&stage, last);
+        let mut e = at.effect.clone();
+        e.ripple_offset = at.error;
         match fit_stage(prep, &with(base, e)) {
-            Some(next) if next.fit.sse < stage.fit.sse => {
-                let small = next.fit.sse > (1.0 - 1e-3) * stage.fit.sse;
-                stage = next;
+            Some(next) if next.fit.sse < at.sse => {
+                let small = next.fit.sse > (1.0 - 1e-3) * at.sse;
+                at = GaussNewton::fitted(&next);
                 if small {
                     break;
                 }
@@ -513,29 +548,27 @@ fn ripple_gauss_newton(prep: &Prepared, base: &[Effect], mut stage: Stage) -> St
             _ => break,
         }
     }
-    stage
+    at
 }
 
 /// How far the logged count trails the plunger at each cruise speed ([`CountLag`]): Gauss–Newton
 /// steps on the lags, each fitting their derivative columns
 /// ([`count_lag_columns`]) together with the model, applying the step, and
 /// refitting the ripple's amplitude; kept while the training SSE falls by more than 0.1 %. The
-/// last step's standard errors are the lags'.
-fn count_lag_gauss_newton(prep: &Prepared, base: &[Effect], mut stage: Stage) -> Stage {
-    let last = stage.effects.len() - 1;
-    if stage.effects[last].count_lag.lags.is_empty() {
-        stage.effects[last].count_lag = CountLag::zero(prep.cruise_speeds.clone());
-    }
+/// last step's standard errors are the lags'. The lags start at 0 ([`PumpRipple::complete`]);
+/// where no step is kept, `at` is returned as it came.
+fn count_lag_gauss_newton(prep: &Prepared, base: &[Effect], mut at: GaussNewton) -> GaussNewton {
+    let mut from = at.effect.clone();
+    PumpRipple.complete(prep, &mut from);
     for _ in 0..4 {
-        let e = stage.effects[last].clone();
+        let e = from.clone();
         let (Some(k), Some(c)) = (&e.stiffness, &e.damping) else {
             break;
         };
-        let ab = pump_ripple_error(&stage, last);
-        let extra = count_lag_columns(&prep.subframe(), k, c, e.theta, ab, &e.count_lag);
+        let extra = count_lag_columns(&prep.subframe(), k, c, e.theta, at.error, &e.count_lag);
         // The design lives only for this fit: the refit below builds its own.
         let (p0, fit) = {
-            let mut design = stage.columns(prep);
+            let mut design = build(prep, &with(base, e.clone()));
             let p0 = design.cols.len();
             design.cols.extend(extra);
             (p0, lsq::fit(&design.cols, &prep.series.p, &prep.train_rows))
@@ -552,9 +585,10 @@ fn count_lag_gauss_newton(prep: &Prepared, base: &[Effect], mut stage: Stage) ->
             .map(|i| (s2 * fit.xtx_inv[(p0 + i, p0 + i)]).sqrt())
             .collect();
         match fit_stage(prep, &with(base, next)) {
-            Some(next) if next.fit.sse < stage.fit.sse => {
-                let small = next.fit.sse > (1.0 - 1e-3) * stage.fit.sse;
-                stage = ripple_gauss_newton(prep, base, next);
+            Some(next) if next.fit.sse < at.sse => {
+                let small = next.fit.sse > (1.0 - 1e-3) * at.sse;
+                at = ripple_gauss_newton(prep, base, GaussNewton::fitted(&next));
+                from = at.effect.clone();
                 if small {
                     break;
                 }
@@ -562,7 +596,7 @@ fn count_lag_gauss_newton(prep: &Prepared, base: &[Effect], mut stage: Stage) ->
             _ => break,
         }
     }
-    stage
+    at
 }
 
 #[cfg(test)]
