@@ -19,14 +19,25 @@
 //!
 //! A parameter the effect reports is a function of its θ and its columns' coefficients
 //! ([`super::effects::EffectModel::params`]); its variance is the delta method over that function,
-//! differentiated numerically (`gᵀ V g`), and its interval `value ± t_{G−1}(0.975) · se`. A
+//! differentiated numerically (`gᵀ V g`), and its half-width `h = t_{G−1}(0.975) · se`. The
+//! interval is `[min(value, m) − h, max(value, m) + h]`: about the reported value and about `m`,
+//! the parameter at the **least-squares minimum**. The search reaches the minimum of the SSE in θ
+//! only to its precision (Brent's refinement to a few tenths of a percent of θ), which on an
+//! informative log is as far as the noise moves the minimum: an interval about the value alone
+//! missed the planted value three times as often as it should (a sensor lag of 80 ms on a
+//! synthetic plant: 83 % of 200 noise draws inside; 95.5 % with `m`, the unit test below). One
+//! Gauss–Newton step from the final model, `δ = (JᵀJ)⁻¹ Jᵀe` over the same Jacobian (its β part
+//! zero, the coefficients being fitted exactly), tells where the minimum lies: `m = value + gᵀδ`.
+//! Where two effects trade along a ridge the step is long and not to be trusted alone, so the
+//! interval keeps the one about the value too. The
+//! reported values stay those of the model as fitted (its predictions, its export). A
 //! parameter that cannot be negative ([`super::effects::EffectModel::nonnegative`], or θ itself
 //! when searched as a positive number and everything derived from θ alone) has its interval
 //! clipped at 0 ([`super::search::Param::ci95_clipped`]).
 //!
 //! The cost: two designs built per searched θ of the final model, then the design itself, one at
-//! a time, and one pass over the training rows reading the design where it is; no search is
-//! repeated.
+//! a time, and one pass over the training rows reading the design where it is (the step comes
+//! from the same pass); no search is repeated.
 
 use nalgebra::DMatrix;
 use statrs::distribution::{ContinuousCDF, StudentsT};
@@ -48,6 +59,9 @@ pub struct JointCov {
     theta: Vec<Option<(usize, bool)>>,
     /// The Student quantile for 95 % with G − 1 degrees of freedom.
     t975: f64,
+    /// One Gauss–Newton step over `[β…, u…]` from the model as fitted toward the least-squares
+    /// minimum of the training SSE: zero in β (fitted exactly), in u the search's own error.
+    step: Vec<f64>,
 }
 
 /// Blocks of consecutive training rows: runs of `rows` without a gap, cut into pieces of
@@ -96,7 +110,7 @@ pub fn sandwich(
     e: &[f64],
     blocks: &[std::ops::Range<usize>],
 ) -> Option<DMatrix<f64>> {
-    sandwich_of(jac.len(), |j, t| jac[j][t], e, blocks)
+    sandwich_of(jac.len(), |j, t| jac[j][t], e, blocks).map(|(v, _)| v)
 }
 
 /// [`sandwich`] over `q` columns read through `col(j, t)` (column `j` at training row `t`), so
@@ -107,7 +121,7 @@ fn sandwich_of(
     col: impl Fn(usize, usize) -> f64,
     e: &[f64],
     blocks: &[std::ops::Range<usize>],
-) -> Option<DMatrix<f64>> {
+) -> Option<(DMatrix<f64>, Vec<f64>)> {
     let n = e.len();
     let g = blocks.len();
     if q == 0 || n <= q || g < 2 {
@@ -126,6 +140,7 @@ fn sandwich_of(
     let mut meat = DMatrix::<f64>::zeros(q, q);
     let mut row = vec![0.0; q];
     let mut gb = nalgebra::DVector::<f64>::zeros(q);
+    let mut total = nalgebra::DVector::<f64>::zeros(q);
     for b in blocks {
         gb.fill(0.0);
         for t in b.clone() {
@@ -140,6 +155,7 @@ fn sandwich_of(
             }
         }
         meat.ger(1.0, &gb, &gb, 1.0);
+        total += &gb;
     }
     for j in 0..q {
         for k in 0..j {
@@ -154,7 +170,12 @@ fn sandwich_of(
             v[(j, k)] /= scale[j] * scale[k];
         }
     }
-    v.iter().all(|x| x.is_finite()).then_some(v)
+    let mut step = &inv * total;
+    for j in 0..q {
+        step[j] /= scale[j];
+    }
+    (v.iter().all(|x| x.is_finite()) && step.iter().all(|x| x.is_finite()))
+        .then(|| (v, step.iter().copied().collect()))
 }
 
 /// The 97.5 % quantile of Student's t with `dof` degrees of freedom.
@@ -230,9 +251,10 @@ pub fn joint_cov(prep: &Prepared, stage: &Stage) -> Option<JointCov> {
             theta_cols[j - p][t]
         }
     };
-    let cov = sandwich_of(p + theta_cols.len(), col, &e, &bl)?;
+    let (cov, step) = sandwich_of(p + theta_cols.len(), col, &e, &bl)?;
     Some(JointCov {
         cov,
+        step,
         theta,
         t975: t975(bl.len() as f64 - 1.0),
     })
@@ -332,7 +354,16 @@ pub fn attach(
             continue;
         }
         let half = jc.t975 * var.sqrt();
-        let (mut lo, hi) = (p.value - half, p.value + half);
+        // Where the least-squares minimum lies from the value the search stopped at (one
+        // Gauss–Newton step, carried to the parameter): the interval holds the one about the
+        // value and the one about that minimum.
+        let shift: f64 = vars
+            .iter()
+            .enumerate()
+            .map(|(a, &va)| g[a] * jc.step[va])
+            .sum();
+        let centre = p.value + if shift.is_finite() { shift } else { 0.0 };
+        let (mut lo, hi) = (centre.min(p.value) - half, centre.max(p.value) + half);
         let nonneg = kind.nonnegative(&p.name)
             || (positive_theta && theta_only[k] && jc.theta[i].is_some() && p.value > 0.0);
         let mut clipped = false;
@@ -488,5 +519,79 @@ mod tests {
         let spans: Vec<(usize, usize)> =
             b.iter().map(|r| (rows[r.start], rows[r.end - 1])).collect();
         assert_eq!(spans, vec![(0, 4), (5, 9), (20, 24), (25, 31)]);
+    }
+}
+
+#[cfg(test)]
+mod calibration {
+    //! The intervals against independent truth: a planted parameter on a synthetic plant inside
+    //! the model class (`test_plant`), searched as the loop searches it, over many noise draws.
+
+    use super::*;
+    use crate::residual::basis::PolyBasis;
+    use crate::residual::effects::{Effect, EffectKind, SensorLag};
+    use crate::residual::search;
+    use crate::residual::test_plant::plant;
+    use crate::residual::Series;
+
+    /// Pseudo-normal noise of unit variance for draw `seed` (a sum of twelve uniforms minus six).
+    fn noise(n: usize, seed: u64) -> Vec<f64> {
+        let mut s = seed
+            .wrapping_mul(0x9e37_79b9_7f4a_7c15)
+            .wrapping_add(1_442_695_040_888_963_407);
+        let mut u = move || {
+            s = s
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1_442_695_040_888_963_407);
+            (s >> 11) as f64 / (1u64 << 53) as f64
+        };
+        (0..n)
+            .map(|_| (0..12).map(|_| u()).sum::<f64>() - 6.0)
+            .collect()
+    }
+
+    /// A sensor lag of 80 ms planted on 1,500 frames with 10 Pa of noise, 200 draws: its 95 %
+    /// interval holds the planted time constant in 90–98 % of them, and is not wider than the
+    /// estimates' own spread calls for (its mean half-width within 1.5 times 1.96 of their
+    /// standard deviation). The search stops within its precision of the least-squares minimum,
+    /// about as far as the noise moves it here; an interval about the value the search stopped
+    /// at, not the minimum, held the truth in 83 % of the draws.
+    #[test]
+    fn the_interval_holds_a_planted_time_constant_in_about_95_percent_of_noise_draws() {
+        let (n, tau, draws) = (1500, 0.08, 200);
+        let kind = EffectKind(&SensorLag);
+        let clean = plant(n, &[Effect::new(kind, tau)], |_| 0.0, 0.0);
+        let se = &clean.series;
+        let (mut inside, mut values, mut halves) = (0, Vec::new(), Vec::new());
+        for d in 0..draws {
+            let e = noise(n, d + 1);
+            let p: Vec<f64> = (0..n).map(|k| se.p[k] + 0.01 * e[k]).collect();
+            let series = Series::new(
+                se.t.clone(),
+                se.v.clone(),
+                se.vdot.clone(),
+                p,
+                se.train.clone(),
+            )
+            .unwrap();
+            let basis = PolyBasis::for_data(&series.v, &series.vdot, 3, 2).unwrap();
+            let prep = Prepared::new(series, basis);
+            let base = search::fit_stage(&prep, &[]).unwrap();
+            let stage = search::search(&prep, &base, kind).unwrap().stage;
+            let jc = joint_cov(&prep, &stage).unwrap();
+            let tc = &effect_params_ci(&prep, &stage, 0, Some(&jc))[0];
+            let [lo, hi] = tc.ci95.unwrap();
+            assert!(lo <= tc.value && tc.value <= hi);
+            inside += usize::from(lo <= tau && tau <= hi);
+            values.push(tc.value);
+            halves.push(0.5 * (hi - lo));
+        }
+        let share = inside as f64 / draws as f64;
+        assert!((0.90..=0.98).contains(&share), "coverage {share}");
+        let m = draws as f64;
+        let mean = values.iter().sum::<f64>() / m;
+        let sd = (values.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (m - 1.0)).sqrt();
+        let half = halves.iter().sum::<f64>() / m;
+        assert!(half < 1.5 * 1.96 * sd, "half-width {half} against sd {sd}");
     }
 }

@@ -1192,8 +1192,8 @@ pub struct Param {
     pub std_err: Option<f64>,
     /// Unit.
     pub unit: &'static str,
-    /// 95 % interval `[lo, hi]` from the final model's joint cluster-robust covariance
-    /// ([`super::interval`]); absent where the parameter has no standard error (a degree, a form)
+    /// 95 % interval `[lo, hi]` from the final model's joint cluster-robust covariance, about the
+    /// value and about the least-squares minimum ([`super::interval`]); absent where the parameter has no standard error (a degree, a form)
     /// or the covariance could not be formed.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub ci95: Option<[f64; 2]>,

@@ -110,9 +110,17 @@ pub fn expected_name(kind: PlantedKind) -> &'static str {
 /// The hysteresis's gap is 2·H_a (inflation minus deflation); the plant's transition v_h and the
 /// loop's width are both the volume of 63 % of the switch; the delivery lag's time constant is
 /// τ_d of the same critically damped second-order lag; the offset drift's change over the log is
-/// D·(e^(−t₀/τ_D) − e^(−t₁/τ_D)). Inertance, air, leak, backlash, delays, creep and the ripple's
+/// D·(e^(−t₀/τ_D) − e^(−t₁/τ_D)). Inertance, air, backlash, delays, creep and the ripple's
 /// amplitude and period are the same quantities in the same units.
-pub fn truth_params(p: &Planted, span_s: (f64, f64)) -> Vec<(&'static str, f64)> {
+///
+/// The leak is compared on the water it lost over the log (`leaked_mm3`: the plant's leaked
+/// volume between the log's first and last frames; the loop's `volume_lost_over_log`, λ·∫P dt),
+/// not on its conductance: the plant's G acts on the positive pressure only (`G·max(P, 0)`, no
+/// water drawn back in under suction), the loop's λ on the signed measured pressure, and the
+/// benchmark's logs reach −15 kPa in fast deflations, so the λ that fits is about
+/// G·∫max(P, 0) dt / ∫P dt (1.13–1.15 on rigs 24, 44 and 52 of seed 1, where λ/G was 1.08–1.17):
+/// two conductances of different forms, one volume.
+pub fn truth_params(p: &Planted, span_s: (f64, f64), leaked_mm3: f64) -> Vec<(&'static str, f64)> {
     match p.kind {
         PlantedKind::Air => vec![("air_volume_at_atmospheric_pressure", p.size)],
         PlantedKind::Hysteresis => vec![("gap_at_mid_volume", 2.0 * p.size), ("width", p.shape)],
@@ -125,7 +133,7 @@ pub fn truth_params(p: &Planted, span_s: (f64, f64)) -> Vec<(&'static str, f64)>
         }
         PlantedKind::Backlash => vec![("play", p.size)],
         PlantedKind::Ripple => vec![("amplitude", p.size), ("period", p.shape)],
-        PlantedKind::Leak => vec![("conductance", p.size)],
+        PlantedKind::Leak => vec![("volume_lost_over_log", leaked_mm3)],
         PlantedKind::TransportDelay => vec![("delay", p.size)],
         PlantedKind::VolumeCreep => vec![("rate", p.size)],
         PlantedKind::DeliveryLag => vec![("time_constant", p.size)],
@@ -381,6 +389,8 @@ fn run_rig(spec: &RigSpec, keep: Option<&Path>, result: &mut RigResult) -> Resul
     let (complete, sizes) = oracle(&rows, ORACLE_SHAPE, &diffs, interaction.as_deref(), sigma)?;
     result.oracle_rmse_kpa = complete;
     let span = (ds.t[0], ds.t[ds.t.len() - 1]);
+    let leaked_at = |k: usize| sim.truth[k + skip].chambers[0].leaked_mm3;
+    let leaked = leaked_at(ds.t.len() - 1) - leaked_at(0);
     result.planted = spec
         .planted
         .iter()
@@ -401,7 +411,7 @@ fn run_rig(spec: &RigSpec, keep: Option<&Path>, result: &mut RigResult) -> Resul
                 params: (if p.other_form {
                     Vec::new()
                 } else {
-                    truth_params(p, span)
+                    truth_params(p, span, leaked)
                 })
                 .into_iter()
                 .map(|(name, truth)| ParamCompare {
@@ -586,7 +596,7 @@ mod tests {
                 shape: 20.0,
                 other_form: false,
             };
-            assert!(!truth_params(&p, (0.0, 600.0)).is_empty());
+            assert!(!truth_params(&p, (0.0, 600.0), 5.0).is_empty());
         }
     }
 
