@@ -251,10 +251,15 @@ fn search_all(
         .collect();
     let mut refine = worth_refining(&gains);
     refine.sort_by(|&a, &b| secs[b].total_cmp(&secs[a]));
-    let searched: Vec<Option<search::Candidate>> = refine.iter().map(|&i| out[i].take()).collect();
+    // Each worker takes its candidate out of its slot (no copy of the fit).
+    let searched: Vec<std::sync::Mutex<Option<search::Candidate>>> = refine
+        .iter()
+        .map(|&i| std::sync::Mutex::new(out[i].take()))
+        .collect();
     let slots: Vec<usize> = (0..refine.len()).collect();
     let (done, more) = on_workers(cfg.threads, &slots, |j| {
-        searched[j].clone().map(|c| search::refined(prep, cur, c))
+        let c = searched[j].lock().map_or(None, |mut c| c.take());
+        c.map(|c| search::refined(prep, cur, c))
     });
     for ((&i, c), s) in refine.iter().zip(done).zip(more) {
         out[i] = c;

@@ -29,11 +29,11 @@
 //! Gauss–Newton step from the final model, `δ = (JᵀJ)⁻¹ Jᵀe` over the same Jacobian (its β part
 //! zero, the coefficients being fitted exactly), tells where the minimum lies: `m = value + gᵀδ`.
 //! Where two effects trade along a ridge the step is long and not to be trusted alone, so the
-//! interval keeps the one about the value too. The
-//! reported values stay those of the model as fitted (its predictions, its export). A
-//! parameter that cannot be negative ([`super::effects::EffectModel::nonnegative`], or θ itself
-//! when searched as a positive number and everything derived from θ alone) has its interval
-//! clipped at 0 ([`super::search::Param::ci95_clipped`]).
+//! interval keeps the one about the value too. The reported values stay those of the model as
+//! fitted (its predictions, its export). A parameter that cannot be negative
+//! ([`super::effects::EffectModel::nonnegative`], or θ itself when searched as a positive number
+//! and everything derived from θ alone) has its interval clipped at 0
+//! ([`super::search::Param::ci95_clipped`]).
 //!
 //! The cost: two designs built per searched θ of the final model, then the design itself, one at
 //! a time, and one pass over the training rows reading the design where it is (the step comes

@@ -91,9 +91,7 @@ impl Stage {
 
     /// The design columns of effect `idx`, in order.
     pub fn owned_columns(&self, idx: usize) -> Vec<usize> {
-        (0..self.design.owner.len())
-            .filter(|&c| self.design.owner[c] == Some(idx))
-            .collect()
+        self.view().owned_columns(idx)
     }
 
     /// The model as an effect sees it: its effects and the numbers of its fit.
@@ -328,10 +326,10 @@ pub fn search_from(
     Some(Candidate { kind, stage })
 }
 
-/// [`refined`]: `stage`, the fit the search found with its effect (of `kind`) last after `base`, with that
-/// effect as it refines itself ([`super::effects::EffectModel::refine`]): the model refitted with
-/// the refined effect where that lowers the training SSE, else as found; then the effect completed
-/// with the parameters it has that its fit does not move
+/// [`refined`]: `stage`, the fit the search found with its effect (of `kind`) last after `base`,
+/// with that effect as it refines itself ([`super::effects::EffectModel::refine`]): the model
+/// refitted with the refined effect where that lowers the training SSE, else as found; then the
+/// effect completed with the parameters it has that its fit does not move
 /// ([`super::effects::EffectModel::complete`]).
 fn refine_stage(prep: &Prepared, base: &[Effect], kind: EffectKind, stage: Stage) -> Stage {
     let Some(found) = stage.effects.last() else {
@@ -1131,11 +1129,7 @@ fn retune_bracket(prep: &Prepared, e: &Effect) -> Option<(Coord, f64, f64)> {
 /// (module docs).
 pub fn unphysical(stage: &Stage, sc: &super::effects::Scales) -> Option<(usize, String)> {
     stage.effects.iter().enumerate().find_map(|(idx, e)| {
-        let coefs: Vec<f64> = stage
-            .owned_columns(idx)
-            .into_iter()
-            .map(|c| stage.fit.beta[c])
-            .collect();
+        let coefs = stage.view().coefs(idx);
         e.kind.unphysical(e, &coefs, sc).map(|why| (idx, why))
     })
 }
@@ -1193,8 +1187,8 @@ pub struct Param {
     /// Unit.
     pub unit: &'static str,
     /// 95 % interval `[lo, hi]` from the final model's joint cluster-robust covariance, about the
-    /// value and about the least-squares minimum ([`super::interval`]); absent where the parameter has no standard error (a degree, a form)
-    /// or the covariance could not be formed.
+    /// value and about the least-squares minimum ([`super::interval`]); absent where the
+    /// parameter has no standard error (a degree, a form) or the covariance could not be formed.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub ci95: Option<[f64; 2]>,
     /// Whether [`Self::ci95`] was clipped at the parameter's physical bound (0: a time constant,

@@ -18,12 +18,12 @@ impl EffectModel for Leak {
         "Fluid escapes through a seal or fitting at a rate proportional to pressure, so the chamber slowly holds less than the syringe has delivered."
     }
 
-    /// λ from the volume range over `∫P dt`; no search when the pressure never rose.
     /// One conductance: a single minimum of the SSE over the search range.
     fn one_minimum(&self) -> bool {
         true
     }
 
+    /// λ from the volume range over `∫P dt`; no search when the pressure never rose.
     fn search(&self, sc: &Scales) -> Search {
         if sc.p_integral > 0.0 {
             Search::Log(

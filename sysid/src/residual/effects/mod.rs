@@ -303,10 +303,17 @@ impl<'a> ModelView<'a> {
         &self.beta[..prep.basis.len()]
     }
 
-    /// The coefficients of effect `idx`'s columns, in order.
-    pub fn coefs(&self, idx: usize) -> Vec<f64> {
+    /// The design indices of effect `idx`'s columns, in order.
+    pub fn owned_columns(&self, idx: usize) -> Vec<usize> {
         (0..self.owner.len())
             .filter(|&c| self.owner[c] == Some(idx))
+            .collect()
+    }
+
+    /// The coefficients of effect `idx`'s columns, in order.
+    pub fn coefs(&self, idx: usize) -> Vec<f64> {
+        self.owned_columns(idx)
+            .into_iter()
             .map(|c| self.beta[c])
             .collect()
     }

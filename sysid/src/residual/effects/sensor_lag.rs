@@ -41,13 +41,13 @@ impl EffectModel for SensorLag {
         ))
     }
 
-    /// From a twentieth of a frame (run inside the frames, a lag that short still moves each
-    /// frame's mean: by τ times the pressure's rate) to 3 s.
     /// One time constant: a single minimum of the SSE over the search range.
     fn one_minimum(&self) -> bool {
         true
     }
 
+    /// From a twentieth of a frame (run inside the frames, a lag that short still moves each
+    /// frame's mean: by τ times the pressure's rate) to 3 s.
     fn search(&self, sc: &Scales) -> Search {
         Search::Log(0.05 * sc.dt, (3.0f64).min(sc.duration / 20.0).max(sc.dt))
     }
