@@ -93,7 +93,7 @@ pub(super) fn swap_look_alike(
             if cand.stage.fit.sse >= model.fit.sse {
                 continue;
             }
-            let stage = retune::look_alike(prep, cand.stage);
+            let (stage, at) = without_turned(prep, retune::look_alike(prep, cand.stage), at);
             let better = stage.fit.sse < model.fit.sse
                 && stage.rmse_heldout < model.rmse_heldout
                 && stage.n_params() <= model.n_params()
@@ -112,6 +112,33 @@ pub(super) fn swap_look_alike(
         }
     }
     best
+}
+
+/// A look-alike's re-tuned model (`stage`, the look-alike last; the replaced effect was at `at`)
+/// without the effects the re-tune turned unphysical, each taken out and the rest re-tuned again,
+/// and where the look-alike goes in the model without them. An effect kept beside a look-alike
+/// of the truth can hold what the look-alike left: on a rig with a sensor lag, backlash and a
+/// pump ripple (the loop benchmark's rig 18 of seed 1), a delivery lag was kept first and a
+/// hysteresis beside it; the sensor lag in the delivery lag's place, re-tuned, fitted the
+/// training rows 25 % better and the held-out rows 13 % better, with the hysteresis reversed
+/// (deflation above inflation), which no friction gives. Without the hysteresis the swap is judged
+/// as any other. The look-alike itself unphysical ends it: the swap is turned down.
+fn without_turned(prep: &Prepared, mut stage: Stage, mut at: usize) -> (Stage, usize) {
+    while let Some((i, _)) = search::unphysical(&stage, &prep.scales) {
+        if i + 1 >= stage.effects.len() {
+            break;
+        }
+        let mut fewer = stage.effects.clone();
+        fewer.remove(i);
+        let Some(base) = search::fit_stage(prep, &fewer) else {
+            break;
+        };
+        stage = retune::look_alike(prep, base);
+        if i < at {
+            at -= 1;
+        }
+    }
+    (stage, at)
 }
 
 /// Where the kept effect `step` is in `model`, and its look-alikes that may take its place (best
@@ -483,5 +510,36 @@ mod tests {
         let (tau, delay) = (theta(&swap.stage, SL), theta(&swap.stage, TD));
         assert!(close(tau, 0.08, 0.02), "sensor lag {tau} s");
         assert!(close(delay, 0.08, 0.02), "transport delay {delay} s");
+    }
+
+    /// A plant with a sensor lag of 80 ms and a drift of the zero, where a delivery lag was kept
+    /// first and an inertance beside it: the sensor lag in the delivery lag's place, re-tuned,
+    /// fits both sets of rows better, with the inertance turned negative (no mass of water
+    /// gives that). The inertance is taken out and the swap judged without it: the sensor lag
+    /// comes in alone, at the planted time constant.
+    #[test]
+    fn an_effect_a_look_alike_turns_unphysical_is_taken_out_of_the_swap() {
+        let prep = plant(
+            N,
+            &[Effect::new(SL, 0.08), Effect::new(OD, 2.0)],
+            |_| 0.0,
+            SIGMA,
+        );
+        let base = search::fit_stage(&prep, &[]).unwrap();
+        let alone = |k| search::search(&prep, &base, k).unwrap().stage;
+        let model = search::search(&prep, &alone(DL), IN).unwrap().stage;
+        assert_eq!(kinds(&model), ["delivery_lag", "inertance"]);
+        let sel = kept(
+            &prep,
+            &model,
+            vec![vec![alone(SL).effects[0].clone()], Vec::new()],
+        );
+
+        let swap = swap_look_alike(&prep, &sel, &[]).expect("the sensor lag swapped in");
+        assert_eq!((swap.out, swap.at, swap.added), (DL, 0, 1));
+        assert_eq!(kinds(&swap.stage), ["sensor_lag"]);
+        let tau = theta(&swap.stage, SL);
+        assert!(close(tau, 0.08, 0.05), "sensor lag {tau} s");
+        assert!(swap.stage.rmse_heldout < model.rmse_heldout);
     }
 }
