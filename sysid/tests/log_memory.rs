@@ -48,7 +48,8 @@ fn peak_reading(frames: usize, crowded: bool, dir: &std::path::Path) -> (usize, 
 
 #[test]
 fn memory_holds_the_requested_columns_only() {
-    let dir = std::env::temp_dir().join(format!("sysid-log-memory-{}", std::process::id()));
+    let dir = std::path::Path::new(env!("CARGO_TARGET_TMPDIR"))
+        .join(format!("sysid-log-memory-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let (mut extra, mut alones) = (Vec::new(), Vec::new());
     for frames in [20_000, 80_000] {

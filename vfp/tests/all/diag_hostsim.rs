@@ -187,7 +187,7 @@ fn readme_runs() {
     use vfp::cmd::chow::{self, Args as ChowArgs};
     use vfp::cmd::stiffness::{self, Args as StiffnessArgs};
     use vfp::opts::LogInput;
-    let dir = std::env::temp_dir().join("vfp-readme");
+    let dir = std::path::Path::new(env!("CARGO_TARGET_TMPDIR")).join("vfp-readme");
     std::fs::create_dir_all(&dir).unwrap();
     let img = Path::new(env!("CARGO_MANIFEST_DIR")).join("../docs/guide/src/img");
     let plots = OutputOpts {

@@ -469,7 +469,8 @@ fn nothing_runnable_exports_the_refitted_baseline_and_says_so() {
 }
 
 fn write_csv(s: &Synthetic, name: &str) -> std::path::PathBuf {
-    let dir = std::env::temp_dir().join(format!("vfp-export-aug-{}-{name}", std::process::id()));
+    let dir = std::path::Path::new(env!("CARGO_TARGET_TMPDIR"))
+        .join(format!("vfp-export-aug-{}-{name}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let path = dir.join("log.csv");
     let mut log = sysid::log::Log::default();

@@ -153,7 +153,8 @@ fn exported_ar_model_round_trips() {
 
 #[test]
 fn identify_json_has_the_documented_fields() {
-    let dir = std::env::temp_dir().join(format!("vfp-test-{}", std::process::id()));
+    let dir = std::path::Path::new(env!("CARGO_TARGET_TMPDIR"))
+        .join(format!("vfp-test-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let path = dir.join("sim.csv");
     let tr = Protocol {

@@ -12,7 +12,8 @@ use vfp::cmd::stiffness::ShapeOpts;
 use vfp::opts::{DataOpts, OutputOpts};
 
 fn tmpdir(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("vfp-force-aug-{name}-{}", std::process::id()));
+    let d = std::path::Path::new(env!("CARGO_TARGET_TMPDIR"))
+        .join(format!("vfp-force-aug-{name}-{}", std::process::id()));
     std::fs::create_dir_all(&d).unwrap();
     d
 }

@@ -4,7 +4,8 @@ use std::path::PathBuf;
 use std::process::Command;
 
 fn write_log(name: &str, rows: usize, volume: impl Fn(f64) -> f64) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("vfp-identify-cli-{}", std::process::id()));
+    let dir = std::path::Path::new(env!("CARGO_TARGET_TMPDIR"))
+        .join(format!("vfp-identify-cli-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let path = dir.join(name);
     let mut s = String::from("time_s,volume_mm3,flow_mm3_s,pressure_kpa\n");

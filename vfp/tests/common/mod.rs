@@ -8,9 +8,12 @@ pub fn root() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
 }
 
-/// A fresh, empty scratch directory `vfp-<test>-<pid>-<name>` in the system's temp dir.
+/// A fresh, empty scratch directory `vfp-<test>-<pid>-<name>` in the target directory's `tmp`
+/// (Cargo's `CARGO_TARGET_TMPDIR`: `cargo clean` removes it; nothing is left in the system's temp
+/// dir).
 pub fn scratch(test: &str, name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("vfp-{test}-{}-{name}", std::process::id()));
+    let d = std::path::Path::new(env!("CARGO_TARGET_TMPDIR"))
+        .join(format!("vfp-{test}-{}-{name}", std::process::id()));
     let _ = std::fs::remove_dir_all(&d);
     std::fs::create_dir_all(&d).expect("temp dir is writable");
     d
