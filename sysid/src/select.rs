@@ -692,7 +692,7 @@ fn score_shape(
 
 /// A [`CvScore`] of ν parameters from each block's SSE and samples: pooled ē, its standard
 /// error, and admissibility (every block's error at most `var_p`, module docs).
-fn cv_score(
+pub(crate) fn cv_score(
     n: usize,
     m: usize,
     nu: usize,
@@ -988,10 +988,16 @@ pub fn selection(
 /// The polynomial shape `vfp export` exports and `vfp diagnose` starts from by default: the
 /// one-SE choice on `ds` (see the module docs). `None` when no shape can be fitted.
 pub fn poly_shape(ds: &Dataset) -> Option<(usize, usize)> {
+    poly_shape_scores(ds).map(|(shape, _, _)| shape)
+}
+
+/// [`poly_shape`] with the blocks and every shape's score it chose from.
+pub fn poly_shape_scores(ds: &Dataset) -> Option<((usize, usize), Blocks, Vec<CvScore>)> {
     let sc = Scaling::from_data(&ds.v, &ds.vdot).ok()?;
-    let (_, scores) = cross_validate(ds, &sc, poly::MAX_DEGREE, poly::MAX_DEGREE).ok()?;
+    let (blocks, scores) = cross_validate(ds, &sc, poly::MAX_DEGREE, poly::MAX_DEGREE).ok()?;
     let ok: Vec<CvScore> = scores.into_iter().flatten().collect();
-    one_se_rule(&ok).map(|s| (s.n, s.m))
+    let s = one_se_rule(&ok)?;
+    Some(((s.n, s.m), blocks, ok))
 }
 
 /// Shapes in the order a default export tries them: the one-SE choice, then the other candidates

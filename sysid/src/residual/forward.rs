@@ -32,6 +32,18 @@ pub(super) fn rounds(prep: &Prepared, cfg: &Config, sel: &mut Findings, banned: 
         let t = std::time::Instant::now();
         let (mut round, candidates) = rank_round(prep, &sel.model, cfg, &mut sel.past, banned);
         let searches = secs(t);
+        if sel.model.effects.is_empty() && sel.leads.is_none() {
+            sel.leads = Some(
+                round
+                    .iter()
+                    .filter(|r| {
+                        r.unphysical.is_none() && r.cand.stage.rmse_heldout < sel.model.rmse_heldout
+                    })
+                    .take(super::reshape::LEADS)
+                    .filter_map(|r| r.cand.stage.effects.last().cloned())
+                    .collect(),
+            );
+        }
         sel.timing.searches += searches;
         sel.timing.rounds.push(RoundTiming {
             effects_before: sel.model.effects.len(),

@@ -42,6 +42,7 @@ pub mod interval;
 mod lsq;
 mod prune;
 mod report;
+pub mod reshape;
 mod retune;
 pub mod search;
 pub(crate) mod signal;
@@ -59,6 +60,7 @@ use crate::progress::{tell, Progress};
 pub use analysis::{ResidualAnalysis, Signature};
 pub use basis::PolyBasis;
 pub use effects::{Effect, EffectKind, EffectModel, REGISTRY};
+pub use reshape::{ModelCv, ReshapeReport};
 pub use search::{param, NestedTest, Param, Stage};
 
 /// The kind of rig a log comes from, for the names of the effects the loop reports (issue 35):
@@ -284,6 +286,10 @@ pub struct Config {
     /// The rig the effects are named for ([`Rig`]); `None`: the series' own ([`Series::rig`]),
     /// which [`diagnose_log`] takes from the log's header.
     pub rig: Option<Rig>,
+    /// Whether [`diagnose_dataset`] chooses the baseline's shape again with the effects
+    /// ([`reshape`]) when it selected the shape (default: no; `vfp diagnose --reshape`: on the
+    /// loop benchmark its gains do not pay for the CPU it adds, the guide has the numbers).
+    pub reshape: bool,
 }
 
 impl Default for Config {
@@ -302,6 +308,7 @@ impl Default for Config {
             design_memory: effects::DESIGN_MEMORY,
             progress: None,
             rig: None,
+            reshape: false,
         }
     }
 }
@@ -506,6 +513,13 @@ pub struct Diagnosis {
     /// The polynomial basis (its scaling) the models were fitted in.
     #[serde(skip)]
     pub basis: basis::PolyBasis,
+    /// The first round's leading candidates as searched on the baseline ([`reshape`]).
+    #[serde(skip)]
+    pub leads: Vec<effects::Effect>,
+    /// The baseline's shape chosen again with the effects ([`reshape`]): the shape selected at
+    /// the start, the one the final model uses and why; absent when the shape was given.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub reshape: Option<ReshapeReport>,
     /// Where the loop's time went ([`Timings`]; wall-clock seconds).
     #[serde(rename = "timing_s")]
     pub timing: Timings,
@@ -536,6 +550,9 @@ pub struct Timings {
     pub alternatives: f64,
     /// The held-out residual analyses before and after, and the report's parameters.
     pub residual_analysis: f64,
+    /// The shape chosen again with the effects ([`reshape`]): its probe, and the loop from the
+    /// other start when it ran twice (the loop whose model was not kept, or the first one).
+    pub reshape: f64,
     /// The whole loop.
     pub total: f64,
     /// Each round of forward selection in order (rounds after a swap included).
@@ -545,7 +562,7 @@ pub struct Timings {
 impl Timings {
     /// The stages in the loop's order, each with its seconds and its name in the reports
     /// (`vfp diagnose --timings`, `vfp bench-loop`); `total` not included.
-    pub fn stages(&self) -> [(&'static str, f64); 9] {
+    pub fn stages(&self) -> [(&'static str, f64); 10] {
         [
             ("shape selection", self.shape_selection),
             ("baseline fit", self.baseline),
@@ -556,6 +573,7 @@ impl Timings {
             ("applying swaps", self.apply_swaps),
             ("alternatives", self.alternatives),
             ("residual analysis", self.residual_analysis),
+            ("shape with effects", self.reshape),
         ]
     }
 }
@@ -782,8 +800,7 @@ pub struct LogDiagnoseError {
 }
 
 /// The loop on the first requested chamber of a log, as `vfp diagnose` runs it: the baseline
-/// shape is `cfg.n`, `cfg.m` when `shape_given`, else the training-AICc selection
-/// ([`select_shape`], (3, 2) when the sweep fits nothing).
+/// shape is `cfg.n`, `cfg.m` when `shape_given`, else selected ([`diagnose_dataset`]).
 pub fn diagnose_log(
     data: &crate::dataset::LogData,
     cfg: &Config,
@@ -795,18 +812,147 @@ pub fn diagnose_log(
         chamber: ds.chamber,
         source,
     };
-    let mut series = series_from_dataset(ds).map_err(wrap)?;
-    series.rig = cfg.rig.unwrap_or_else(|| Rig::of_log(&data.comments));
+    let mut cfg = cfg.clone();
+    cfg.rig = Some(cfg.rig.unwrap_or_else(|| Rig::of_log(&data.comments)));
+    diagnose_dataset(ds, &cfg, shape_given).map_err(wrap)
+}
+
+/// The loop on a data set ([`series_from_dataset`]; the rig `cfg.rig`, else this project's
+/// syringe rig). The baseline shape is `cfg.n`, `cfg.m` when `shape_given`; else the
+/// selection's ([`select_shape`], (3, 2) when the sweep fits nothing), and then, with
+/// `cfg.reshape`, chosen again with the effects ([`reshape`]): where a simpler shape with an
+/// effect is the cross-validated choice, the loop runs again from it, and the two outcomes are
+/// compared by the same rule ([`Diagnosis::reshape`] says which was kept and why).
+pub fn diagnose_dataset(
+    ds: &Dataset,
+    cfg: &Config,
+    shape_given: bool,
+) -> Result<Diagnosis, DiagnoseError> {
+    let mut series = series_from_dataset(ds)?;
+    series.rig = cfg.rig.unwrap_or_default();
     let mut cfg = cfg.clone();
     let t = std::time::Instant::now();
+    let selection = if shape_given {
+        None
+    } else {
+        crate::select::poly_shape_scores(ds)
+    };
     if !shape_given {
-        (cfg.n, cfg.m) = select_shape(ds).unwrap_or((3, 2));
+        (cfg.n, cfg.m) = selection.as_ref().map_or((3, 2), |s| s.0);
     }
     let shape_s = secs(t);
-    let mut d = diagnose(series, &cfg).map_err(wrap)?;
+    let keep_series = (cfg.reshape && selection.is_some()).then(|| series.clone());
+    let mut d = diagnose(series, &cfg)?;
     d.timing.shape_selection = shape_s;
     d.timing.total += shape_s;
+    if let (Some(series), Some((shape, blocks, scores))) = (keep_series, selection) {
+        d = reshape_step(d, &series, &cfg, shape, blocks, &scores)?;
+    }
     Ok(d)
+}
+
+/// The shape chosen again with the effects ([`reshape`]) after the loop `d` from `shape`.
+fn reshape_step(
+    d: Diagnosis,
+    series: &Series,
+    cfg: &Config,
+    shape: (usize, usize),
+    blocks: crate::select::Blocks,
+    scores: &[crate::select::CvScore],
+) -> Result<Diagnosis, DiagnoseError> {
+    let t = std::time::Instant::now();
+    let Some(setup) = reshape::CvSetup::new(blocks, series) else {
+        return Ok(d);
+    };
+    let say = |what: &str| tell(cfg.progress, Progress::Stage { what, total: 0 });
+    say("the baseline's shape with the effects");
+    let probe = reshape::probe(series, &setup, shape, scores, &d.final_effects, &d.leads);
+    let (second, numbers) = match probe {
+        reshape::Probe::Stay(report) => {
+            let mut d = d;
+            d.reshape = Some(report);
+            let s = secs(t);
+            d.timing.reshape = s;
+            d.timing.total += s;
+            return Ok(d);
+        }
+        reshape::Probe::Retry {
+            shape: second,
+            probe,
+            effects,
+            kept,
+        } => {
+            if !kept
+                && !effects
+                    .iter()
+                    .all(|e| reshape::lead_passes(series, cfg, second, e))
+            {
+                let mut d = d;
+                d.reshape = Some(ReshapeReport {
+                    selected: shape,
+                    used: shape,
+                    verdict: format!(
+                        "kept: the first round's lead the probe chose with ({}, {}) does not pass the loop's test there",
+                        second.0, second.1
+                    ),
+                    second_start: None,
+                    probe,
+                    outcomes: Vec::new(),
+                });
+                let s = secs(t);
+                d.timing.reshape = s;
+                d.timing.total += s;
+                return Ok(d);
+            }
+            (second, probe)
+        }
+    };
+    let probe_s = secs(t);
+    let mut cfg2 = cfg.clone();
+    (cfg2.n, cfg2.m) = second;
+    let d2 = diagnose(series.clone(), &cfg2)?;
+    let t = std::time::Instant::now();
+    let compared = reshape::compare(
+        series,
+        &setup,
+        shape,
+        &d.final_effects,
+        second,
+        &d2.final_effects,
+    );
+    let (take, outcomes) = compared.unwrap_or((false, Vec::new()));
+    let compare_s = secs(t);
+    let verdict = if take {
+        format!(
+            "changed: from ({}, {}) the loop ended on a model the cross-validated rule prefers to the one from ({}, {})",
+            second.0, second.1, shape.0, shape.1
+        )
+    } else {
+        format!(
+            "kept: the loop from ({}, {}) did not end on a model the cross-validated rule prefers",
+            second.0, second.1
+        )
+    };
+    let (mut kept, other) = if take { (d2, d) } else { (d, d2) };
+    let used = (kept.baseline.n, kept.baseline.m);
+    kept.reshape = Some(ReshapeReport {
+        selected: shape,
+        used,
+        verdict,
+        second_start: Some(second),
+        probe: numbers,
+        outcomes,
+    });
+    // The loop whose model was not kept is part of the step's time; the first loop's shape
+    // selection stays where it was.
+    let extra = probe_s + compare_s + other.timing.total - other.timing.shape_selection;
+    if take {
+        kept.timing.shape_selection = other.timing.shape_selection;
+        kept.timing.total += other.timing.shape_selection;
+    }
+    kept.timing.reshape = extra;
+    kept.timing.total += extra;
+    Ok(kept)
 }
 
 /// The `vfp diagnose --json` document (also the Python package's `diagnose`): the diagnosis at

@@ -124,6 +124,8 @@ pub(super) fn report(prep: &Prepared, cfg: &Config, baseline: &Stage, sel: Findi
             .chain(sel.kept.iter().map(|k| k.model.clone()))
             .collect(),
         basis: prep.basis.clone(),
+        leads: sel.leads.unwrap_or_default(),
+        reshape: None,
         timing: sel.timing,
     }
 }

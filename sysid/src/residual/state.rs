@@ -87,6 +87,10 @@ pub(super) struct Findings {
     pub(super) pair_trials: Vec<(EffectKind, Vec<Effect>)>,
     /// Each final effect's alternatives, in the model's order ([`alternatives::alternatives`]).
     pub(super) alternatives: Vec<Vec<alternatives::Alternative>>,
+    /// The first round's leading candidates (lowest held-out RMSE first; physical, with a
+    /// held-out gain), each as searched on the baseline: what the shape's re-selection tries with
+    /// a simpler polynomial ([`super::reshape`]).
+    pub(super) leads: Option<Vec<Effect>>,
 }
 
 impl Findings {
@@ -104,6 +108,7 @@ impl Findings {
             replaced: Vec::new(),
             pair_trials: Vec::new(),
             alternatives: Vec::new(),
+            leads: None,
         }
     }
 }

@@ -24,5 +24,6 @@ mod residual_gen;
 mod residual_hostsim;
 mod residual_hostsim_shapes;
 mod residual_range;
+mod residual_reshape;
 mod residual_shapes;
 mod selection_other_rigs;

@@ -82,6 +82,10 @@ pub struct Args {
         conflicts_with = "gate"
     )]
     pub only: Vec<usize>,
+    /// Diagnose with the baseline's shape chosen again with the effects (`vfp diagnose
+    /// --reshape`; off by default, as in `vfp diagnose`).
+    #[arg(long)]
+    pub reshape: bool,
 }
 
 /// The polynomial shape of the oracle's fits: host-sim's chamber law (`host_sim::law`, the paper's
@@ -267,7 +271,12 @@ fn stages(t: &Timings) -> BTreeMap<String, f64> {
 }
 
 /// Simulates, diagnoses and scores one rig; an `Err` is the reason the rig cannot be scored.
-fn run_rig(spec: &RigSpec, keep: Option<&Path>, result: &mut RigResult) -> Result<(), String> {
+fn run_rig(
+    spec: &RigSpec,
+    keep: Option<&Path>,
+    reshape: bool,
+    result: &mut RigResult,
+) -> Result<(), String> {
     let sim = simulate(&spec.scenario()).map_err(|e| format!("simulation: {e}"))?;
     if let Some(f) = sim.first_event("fault") {
         return Err(format!("the firmware latched a fault: {f:?}"));
@@ -290,7 +299,10 @@ fn run_rig(spec: &RigSpec, keep: Option<&Path>, result: &mut RigResult) -> Resul
     let mut data = data.map_err(|e| format!("reading the log back: {e}"))?;
     data.datasets.truncate(1);
     // `vfp diagnose LOG`'s configuration: its defaults, the shape selected.
-    let cfg = Config::default();
+    let cfg = Config {
+        reshape,
+        ..Config::default()
+    };
     let cpu0 = process_cpu_s();
     let d: Diagnosis = diagnose_log(&data, &cfg, false).map_err(|e| format!("diagnosis: {e}"))?;
     let cpu1 = process_cpu_s();
@@ -501,9 +513,10 @@ pub fn run(args: &Args) -> Result<(), Error> {
     let command = match &args.gate {
         Some(g) => format!("vfp bench-loop --gate {}", g.display()),
         None => format!(
-            "vfp bench-loop --rigs {n} --seed {seed} --samples {},{}{}{}",
+            "vfp bench-loop --rigs {n} --seed {seed} --samples {},{}{}{}{}",
             samples.0,
             samples.1,
+            if args.reshape { " --reshape" } else { "" },
             if forms == FormChoice::Usual {
                 String::new()
             } else {
@@ -528,7 +541,7 @@ pub fn run(args: &Args) -> Result<(), Error> {
             label: spec.label(),
             ..RigResult::default()
         };
-        if let Err(e) = run_rig(&spec, args.keep_logs.as_deref(), &mut r) {
+        if let Err(e) = run_rig(&spec, args.keep_logs.as_deref(), args.reshape, &mut r) {
             r.error = Some(e);
         }
         // One line per rig even into a file (a long run's log); `--quiet` silences it.

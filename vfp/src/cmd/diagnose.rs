@@ -26,6 +26,12 @@ pub struct Args {
     /// on the training cycles).
     #[arg(long, value_name = "N,M")]
     pub model: Option<String>,
+    /// Choose the selected shape again with the effects: where a much simpler shape plus an
+    /// effect is the cross-validated choice, run the loop again from it and keep the outcome the
+    /// same rule prefers (JSON `reshape`; off by default: on the loop benchmark it costs more CPU
+    /// than its gains pay for, see the guide). No effect with `--model`.
+    #[arg(long)]
+    pub reshape: bool,
     /// Level of the nested F-test.
     #[arg(long, default_value_t = 1e-3)]
     pub alpha: f64,
@@ -109,6 +115,7 @@ pub fn run(args: &Args) -> Result<(), Error> {
         progress: crate::progress::shown()
             .then_some(crate::progress::stages as sysid::progress::ProgressFn),
         rig: args.rig,
+        reshape: args.reshape,
         ..Config::default()
     };
     if !args.effects.is_empty() {
@@ -310,6 +317,9 @@ pub fn report(path: &Path, chamber: u8, split: &str, d: &Diagnosis, u: &DisplayU
         u.p(d.baseline.rmse_train),
         u.p(d.baseline.rmse_heldout)
     );
+    if let Some(r) = &d.reshape {
+        reshape_lines(&mut s, r, u);
+    }
     let _ = writeln!(
         s,
         "  residual: Ljung–Box p = {:.2e}, lag-1 autocorrelation {:.2}, strongest input {} (lag {}, r = {:.2}), spectral peak {:.3} Hz, inflation − deflation {:+.4} {p}",
@@ -728,4 +738,37 @@ fn shape_panels(panels: &[Area<'_>], a: &ResidualAnalysis, u: &DisplayUnits) -> 
         &[],
     )?;
     Ok(())
+}
+
+/// The shape chosen again with the effects: which was selected, which is used, and the
+/// cross-validated numbers that decided.
+fn reshape_lines(s: &mut String, r: &sysid::residual::ReshapeReport, u: &DisplayUnits) {
+    let p = u.pressure();
+    let _ = writeln!(
+        s,
+        "  shape: selected ({}, {}) without effects, used ({}, {}); {}",
+        r.selected.0, r.selected.1, r.used.0, r.used.1, r.verdict
+    );
+    let rows = if r.outcomes.is_empty() {
+        &r.probe
+    } else {
+        &r.outcomes
+    };
+    for m in rows {
+        let with = if m.effects.is_empty() {
+            "alone".to_string()
+        } else {
+            format!("+ {}", m.effects.join(" + "))
+        };
+        let _ = writeln!(
+            s,
+            "    ({}, {}) {with}: {} parameters, cross-validated typical RMSE {:.4} {p} (excess {:.4} ± {:.4})",
+            m.n,
+            m.m,
+            m.nu,
+            u.p(m.typical_rmse),
+            m.excess.0,
+            m.excess.1
+        );
+    }
 }

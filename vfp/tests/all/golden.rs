@@ -276,6 +276,17 @@ fn diagnose_real() {
     golden_json("diagnose-bag", &root(), &["diagnose", BAG, "--json"]);
 }
 
+/// The bag-lung log with the shape chosen again with the effects (`--reshape`): the loop runs
+/// again from (4, 1) and keeps that outcome.
+#[test]
+fn diagnose_real_reshape() {
+    golden_json(
+        "diagnose-bag-reshape",
+        &root(),
+        &["diagnose", BAG, "--json", "--reshape"],
+    );
+}
+
 #[test]
 fn diagnose_quicklung_model() {
     golden_json(
