@@ -40,6 +40,7 @@ fn effect_reports(prep: &Prepared, sel: &Findings) -> Vec<EffectReport> {
             device: step.kind.device_support(),
             runner_up: step.runner_up.clone(),
             alternatives: sel.alternatives.get(i).cloned().unwrap_or_default(),
+            experiment: None,
         })
         .collect()
 }
@@ -124,6 +125,7 @@ pub(super) fn report(prep: &Prepared, cfg: &Config, baseline: &Stage, sel: Findi
             .chain(sel.kept.iter().map(|k| k.model.clone()))
             .collect(),
         basis: prep.basis.clone(),
+        envelope: Default::default(),
         timing: sel.timing,
     }
 }
