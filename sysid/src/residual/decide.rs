@@ -13,20 +13,26 @@
 //! and 1,000 ms. Each is turned into the volume and flow columns a log of it would hold
 //! ([`Run::series`]: the firmware's trapezoidal profile at its default acceleration, [`ACCEL`],
 //! to the step, each 40 ms frame the mean of 8 instants; an approximation of the planner's
-//! timing to within its rounding, the motion before the first stroke left out). The kept model
-//! and each alternative, as fitted (polynomial coefficients, effects at their parameters, their
-//! linear coefficients), predict the pressure along it ([`predict`]; an effect scheduled on the
-//! chamber's pressure reads the model's own prediction). The second log's polynomial is refitted,
-//! so what it can absorb of the difference does not count: the difference `d` is taken beyond
-//! the polynomial's span on the experiment's samples (least squares, [`beyond_polynomial`]).
-//! The expected separation is [`expected_z`]: with white noise σ and one of the two models
-//! true, the other's squared errors exceed its own by `Σd²` on average with a standard deviation
-//! `2σ√(Σd²)`, a z of `√(Σd²)/(2σ)`, over the held-out share of the samples. Candidates are
-//! compared over one cycle, scaled to as many cycles as fit in [`BUDGET_S`]; the one whose
+//! timing to within its rounding, the motion before the first stroke left out), with the motion
+//! inside the frames as planned (the loop otherwise rebuilds it from the frame means). The kept
+//! model and each alternative, as fitted (polynomial coefficients, effects at their parameters,
+//! their linear coefficients), predict the pressure along it ([`predict`]; an effect scheduled
+//! on the chamber's pressure reads the polynomial's prediction while candidates are compared,
+//! the model's own for the one proposed). The second log's polynomial is refitted, so what it
+//! can absorb of the difference does not count: the difference `d` is taken beyond the
+//! polynomial's span on the experiment's samples (least squares, [`beyond_polynomial`]). The
+//! effects' own linear coefficients are refitted too, which the measure does not take off: it
+//! errs towards separating. The expected separation is [`expected_z`]: with white noise σ and
+//! one of the two models true, the other's squared errors exceed its own by `Σd²` on average with
+//! a standard deviation `2σ√(Σd²)`, a z of `√(Σd²)/(2σ)`, over the held-out share of the
+//! samples. Candidates are compared over one cycle, scaled to as many cycles as fit in
+//! [`BUDGET_S`], one coordinate at a time (the flows and dwell on a quarter-range stroke in the
+//! middle, then the stroke's length and place, then the dwell again: about 25 of the grid's
+//! 150, each run's columns and kept prediction made once for every effect). The one whose
 //! smallest z over the alternatives is largest is proposed, with as many cycles as its z needs
 //! to reach [`TARGET_Z`] (z grows as the square root of the length; between [`MIN_S`] and
-//! [`MAX_S`]), then evaluated over its full length.
-//! σ is the final model's held-out RMSE (the noise plus what the model still misses).
+//! [`MAX_S`]), then evaluated over its full length. σ is the final model's held-out RMSE (the
+//! noise plus what the model still misses).
 //!
 //! **Decision** ([`decide`]). On the second log, its own polynomial (the first log's shape, its
 //! own scaling) is refitted on its training cycles with the kept model's effects, and with each
@@ -58,7 +64,7 @@ pub const ACCEL: f64 = 500.0;
 /// A telemetry frame, s (25 Hz).
 pub const FRAME_S: f64 = 0.04;
 /// Instants (ADC conversions) a frame is the mean of.
-pub const OVERSAMPLE: usize = 8;
+pub const OVERSAMPLE: usize = signal::SUB_SAMPLES;
 /// Motion the candidates are compared over, s (the cycles that fit in it; at least one).
 pub const BUDGET_S: f64 = 60.0;
 /// Expected z the proposed experiment is made long enough for (above [`ALT_Z`], with a margin
@@ -191,9 +197,15 @@ impl Run {
     }
 
     /// The columns a log of the strokes would hold (module docs): [`REST_S`] at rest at `v_low`,
-    /// the strokes, the last dwell; 40 ms frames, each the mean of [`OVERSAMPLE`] instants of
-    /// the step position and the commanded flow. Pressure zero, every row training.
+    /// the strokes, the last dwell; 40 ms frames (stamped at their middle), each the mean of
+    /// [`OVERSAMPLE`] instants of the step position and the commanded flow. Pressure zero, every
+    /// row training.
     pub fn series(&self, rig: Rig) -> Series {
+        self.columns(rig).0
+    }
+
+    /// [`Run::series`] and the flow at each frame's instants (frame k's at `k·8 ..`).
+    fn columns(&self, rig: Rig) -> (Series, Vec<f64>) {
         let d = self.v_high - self.v_low;
         let dwell = self.dwell_ms as f64 * 1e-3;
         // Legs: start time, direction, flow.
@@ -220,11 +232,10 @@ impl Run {
             let base = if dir > 0.0 { self.v_low } else { self.v_high };
             (base + dir * s, dir * q)
         };
-        let (mut tt, mut v, mut q) = (
-            Vec::with_capacity(frames),
-            Vec::with_capacity(frames),
-            Vec::with_capacity(frames),
-        );
+        let mut tt = Vec::with_capacity(frames);
+        let mut v = Vec::with_capacity(frames);
+        let mut q = Vec::with_capacity(frames);
+        let mut sub = Vec::with_capacity(frames * OVERSAMPLE);
         for k in 0..frames {
             let (mut sv, mut sq) = (0.0, 0.0);
             for j in 0..OVERSAMPLE {
@@ -232,13 +243,14 @@ impl Run {
                 let (a, b) = at(tc);
                 sv += a;
                 sq += b;
+                sub.push(b);
             }
-            tt.push((k + 1) as f64 * FRAME_S);
+            tt.push((k as f64 + 0.5) * FRAME_S);
             v.push(sv / OVERSAMPLE as f64);
             q.push(sq / OVERSAMPLE as f64);
         }
         let n = tt.len();
-        Series {
+        let series = Series {
             vddot: signal::acceleration_hermite(&tt, &v, &q),
             t: tt,
             v,
@@ -247,7 +259,8 @@ impl Run {
             train: vec![true; n],
             cycle_s: None,
             rig,
-        }
+        };
+        (series, sub)
     }
 
     /// What kind of motion it is, in words.
@@ -268,44 +281,74 @@ impl Run {
 
 /// `model`'s pressure along `series` (kPa per sample; module docs): its polynomial in `basis`
 /// and its effects at their parameters, their per-sample schedules recomputed there; an effect
-/// scheduled on the chamber's pressure reads the model's own prediction (twice: the polynomial's,
-/// then the model's). `None` when the model's columns do not match its coefficients.
-pub fn predict(series: &Series, basis: &PolyBasis, model: &FittedModel) -> Option<Vec<f64>> {
-    let nb = basis.len();
-    if model.beta.len() < nb || series.len() < 2 {
+/// scheduled on the chamber's pressure reads the polynomial's prediction, then (with `passes`
+/// 2 or more) the model's own from the pass before. `None` when the model's columns do not match
+/// its coefficients.
+pub fn predict(
+    series: &Series,
+    basis: &PolyBasis,
+    model: &FittedModel,
+    passes: usize,
+) -> Option<Vec<f64>> {
+    if series.len() < 2 {
+        return None;
+    }
+    predict_in(&Prepared::new(series.clone(), basis.clone()), model, passes)
+}
+
+/// [`predict`] on a prepared series (its motion's reconstruction inside the frames, the costly
+/// part, shared by every model predicted on it).
+fn predict_in(prep: &Prepared, model: &FittedModel, passes: usize) -> Option<Vec<f64>> {
+    let nb = prep.basis.len();
+    if model.beta.len() < nb {
         return None;
     }
     let poly = &model.beta[..nb];
-    let mut s = series.clone();
-    let prep = Prepared::new(s.clone(), basis.clone());
-    let mut pred = lsq::predict(&build(&prep, &[]).cols, poly);
+    let mut pred = lsq::predict(&build(prep, &[]).cols, poly);
     if model.effects.is_empty() {
         return Some(pred);
     }
-    let passes = if model
+    let on_pressure = model
         .effects
         .iter()
-        .any(|e| e.kind.uses_measured_pressure())
-    {
-        2
-    } else {
-        1
-    };
-    for _ in 0..passes {
-        s.p = pred;
-        let prep = Prepared::new(s.clone(), basis.clone());
+        .any(|e| e.kind.uses_measured_pressure());
+    for _ in 0..if on_pressure { passes.max(1) } else { 1 } {
+        let with_p;
+        let prep = if on_pressure {
+            with_p = with_pressure(prep, pred);
+            &with_p
+        } else {
+            prep
+        };
         let effects: Vec<_> = model
             .effects
             .iter()
-            .map(|e| validate::with_schedules(&prep, e, poly))
+            .map(|e| validate::with_schedules(prep, e, poly))
             .collect();
-        let design = build(&prep, &effects);
+        let design = build(prep, &effects);
         if design.cols.len() != model.beta.len() {
             return None;
         }
         pred = lsq::predict(&design.cols, &model.beta);
     }
     Some(pred)
+}
+
+/// `prep` with `p` as its measured pressure (what an effect scheduled on the pressure reads), the
+/// rest shared.
+fn with_pressure(prep: &Prepared, p: Vec<f64>) -> Prepared {
+    let mut q = prep.clone();
+    q.p_int = signal::cumulative_integral(&q.series.t, &p);
+    q.scales.p_integral = q.p_int.last().copied().unwrap_or(0.0);
+    let (lo, hi) = p
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &x| {
+            (lo.min(x), hi.max(x))
+        });
+    q.scales.p_range = hi - lo;
+    q.p_sched = p.clone();
+    q.series.p = p;
+    q
 }
 
 /// `d` less its least-squares projection on the columns of `basis` along `series` (the part of a
@@ -376,105 +419,202 @@ pub struct Experiment {
     pub scenario: String,
 }
 
-/// The candidates over `env` (module docs), each with one cycle.
-fn candidates(env: &Envelope) -> Vec<Run> {
-    let lo = env.v_min.max(0.0).ceil();
-    let hi = env.v_max.floor();
-    let span = hi - lo;
-    let fmax = env.max_flow.min(MAX_FLOW).floor();
-    if !(span >= MIN_STROKE && fmax >= 5.0) {
-        return Vec::new();
-    }
-    let slow = (fmax / 5.0).round().max(1.0);
-    let flow_sets = [
-        vec![fmax],
-        vec![(fmax / 2.0).round()],
-        vec![slow],
-        vec![slow, fmax],
-    ];
-    let mut out = Vec::new();
-    for frac in [0.125, 0.25, 0.5, 1.0] {
-        let a = (span * frac).round();
-        if a < MIN_STROKE {
-            continue;
-        }
-        let mut lows = vec![lo, (lo + 0.5 * (span - a)).round(), hi - a];
-        lows.dedup();
-        for &v_low in &lows {
-            for flows in &flow_sets {
-                for dwell_ms in [0, 200, 1000] {
-                    out.push(Run {
-                        v_low,
-                        v_high: v_low + a,
-                        cycles: 1,
-                        dwell_ms,
-                        flows: flows.clone(),
-                    });
-                }
-            }
-        }
-    }
-    out
+/// The grid the candidates are drawn from over `env` (module docs): stroke lengths, the lowest
+/// and highest volume, the flow sets, the dwells; `None` when the envelope leaves no stroke.
+struct Grid {
+    lo: f64,
+    hi: f64,
+    strokes: Vec<f64>,
+    flow_sets: Vec<Vec<f64>>,
+    dwells: [u32; 3],
 }
 
-/// Each alternative's expected z and the RMS difference over `run` against `kept` (`None` where
-/// a model cannot be evaluated).
-fn separations(
-    run: &Run,
-    basis: &PolyBasis,
-    env: &Envelope,
-    kept: &FittedModel,
-    alts: &[&FittedModel],
-) -> Option<Vec<(f64, f64)>> {
-    let s = run.series(env.rig);
-    let k = predict(&s, basis, kept)?;
-    alts.iter()
-        .map(|m| {
-            let a = predict(&s, basis, m)?;
-            let d: Vec<f64> = k.iter().zip(&a).map(|(x, y)| x - y).collect();
-            let d = beyond_polynomial(&s, basis, &d);
-            let zero = vec![0.0; d.len()];
-            let rms = (d.iter().map(|x| x * x).sum::<f64>() / d.len() as f64).sqrt();
-            Some((expected_z(&d, &zero, env.sigma, env.held_share), rms))
+impl Grid {
+    fn over(env: &Envelope) -> Option<Self> {
+        let lo = env.v_min.max(0.0).ceil();
+        let hi = env.v_max.floor();
+        let span = hi - lo;
+        let fmax = env.max_flow.min(MAX_FLOW).floor();
+        if !(span >= MIN_STROKE && fmax >= 5.0) {
+            return None;
+        }
+        let slow = (fmax / 5.0).round().max(1.0);
+        let mut strokes: Vec<f64> = [0.125, 0.25, 0.5, 1.0]
+            .iter()
+            .map(|f| (span * f).round())
+            .filter(|&a| a >= MIN_STROKE)
+            .collect();
+        strokes.dedup();
+        Some(Self {
+            lo,
+            hi,
+            strokes,
+            flow_sets: vec![
+                vec![fmax],
+                vec![(fmax / 2.0).round()],
+                vec![slow],
+                vec![slow, fmax],
+            ],
+            dwells: [0, 200, 1000],
         })
-        .collect()
+    }
+
+    /// Where a stroke of `a` mm³ may sit: at the bottom, the middle or the top of the range.
+    fn lows(&self, a: f64) -> Vec<f64> {
+        let mut lows = vec![
+            self.lo,
+            (self.lo + 0.5 * (self.hi - self.lo - a)).round(),
+            self.hi - a,
+        ];
+        lows.dedup();
+        lows
+    }
+
+    fn run(&self, v_low: f64, a: f64, flows: &[f64], dwell_ms: u32) -> Run {
+        Run {
+            v_low,
+            v_high: v_low + a,
+            cycles: 1,
+            dwell_ms,
+            flows: flows.to_vec(),
+        }
+    }
 }
 
-/// The experiment for a kept effect whose alternatives are `alts` (name, z on this log, model),
-/// the final model `kept` in `basis`, over `env` (module docs); `None` when the envelope leaves
-/// no stroke or no model can be evaluated.
-pub fn propose(
-    basis: &PolyBasis,
-    env: &Envelope,
-    kept: &FittedModel,
-    alts: &[(&str, f64, &FittedModel)],
-) -> Option<Experiment> {
+/// Predictions along candidate runs, each computed once for every effect that asks (the kept
+/// model's is the same for all of them).
+struct Predictions<'a> {
+    basis: &'a PolyBasis,
+    env: &'a Envelope,
+    kept: &'a FittedModel,
+    /// Per run: its columns prepared and the kept model's pressure along them.
+    done: std::cell::RefCell<Vec<(Run, Option<Along>)>>,
+}
+
+/// A run's columns prepared, and the kept model's pressure along them.
+type Along = std::rc::Rc<(Prepared, Vec<f64>)>;
+
+impl Predictions<'_> {
+    /// The run's columns prepared and the kept model's prediction along them, with `passes`.
+    fn along(&self, run: &Run, passes: usize) -> Option<Along> {
+        let (series, sub) = run.columns(self.env.rig);
+        let prep = Prepared::new(series, self.basis.clone()).with_sub_flows(sub);
+        let k = predict_in(&prep, self.kept, passes)?;
+        Some(std::rc::Rc::new((prep, k)))
+    }
+
+    /// [`Self::along`] with one pass, each run's made once.
+    fn kept_along(&self, run: &Run) -> Option<Along> {
+        if let Some((_, r)) = self.done.borrow().iter().find(|(r, _)| r == run) {
+            return r.clone();
+        }
+        let made = self.along(run, 1);
+        self.done.borrow_mut().push((run.clone(), made.clone()));
+        made
+    }
+
+    /// Each alternative's expected z and the RMS difference over `run` against the kept model
+    /// (`None` where a model cannot be evaluated); `passes` as [`predict`]'s (1 to compare
+    /// candidates, 2 for the one proposed).
+    fn separations(
+        &self,
+        run: &Run,
+        alts: &[&FittedModel],
+        passes: usize,
+    ) -> Option<Vec<(f64, f64)>> {
+        let made = if passes == 1 {
+            self.kept_along(run)?
+        } else {
+            self.along(run, passes)?
+        };
+        let (prep, k) = (&made.0, &made.1);
+        alts.iter()
+            .map(|m| {
+                let a = predict_in(prep, m, passes)?;
+                let d: Vec<f64> = k.iter().zip(&a).map(|(x, y)| x - y).collect();
+                let d = beyond_polynomial(&prep.series, self.basis, &d);
+                let zero = vec![0.0; d.len()];
+                let rms = (d.iter().map(|x| x * x).sum::<f64>() / d.len() as f64).sqrt();
+                Some((
+                    expected_z(&d, &zero, self.env.sigma, self.env.held_share),
+                    rms,
+                ))
+            })
+            .collect()
+    }
+
+    /// The smallest expected z over `alts` of `run` (one cycle) repeated for [`BUDGET_S`].
+    fn score(&self, run: &Run, alts: &[&FittedModel]) -> Option<f64> {
+        let cycles = (BUDGET_S / run.cycle_s()).floor().clamp(1.0, 1000.0);
+        let sep = self.separations(run, alts, 1)?;
+        let z = sep.iter().map(|s| s.0).fold(f64::INFINITY, f64::min) * cycles.sqrt();
+        z.is_finite().then_some(z)
+    }
+}
+
+/// The experiment for a kept effect whose alternatives are `alts` (name, z on this log, model)
+/// (module docs); `None` when the envelope leaves no stroke or no model can be evaluated. The
+/// candidates are searched one coordinate at a time: the flows and dwell on a quarter-range
+/// stroke in the middle, then with the best of them the stroke's length and place, then the
+/// dwell again (about 25 candidates of the grid's 150).
+fn propose_with(preds: &Predictions, alts: &[(&str, f64, &FittedModel)]) -> Option<Experiment> {
+    let env = preds.env;
     if alts.is_empty() || env.sigma.is_nan() || env.sigma <= 0.0 {
         return None;
     }
+    let grid = Grid::over(env)?;
     let models: Vec<&FittedModel> = alts.iter().map(|a| a.2).collect();
     let mut best: Option<(f64, Run)> = None;
-    for mut run in candidates(env) {
-        let cycles = (BUDGET_S / run.cycle_s()).floor().clamp(1.0, 1000.0);
-        let Some(sep) = separations(&run, basis, env, kept, &models) else {
-            continue;
-        };
-        // z grows as the square root of the cycles.
-        let z = sep.iter().map(|s| s.0).fold(f64::INFINITY, f64::min) * cycles.sqrt();
-        run.cycles = cycles as u32;
-        if z.is_finite() && best.as_ref().is_none_or(|b| z > b.0) {
-            best = Some((z, run));
+    let consider = |best: &mut Option<(f64, Run)>, run: Run| {
+        if let Some(z) = preds.score(&run, &models) {
+            if best.as_ref().is_none_or(|b| z > b.0) {
+                *best = Some((z, run));
+            }
         }
+    };
+    let a0 = grid.strokes[grid.strokes.len().saturating_sub(1).min(1)];
+    let mid = grid.lows(a0)[grid.lows(a0).len() / 2];
+    for flows in &grid.flow_sets {
+        for &dwell in &grid.dwells {
+            consider(&mut best, grid.run(mid, a0, flows, dwell));
+        }
+    }
+    let (flows, dwell) = best.as_ref().map(|b| (b.1.flows.clone(), b.1.dwell_ms))?;
+    for &a in &grid.strokes {
+        for v_low in grid.lows(a) {
+            consider(&mut best, grid.run(v_low, a, &flows, dwell));
+        }
+    }
+    let (v_low, a) = best.as_ref().map(|b| (b.1.v_low, b.1.v_high - b.1.v_low))?;
+    for &d in &grid.dwells {
+        consider(&mut best, grid.run(v_low, a, &flows, d));
     }
     let (z_budget, mut run) = best?;
     // As many cycles as reach the target z (z grows as the square root of the length), within
     // the shortest and longest lengths proposed.
-    let per_cycle = z_budget / (run.cycles as f64).sqrt();
+    let per_cycle = z_budget / (BUDGET_S / run.cycle_s()).floor().clamp(1.0, 1000.0).sqrt();
     let c = run.cycle_s();
     let lo = (MIN_S / c).ceil().max(1.0);
     let hi = (MAX_S / c).floor().max(lo);
     run.cycles = ((TARGET_Z / per_cycle).powi(2).ceil()).clamp(lo, hi) as u32;
-    let sep = separations(&run, basis, env, kept, &models)?;
+    let smallest = |sep: &[(f64, f64)]| sep.iter().map(|s| s.0).fold(f64::INFINITY, f64::min);
+    let mut sep = preds.separations(&run, &models, 2)?;
+    // An effect tied to the clock (a drift) separates faster than the square root of the
+    // length: halve the cycles while the target is still reached (at most three times).
+    for _ in 0..3 {
+        let half = run.cycles / 2;
+        if smallest(&sep) < 2.0 * TARGET_Z || (half as f64) < lo {
+            break;
+        }
+        let shorter = Run {
+            cycles: half,
+            ..run.clone()
+        };
+        match preds.separations(&shorter, &models, 2) {
+            Some(s) if smallest(&s) >= TARGET_Z => (run, sep) = (shorter, s),
+            _ => break,
+        }
+    }
     let separations: Vec<Separation> = alts
         .iter()
         .zip(&sep)
@@ -509,6 +649,24 @@ pub fn propose(
     })
 }
 
+/// The experiment for a kept effect whose alternatives are `alts` (name, z on this log, model),
+/// the final model `kept` in `basis`, over `env` (module docs); `None` when the envelope leaves
+/// no stroke or no model can be evaluated.
+pub fn propose(
+    basis: &PolyBasis,
+    env: &Envelope,
+    kept: &FittedModel,
+    alts: &[(&str, f64, &FittedModel)],
+) -> Option<Experiment> {
+    let preds = Predictions {
+        basis,
+        env,
+        kept,
+        done: Default::default(),
+    };
+    propose_with(&preds, alts)
+}
+
 /// The experiments of `d`'s kept effects that have alternatives, set on their reports; only on
 /// this project's syringe rig, whose firmware runs the commands proposed.
 pub fn attach(d: &mut Diagnosis) {
@@ -518,16 +676,26 @@ pub fn attach(d: &mut Diagnosis) {
     if d.rig != Rig::Syringe {
         return;
     }
-    for e in &mut d.effects {
-        if e.alternatives.is_empty() {
-            continue;
-        }
-        let alts: Vec<(&str, f64, &FittedModel)> = e
-            .alternatives
-            .iter()
-            .map(|a| (a.effect.as_str(), a.z, &a.model))
-            .collect();
-        e.experiment = propose(&d.basis, &d.envelope, kept, &alts);
+    let preds = Predictions {
+        basis: &d.basis,
+        env: &d.envelope,
+        kept,
+        done: Default::default(),
+    };
+    let experiments: Vec<Option<Experiment>> = d
+        .effects
+        .iter()
+        .map(|e| {
+            let alts: Vec<(&str, f64, &FittedModel)> = e
+                .alternatives
+                .iter()
+                .map(|a| (a.effect.as_str(), a.z, &a.model))
+                .collect();
+            propose_with(&preds, &alts)
+        })
+        .collect();
+    for (e, x) in d.effects.iter_mut().zip(experiments) {
+        e.experiment = x;
     }
 }
 
