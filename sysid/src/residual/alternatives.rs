@@ -72,6 +72,11 @@ pub struct Alternative {
     /// Parameters of the model with it less those of the final model (negative: it is the
     /// simpler).
     pub extra_params: i64,
+    /// The final model with it in their place, as fitted (its effects, their per-sample
+    /// schedules left out, and its coefficients): what an experiment that decides is planned
+    /// with ([`super::decide`]) and what a second log scores.
+    #[serde(skip)]
+    pub model: validate::FittedModel,
 }
 
 /// A kept effect's candidates to try again (module docs).
@@ -224,6 +229,7 @@ pub(super) fn alternatives(prep: &Prepared, inp: &Inputs) -> Vec<Vec<Alternative
             rmse_heldout: alt.rmse_heldout,
             z,
             extra_params: alt.n_params() as i64 - model.n_params() as i64,
+            model: validate::FittedModel::of(alt).without_samples(),
         })
     };
     let mut found: Vec<(Vec<usize>, Alternative)> = Vec::new();

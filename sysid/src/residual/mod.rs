@@ -35,6 +35,7 @@
 pub mod alternatives;
 pub mod analysis;
 mod basis;
+pub mod decide;
 pub mod effects;
 mod forward;
 pub(crate) mod inframe;
@@ -363,6 +364,11 @@ pub struct EffectReport {
     /// ([`alternatives`]); absent when the data tell it apart from every one tried.
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub alternatives: Vec<alternatives::Alternative>,
+    /// Where it has alternatives: a short motion of the firmware's own commands whose log would
+    /// tell them apart, with the separation expected ([`decide`]); `vfp diagnose LOG --decide
+    /// OTHER.csv` decides on the log recorded with it.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub experiment: Option<decide::Experiment>,
 }
 
 /// Whether an effect term can run on the device.
@@ -520,6 +526,10 @@ pub struct Diagnosis {
     /// the start, the one the final model uses and why; absent when the shape was given.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub reshape: Option<ReshapeReport>,
+    /// The log's volume range, fastest flow and noise (what an experiment may ask of the rig,
+    /// [`decide`]).
+    #[serde(skip)]
+    pub envelope: decide::Envelope,
     /// Where the loop's time went ([`Timings`]; wall-clock seconds).
     #[serde(rename = "timing_s")]
     pub timing: Timings,
@@ -683,6 +693,12 @@ pub fn diagnose(series: Series, cfg: &Config) -> Result<Diagnosis, DiagnoseError
     let t = std::time::Instant::now();
     let mut d = report::report(&prep, cfg, &baseline, sel);
     d.timing.residual_analysis = secs(t);
+    // The experiments that would decide between a kept effect and its alternatives: counted
+    // with the alternatives, whose follow-up they are.
+    let t = std::time::Instant::now();
+    d.envelope = decide::Envelope::of(&prep.series, d.final_model.rmse_heldout);
+    decide::attach(&mut d);
+    d.timing.alternatives += secs(t);
     d.timing.total = secs(started);
     tell(cfg.progress, Progress::Done);
     Ok(d)

@@ -40,6 +40,7 @@ fn effect_reports(prep: &Prepared, sel: &Findings) -> Vec<EffectReport> {
             device: step.kind.device_support(),
             runner_up: step.runner_up.clone(),
             alternatives: sel.alternatives.get(i).cloned().unwrap_or_default(),
+            experiment: None,
         })
         .collect()
 }
@@ -126,6 +127,7 @@ pub(super) fn report(prep: &Prepared, cfg: &Config, baseline: &Stage, sel: Findi
         basis: prep.basis.clone(),
         leads: sel.leads.unwrap_or_default(),
         reshape: None,
+        envelope: Default::default(),
         timing: sel.timing,
     }
 }

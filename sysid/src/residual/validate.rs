@@ -84,6 +84,20 @@ impl FittedModel {
             beta: stage.fit.beta.to_vec(),
         }
     }
+
+    /// The same model without the per-sample data its effects hold over the log it was fitted
+    /// on (the damping and stiffness schedules, kept as empty markers: [`with_schedules`]
+    /// recomputes them on the samples the model is evaluated at; the chamber's pressure, which
+    /// the design sets): what is kept of a model to evaluate elsewhere, a few numbers.
+    pub fn without_samples(mut self) -> Self {
+        let empty = std::sync::Arc::new(Vec::new());
+        for e in &mut self.effects {
+            e.damping = e.damping.as_ref().map(|_| empty.clone());
+            e.stiffness = e.stiffness.as_ref().map(|_| empty.clone());
+            e.pressure = None;
+        }
+        self
+    }
 }
 
 /// The error after one kept effect, on the other log.
@@ -344,7 +358,12 @@ pub fn paired_z(a: &[f64], b: &[f64], blocks: &[Vec<usize>]) -> f64 {
 }
 
 /// Held-out RMSEs, gain and paired z of `with` against `without` (squared errors per row).
-fn compare(effect: String, without: &[f64], with: &[f64], blocks: &[Vec<usize>]) -> CarryOver {
+pub(super) fn compare(
+    effect: String,
+    without: &[f64],
+    with: &[f64],
+    blocks: &[Vec<usize>],
+) -> CarryOver {
     let rows: usize = blocks.iter().map(Vec::len).sum();
     let rmse =
         |e: &[f64]| (blocks.iter().flatten().map(|&k| e[k]).sum::<f64>() / rows as f64).sqrt();
@@ -383,7 +402,7 @@ fn rmse_on(prep: &Prepared, model: &FittedModel) -> f64 {
 
 /// `e` with its per-sample schedules (damping, stiffness) recomputed on `prep`'s samples from the
 /// polynomial part `poly` of the model it belongs to.
-fn with_schedules(prep: &Prepared, e: &Effect, poly: &[f64]) -> Effect {
+pub(super) fn with_schedules(prep: &Prepared, e: &Effect, poly: &[f64]) -> Effect {
     let along = |d| basis_derivative(prep, poly, d);
     Effect {
         damping: e.damping.as_ref().map(|_| along(PolyBasis::damping)),

@@ -19,6 +19,7 @@ mod nn_sweep;
 mod poly_identification;
 mod poly_selection;
 mod residual_custom_effect;
+mod residual_decide;
 mod residual_effects;
 mod residual_gen;
 mod residual_hostsim;

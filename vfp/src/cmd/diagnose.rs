@@ -9,6 +9,7 @@ use crate::opts::{effect_parser, LogInput, OutputOpts};
 use crate::units::DisplayUnits;
 use crate::Error;
 use sysid::residual::analysis::Binned;
+use sysid::residual::decide::{decide_log, Decision, Experiment};
 use sysid::residual::validate::{validate_log, Validation};
 use sysid::residual::{
     diagnose_log, document, Config, Diagnosis, EffectKind, EffectReport, Param, ResidualAnalysis,
@@ -47,6 +48,13 @@ pub struct Args {
     /// held-out cycles (JSON: `validation`, `validation.carry_over`).
     #[arg(long, value_name = "OTHER.csv")]
     pub validate: Option<PathBuf>,
+    /// A log recorded with the experiment this diagnosis proposes for a kept effect it cannot
+    /// tell from its alternatives (the report's `experiment`): the kept model and each
+    /// alternative, at the parameters found on LOG, get that log's own polynomial refitted on
+    /// its training cycles and are compared on its held-out cycles by the loop's paired test;
+    /// the report says which one it supports, or that it still cannot tell (JSON: `decision`).
+    #[arg(long, value_name = "OTHER.csv")]
+    pub decide: Option<PathBuf>,
     /// The rig the log comes from, which names the effects: `syringe` (this project's pumps:
     /// lead-screw ripple, backlash, delivery lag) or `generic` (any other source: the same
     /// effects as periodic_in_volume, dead_band, input_lag). Default: `syringe` for the logs
@@ -129,6 +137,13 @@ pub fn run(args: &Args) -> Result<(), Error> {
         }
         None => None,
     };
+    let decision = match &args.decide {
+        Some(other) => {
+            let other = args.input.data.load(other, Some(data.first().chamber))?;
+            Some(decide_log(&d, &other).map_err(|e| Error::Msg(e.to_string()))?)
+        }
+        None => None,
+    };
     if let Some(dir) = &args.out.plots {
         write_plots(dir, args.out.plot_format, &d, &units)?;
     }
@@ -137,6 +152,10 @@ pub fn run(args: &Args) -> Result<(), Error> {
         if let (Some(v), Some(obj)) = (&validation, doc.as_object_mut()) {
             let v = serde_json::to_value(v).map_err(|e| Error::Msg(e.to_string()))?;
             obj.insert("validation".into(), v);
+        }
+        if let (Some(v), Some(obj)) = (&decision, doc.as_object_mut()) {
+            let v = serde_json::to_value(v).map_err(|e| Error::Msg(e.to_string()))?;
+            obj.insert("decision".into(), v);
         }
         crate::opts::print_json(&doc)?;
         if args.timings {
@@ -155,6 +174,9 @@ pub fn run(args: &Args) -> Result<(), Error> {
         );
         if let Some(v) = &validation {
             print!("{}", validation_report(v, &units));
+        }
+        if let Some(v) = &decision {
+            print!("{}", decision_report(v, &units));
         }
         if args.timings {
             print!("{}", timings_report(&d.timing));
@@ -263,6 +285,79 @@ fn validation_report(v: &Validation, u: &DisplayUnits) -> String {
             );
         }
     }
+    s
+}
+
+/// The `--decide` block of the text report.
+fn decision_report(v: &Decision, u: &DisplayUnits) -> String {
+    let p = u.pressure();
+    let mut s = format!(
+        "\ndecision on {}: each explanation at this log's parameters, that log's polynomial refitted on its training\n  cycles; held-out RMSE over its held-out cycles, paired z of the kept model against each over {} pieces of them\n  (positive: the kept model's errors are the smaller); decided where the best is ahead of every other by z >= {}:\n",
+        v.log,
+        v.units,
+        sysid::residual::alternatives::ALT_Z
+    );
+    for e in &v.effects {
+        let _ = writeln!(s, "  {}:", e.effect);
+        for c in &e.scores {
+            let _ = writeln!(
+                s,
+                "    {:<30} held-out {:.4} {p}{}",
+                c.explanation,
+                u.p(c.rmse_heldout),
+                if c.kept {
+                    "  (kept)".to_string()
+                } else {
+                    format!("  z {:+.2}", c.z_kept_vs_this)
+                }
+            );
+        }
+        let _ = match &e.supports {
+            Some(w) => writeln!(s, "    supports {w} (z = {:.2} against the next best)", e.z),
+            None => writeln!(
+                s,
+                "    still cannot tell: {} is best, ahead of the next by only z = {:.2}",
+                e.best, e.z
+            ),
+        };
+    }
+    s
+}
+
+/// The report's lines on the experiment proposed for an effect.
+fn experiment_lines(x: &Experiment) -> String {
+    let seps: Vec<String> = x
+        .separations
+        .iter()
+        .map(|s| {
+            format!(
+                "from {} by z ≈ {:.1} (against |z| = {:.2} on this log)",
+                s.alternative,
+                s.expected_z,
+                s.z_on_this_log.abs()
+            )
+        })
+        .collect();
+    let mut s = format!(
+        "   experiment that decides: {} ({:.0} s of {}), expected to separate it {}; record its log (vfp record) and run\n   vfp diagnose LOG --decide THAT.csv",
+        x.commands
+            .iter()
+            .map(|c| format!("`{c}`"))
+            .collect::<Vec<_>>()
+            .join(", "),
+        x.duration_s,
+        x.family,
+        seps.join(", ")
+    );
+    if x.expected_z < sysid::residual::alternatives::ALT_Z {
+        let _ = write!(
+            s,
+            "\n   (even {:.0} s is not expected to reach z = {}: the rig may not be able to tell them apart)",
+            x.duration_s,
+            sysid::residual::alternatives::ALT_Z
+        );
+    }
+    s.push('\n');
     s
 }
 
@@ -405,6 +500,9 @@ fn report_effect(s: &mut String, k: usize, e: &EffectReport, u: &DisplayUnits) {
     }
     if !e.alternatives.is_empty() {
         let _ = writeln!(s, "   {}", alternatives_line(e, u));
+    }
+    if let Some(x) = &e.experiment {
+        s.push_str(&experiment_lines(x));
     }
 }
 

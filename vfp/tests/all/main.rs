@@ -14,6 +14,7 @@ mod bench_loop;
 mod diag_force;
 mod diag_hostsim;
 mod diag_stiffness;
+mod diagnose_decide;
 mod diagnose_validate;
 mod docs;
 mod export_augmented;

@@ -229,6 +229,17 @@ impl Prepared {
         signal::FrameMotion::new(&se.t, &se.v, &se.vdot, &self.subframe_edges)
     }
 
+    /// `self` with the motion inside its frames given: `f` the flow at each frame's instants
+    /// ([`inframe::frame_instants`], frame k's at `k·S ..`), for a motion known exactly (an
+    /// experiment's plan, `residual::decide`) instead of rebuilt from the frame means. Ignored
+    /// when the motion was already made or `f` has not S numbers per frame.
+    pub fn with_sub_flows(self, f: Vec<f64>) -> Self {
+        if f.len() == self.series.len() * crate::residual::signal::SUB_SAMPLES {
+            let _ = self.sub_motion.set(SubMotion { f });
+        }
+        self
+    }
+
     /// The logged motion rebuilt at the instants each frame averages, with the fewest corners of
     /// flow (`inframe::sparse_motion`), where the output lags run ([`super::lag_in_frames`]).
     pub fn sub_motion(&self) -> &SubMotion {
