@@ -3,24 +3,13 @@
 //! noise seed, the proposed command lines), and the second log decides for the plant's truth.
 
 use host_sim::plant::Drive;
-use host_sim::{simulate, Effects, PlantConfig, Scenario, SensorSpec, Strokes, TimedCommand};
-use sysid::dataset::{Dataset, DatasetConfig};
-use sysid::log::parse_log;
+use host_sim::{Effects, PlantConfig, Scenario, SensorSpec, Strokes, TimedCommand};
 use sysid::residual::decide::{decide, Decision, Experiment};
 use sysid::residual::{diagnose, series_from_dataset, Config, Diagnosis, Series};
 
 /// Chamber 0 of `sc`'s log as the loop's series.
 fn series_of(sc: &Scenario) -> Series {
-    let sim = simulate(sc).expect("scenario runs");
-    assert!(
-        sim.first_event("fault").is_none(),
-        "{}: the firmware faulted",
-        sc.name
-    );
-    let mut bytes = Vec::new();
-    sim.write_log(&mut bytes).expect("in memory");
-    let log = parse_log(&bytes[..], &sc.name).expect("the simulator's log parses");
-    let ds = Dataset::from_log(&log, 0, &DatasetConfig::default()).expect("dataset");
+    let (_, ds) = crate::hostsim_common::simulated(sc);
     series_from_dataset(&ds).expect("series")
 }
 

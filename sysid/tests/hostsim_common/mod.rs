@@ -36,8 +36,9 @@ pub fn sigma_from_truth(run: &SimRun, ds: &Dataset) -> f64 {
     (e.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / e.len() as f64).sqrt()
 }
 
-/// Runs `sc`, diagnoses chamber 0 and prints the outcome.
-pub fn run(sc: &Scenario) -> Outcome {
+/// Runs `sc` (the firmware must not fault) and reads chamber 0 of the log it wrote, as
+/// `vfp diagnose` would.
+pub fn simulated(sc: &Scenario) -> (SimRun, Dataset) {
     let sim = simulate(sc).expect("scenario runs");
     assert!(
         sim.first_event("fault").is_none(),
@@ -48,6 +49,12 @@ pub fn run(sc: &Scenario) -> Outcome {
     sim.write_log(&mut bytes).expect("in memory");
     let log = parse_log(&bytes[..], &sc.name).expect("the simulator's log parses");
     let ds = Dataset::from_log(&log, 0, &DatasetConfig::default()).expect("dataset");
+    (sim, ds)
+}
+
+/// Runs `sc`, diagnoses chamber 0 and prints the outcome.
+pub fn run(sc: &Scenario) -> Outcome {
+    let (sim, ds) = simulated(sc);
     // One row per frame, in order, after the boot frames that take the pressure zero: the truth
     // lines up by index from there.
     assert!(ds.not_zeroed > 0, "the log's flags mark the zeroing frames");
