@@ -754,34 +754,13 @@ pub fn decide(d: &Diagnosis, series: Series, log: String) -> Result<Decision, Di
                 .into(),
         ));
     }
-    let basis = PolyBasis::for_data(&series.v, &series.vdot, d.basis.n, d.basis.m)
-        .map_err(|e| degenerate(format!("the other log's polynomial: {e}")))?;
-    let prep = Prepared::new(series, basis);
-    let blocks = validate::held_out_blocks(&prep);
-    if blocks.len() < validate::CARRY_MIN_UNITS {
-        return Err(degenerate(format!(
-            "{} held-out units of data on the other log, {} needed",
-            blocks.len(),
-            validate::CARRY_MIN_UNITS
-        )));
-    }
-    let p = &prep.series.p;
-    let base = lsq::fit(&build(&prep, &[]).cols, p, &prep.train_rows)
-        .ok_or_else(|| degenerate("the other log's polynomial".into()))?;
+    let other = validate::OtherLog::new(d, series)?;
+    let blocks = &other.blocks;
     let held = |m: &FittedModel| -> Option<Vec<f64>> {
-        let effects: Vec<_> = m
-            .effects
-            .iter()
-            .map(|e| validate::with_schedules(&prep, e, &base.beta))
-            .collect();
-        let design = build(&prep, &effects);
-        let fit = lsq::fit(&design.cols, p, &prep.train_rows)?;
-        let pred = lsq::predict(&design.cols, &fit.beta);
-        Some(p.iter().zip(&pred).map(|(y, q)| (y - q).powi(2)).collect())
+        let effects: Vec<_> = m.effects.iter().map(|e| other.moved(e)).collect();
+        other.held_errors(&effects)
     };
-    let rows: usize = blocks.iter().map(Vec::len).sum();
-    let rmse =
-        |e: &[f64]| (blocks.iter().flatten().map(|&k| e[k]).sum::<f64>() / rows as f64).sqrt();
+    let rmse = |e: &[f64]| other.rmse(e);
     let kept_sq = held(kept).ok_or_else(|| {
         degenerate("the final model's columns are dependent on the other log".into())
     })?;
@@ -802,7 +781,7 @@ pub fn decide(d: &Diagnosis, series: Series, log: String) -> Result<Decision, Di
                 z_kept_vs_this: if *is_kept {
                     0.0
                 } else {
-                    validate::paired_z(sq, &kept_sq, &blocks)
+                    validate::paired_z(sq, &kept_sq, blocks)
                 },
             })
             .collect();
@@ -811,7 +790,7 @@ pub fn decide(d: &Diagnosis, series: Series, log: String) -> Result<Decision, Di
             .unwrap_or(0);
         let z = (0..errs.len())
             .filter(|&j| j != b)
-            .map(|j| validate::paired_z(&errs[j].2, &errs[b].2, &blocks))
+            .map(|j| validate::paired_z(&errs[j].2, &errs[b].2, blocks))
             .fold(f64::INFINITY, f64::min);
         effects.push(EffectDecision {
             effect: e.name,

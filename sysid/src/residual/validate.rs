@@ -184,31 +184,9 @@ pub fn carry_over(d: &Diagnosis, series: Series) -> Result<Vec<CarryOver>, Diagn
     if last.effects.is_empty() {
         return Ok(Vec::new());
     }
-    let basis = PolyBasis::for_data(&series.v, &series.vdot, d.basis.n, d.basis.m)
-        .map_err(|e| DiagnoseError::Degenerate(format!("the other log's polynomial: {e}")))?;
-    let prep = Prepared::new(series, basis);
-    let blocks = held_out_blocks(&prep);
-    if blocks.len() < CARRY_MIN_UNITS {
-        return Err(DiagnoseError::Degenerate(format!(
-            "{} held-out units of data on the other log, {CARRY_MIN_UNITS} needed",
-            blocks.len()
-        )));
-    }
-    let p = &prep.series.p;
-    // Squared errors on the held-out rows of a design fitted on the training rows.
-    let held_errors = |effects: &[Effect]| -> Option<Vec<f64>> {
-        let design = build(&prep, effects);
-        let fit = lsq::fit(&design.cols, p, &prep.train_rows)?;
-        let pred = lsq::predict(&design.cols, &fit.beta);
-        Some(p.iter().zip(&pred).map(|(y, q)| (y - q).powi(2)).collect())
-    };
-    let base_fit = lsq::fit(&build(&prep, &[]).cols, p, &prep.train_rows)
-        .ok_or_else(|| DiagnoseError::Degenerate("the other log's polynomial".into()))?;
-    let all: Vec<Effect> = last
-        .effects
-        .iter()
-        .map(|e| with_schedules(&prep, e, &base_fit.beta))
-        .collect();
+    let other = OtherLog::new(d, series)?;
+    let (blocks, held_errors) = (&other.blocks, |e: &[Effect]| other.held_errors(e));
+    let all: Vec<Effect> = last.effects.iter().map(|e| other.moved(e)).collect();
     let names: Vec<String> = d.effects.iter().map(|r| r.name.to_string()).collect();
     if names.len() != all.len() {
         return Err(DiagnoseError::Degenerate(
@@ -223,7 +201,7 @@ pub fn carry_over(d: &Diagnosis, series: Series) -> Result<Vec<CarryOver>, Diagn
             .map(|&k| {
                 let others: Vec<usize> = set.iter().copied().filter(|&j| j != k).collect();
                 let without = held_errors(&subset(&others))?;
-                Some(compare(names[k].clone(), &without, &with, &blocks))
+                Some(compare(names[k].clone(), &without, &with, blocks))
             })
             .collect()
     };
@@ -262,7 +240,7 @@ pub fn carry_over(d: &Diagnosis, series: Series) -> Result<Vec<CarryOver>, Diagn
         let mut plus = held.clone();
         plus.push(k);
         if let Some(with) = held_errors(&subset(&plus)) {
-            judged.push((k, compare(names[k].clone(), &with_held, &with, &blocks)));
+            judged.push((k, compare(names[k].clone(), &with_held, &with, blocks)));
         }
     }
     judged.sort_by_key(|(k, _)| *k);
@@ -270,10 +248,69 @@ pub fn carry_over(d: &Diagnosis, series: Series) -> Result<Vec<CarryOver>, Diagn
     if all.len() > 1 {
         let every: Vec<usize> = (0..all.len()).collect();
         if let (Some(without), Some(with)) = (held_errors(&[]), held_errors(&subset(&every))) {
-            out.push(compare("all".into(), &without, &with, &blocks));
+            out.push(compare("all".into(), &without, &with, blocks));
         }
     }
     Ok(out)
+}
+
+/// RMSE over the rows of `blocks`, from squared errors per row.
+fn blocks_rmse(sq: &[f64], blocks: &[Vec<usize>]) -> f64 {
+    let rows: usize = blocks.iter().map(Vec::len).sum();
+    (blocks.iter().flatten().map(|&k| sq[k]).sum::<f64>() / rows as f64).sqrt()
+}
+
+/// The other log as the carry-over and the decision ([`super::decide`]) score models on it: its
+/// samples in the first log's polynomial shape (on its own scaling), its held-out units
+/// ([`held_out_blocks`], at least [`CARRY_MIN_UNITS`]), and its bare polynomial fitted on its
+/// training rows, whose derivatives give an effect moved there its schedules.
+pub(super) struct OtherLog {
+    pub(super) prep: Prepared,
+    pub(super) blocks: Vec<Vec<usize>>,
+    base_beta: Vec<f64>,
+}
+
+impl OtherLog {
+    /// `series` (the other log) in `d`'s polynomial shape; an error when the polynomial cannot
+    /// be fitted there or the held-out units are too few.
+    pub(super) fn new(d: &Diagnosis, series: Series) -> Result<Self, DiagnoseError> {
+        let basis = PolyBasis::for_data(&series.v, &series.vdot, d.basis.n, d.basis.m)
+            .map_err(|e| DiagnoseError::Degenerate(format!("the other log's polynomial: {e}")))?;
+        let prep = Prepared::new(series, basis);
+        let blocks = held_out_blocks(&prep);
+        if blocks.len() < CARRY_MIN_UNITS {
+            return Err(DiagnoseError::Degenerate(format!(
+                "{} held-out units of data on the other log, {CARRY_MIN_UNITS} needed",
+                blocks.len()
+            )));
+        }
+        let base = lsq::fit(&build(&prep, &[]).cols, &prep.series.p, &prep.train_rows)
+            .ok_or_else(|| DiagnoseError::Degenerate("the other log's polynomial".into()))?;
+        Ok(Self {
+            prep,
+            blocks,
+            base_beta: base.beta,
+        })
+    }
+
+    /// `e` (at the first log's parameters) with its schedules on this log ([`with_schedules`]).
+    pub(super) fn moved(&self, e: &Effect) -> Effect {
+        with_schedules(&self.prep, e, &self.base_beta)
+    }
+
+    /// Squared errors per row of the polynomial with `effects`, fitted on the training rows.
+    pub(super) fn held_errors(&self, effects: &[Effect]) -> Option<Vec<f64>> {
+        let p = &self.prep.series.p;
+        let design = build(&self.prep, effects);
+        let fit = lsq::fit(&design.cols, p, &self.prep.train_rows)?;
+        let pred = lsq::predict(&design.cols, &fit.beta);
+        Some(p.iter().zip(&pred).map(|(y, q)| (y - q).powi(2)).collect())
+    }
+
+    /// RMSE over the held-out units, from [`OtherLog::held_errors`].
+    pub(super) fn rmse(&self, sq: &[f64]) -> f64 {
+        blocks_rmse(sq, &self.blocks)
+    }
 }
 
 /// Longest stretch of held-out time one unit of the paired comparison covers, s: a held-out
@@ -358,16 +395,8 @@ pub fn paired_z(a: &[f64], b: &[f64], blocks: &[Vec<usize>]) -> f64 {
 }
 
 /// Held-out RMSEs, gain and paired z of `with` against `without` (squared errors per row).
-pub(super) fn compare(
-    effect: String,
-    without: &[f64],
-    with: &[f64],
-    blocks: &[Vec<usize>],
-) -> CarryOver {
-    let rows: usize = blocks.iter().map(Vec::len).sum();
-    let rmse =
-        |e: &[f64]| (blocks.iter().flatten().map(|&k| e[k]).sum::<f64>() / rows as f64).sqrt();
-    let (without_rmse, with_rmse) = (rmse(without), rmse(with));
+fn compare(effect: String, without: &[f64], with: &[f64], blocks: &[Vec<usize>]) -> CarryOver {
+    let (without_rmse, with_rmse) = (blocks_rmse(without, blocks), blocks_rmse(with, blocks));
     let gain = 1.0 - with_rmse / without_rmse;
     let z = paired_z(without, with, blocks);
     CarryOver {
