@@ -127,18 +127,6 @@ pub(super) fn screen<'a>(
         .collect()
 }
 
-/// Whether two effects are the same at the same parameters.
-fn same(a: &Effect, b: &Effect) -> bool {
-    a.kind == b.kind
-        && a.theta.to_bits() == b.theta.to_bits()
-        && a.point_sampled == b.point_sampled
-        && a.ripple_offset == b.ripple_offset
-}
-
-fn same_all(a: &[Effect], b: &[Effect]) -> bool {
-    a.len() == b.len() && a.iter().zip(b).all(|(x, y)| same(x, y))
-}
-
 /// What the final model's alternatives are computed from.
 pub(super) struct Inputs<'a> {
     /// The final model.
@@ -152,6 +140,8 @@ pub(super) struct Inputs<'a> {
     /// Pairs tried in a kept effect's place and not taken: the effect, and the model's effects
     /// with the pair last.
     pub pair_trials: &'a [(EffectKind, Vec<Effect>)],
+    /// The searches made in the kept effects' places so far.
+    pub searched: &'a search::Searched,
 }
 
 /// Each effect of the final model's alternatives, in the model's order (module docs).
@@ -187,7 +177,7 @@ pub(super) fn alternatives(prep: &Prepared, inp: &Inputs) -> Vec<Vec<Alternative
         s
     };
     let search_in = |at: &[usize], k: EffectKind| -> Option<Stage> {
-        search::search(prep, &base(at)?, k).map(|c| c.stage)
+        inp.searched.search(prep, &base(at)?, k).map(|c| c.stage)
     };
     // Judges `alt` (a model with `added` effects last) in the place of the effects at `at`: an
     // explanation (at least [`super::LOOK_ALIKE_GAIN`] of their held-out gain over the model
@@ -243,7 +233,7 @@ pub(super) fn alternatives(prep: &Prepared, inp: &Inputs) -> Vec<Vec<Alternative
                 continue;
             }
             let m = c.len();
-            let alt = if same_all(&c[..m - 1], &rest) {
+            let alt = if search::same_effects(&c[..m - 1], &rest) {
                 search::fit_stage(prep, c)
             } else {
                 search_in(&[i], k)
@@ -276,7 +266,7 @@ pub(super) fn alternatives(prep: &Prepared, inp: &Inputs) -> Vec<Vec<Alternative
         if m < 2 || effects[m - 2..].iter().any(|e| in_model(e.kind)) {
             continue;
         }
-        if !same_all(&effects[..m - 2], &without(&[i])) {
+        if !search::same_effects(&effects[..m - 2], &without(&[i])) {
             continue;
         }
         let Some(stage) = search::fit_stage(prep, effects) else {

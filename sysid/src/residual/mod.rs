@@ -676,6 +676,7 @@ pub fn diagnose(series: Series, cfg: &Config) -> Result<Diagnosis, DiagnoseError
     sel.alternatives = alternatives::alternatives(
         &prep,
         &alternatives::Inputs {
+            searched: &sel.searched,
             model: &sel.model,
             leads: sel.kept.iter().map(|k| &k.leads).collect(),
             names: sel

@@ -274,6 +274,18 @@ pub struct Candidate {
     pub kind: EffectKind,
     /// The augmented model with the candidate last.
     pub stage: Stage,
+    /// Where its parameter was located on a stand-in and is still to be polished on the model
+    /// itself ([`refined`]).
+    pub unpolished: Option<Unpolished>,
+}
+
+/// The bracket of a [`Trials::polish`] not yet made: the grid step (in `ln θ`) and the search's
+/// range of magnitudes.
+#[derive(Clone, Copy, Debug)]
+pub struct Unpolished {
+    step: f64,
+    lo: f64,
+    hi: f64,
 }
 
 /// `base` with `e` appended.
@@ -289,15 +301,90 @@ pub fn search(prep: &Prepared, cur: &Stage, kind: EffectKind) -> Option<Candidat
     search_from(prep, cur, kind, None).map(|c| refined(prep, cur, c))
 }
 
+/// Searches made in the kept effects' places, by the model searched on (its effects) and the
+/// kind: a look-alike swap ([`super::swaps`]) searches each look-alike on the model without the
+/// effect it may replace, and the alternatives ([`super::alternatives`]) search each close lead
+/// of a kept effect on the final model without it: the same searches, where no swap was made in
+/// between. On a random rig of the loop benchmark (an offset drift, a delivery lag and a
+/// hysteresis kept) seven searches, 2.0 s, were made twice.
+#[derive(Default)]
+pub(crate) struct Searched(std::sync::Mutex<Vec<Made>>);
+
+/// A search [`Searched`] keeps: the effects of the model searched on, the kind, its result.
+type Made = (Vec<Effect>, EffectKind, Option<Candidate>);
+
+impl Searched {
+    /// [`search`] of `kind` on `cur`, or its result where it was made before on the same effects
+    /// ([`same_effects`]).
+    pub(crate) fn search(
+        &self,
+        prep: &Prepared,
+        cur: &Stage,
+        kind: EffectKind,
+    ) -> Option<Candidate> {
+        let made = |list: &[Made]| {
+            list.iter()
+                .find(|(e, k, _)| *k == kind && same_effects(e, &cur.effects))
+                .map(|(_, _, c)| c.clone())
+        };
+        if let Some(c) = self.0.lock().ok().and_then(|l| made(&l)) {
+            return c;
+        }
+        let found = search(prep, cur, kind);
+        if let Ok(mut l) = self.0.lock() {
+            l.push((cur.effects.clone(), kind, found.clone()));
+        }
+        found
+    }
+}
+
+/// Whether two effects are the same at the same parameters (kind, parameter to the bit, sampling
+/// form and ripple offset).
+pub(crate) fn same_effect(a: &Effect, b: &Effect) -> bool {
+    a.kind == b.kind
+        && a.theta.to_bits() == b.theta.to_bits()
+        && a.point_sampled == b.point_sampled
+        && a.ripple_offset == b.ripple_offset
+}
+
+/// [`same_effect`] for each of two lists of effects, in order.
+pub(crate) fn same_effects(a: &[Effect], b: &[Effect]) -> bool {
+    a.len() == b.len() && a.iter().zip(b).all(|(x, y)| same_effect(x, y))
+}
+
 /// A searched candidate on `cur` after its effect's own refinement
-/// ([`super::effects::EffectModel::refine`]; most effects have none). A round refines only the
-/// candidates that can matter (`forward::search_all`): a refinement corrects a fit, it does not
-/// make one.
+/// ([`super::effects::EffectModel::refine`]; most effects have none), its parameter first
+/// polished on the model itself where the search located it on a stand-in ([`located_on`],
+/// [`Trials::polish`]). A round refines only the candidates that can matter
+/// (`forward::search_all`): a refinement corrects a fit, it does not make one. The polish moves a
+/// parameter by at most a quarter of a grid step, which cannot lift a candidate that wins back a
+/// small share of another's gain to lead the round; behind an air pocket's lag each costs up to
+/// six rebuilds of the whole design at the frames' instants.
 pub fn refined(prep: &Prepared, cur: &Stage, cand: Candidate) -> Candidate {
+    let stage = match cand.unpolished {
+        Some(u) => polished(prep, cur, cand.kind, cand.stage, u),
+        None => cand.stage,
+    };
     Candidate {
         kind: cand.kind,
-        stage: refine_stage(prep, &cur.effects, cand.kind, cand.stage),
+        stage: refine_stage(prep, &cur.effects, cand.kind, stage),
+        unpolished: None,
     }
+}
+
+/// `stage`, the search's fit of `kind` on `cur` located on a stand-in, with its parameter
+/// polished on the model itself ([`Trials::polish`]) and fitted there.
+fn polished(prep: &Prepared, cur: &Stage, kind: EffectKind, stage: Stage, u: Unpolished) -> Stage {
+    let Some(found) = stage.effects.last() else {
+        return stage;
+    };
+    let trials = Trials::new(prep, cur, kind);
+    trials.point.set(found.point_sampled);
+    let theta = trials.polish(found.theta, u.step, u.lo, u.hi);
+    if theta == found.theta {
+        return stage;
+    }
+    trials.fit(theta).unwrap_or(stage)
 }
 
 /// [`search`], started where the same candidate's search ended on the model before (`hint`, its
@@ -306,7 +393,8 @@ pub fn refined(prep: &Prepared, cur: &Stage, cand: Candidate) -> Candidate {
 /// parameter is sought by descent along its grid from the grid point nearest `hint`
 /// ([`grid_descent`]), which walks on where the minimum lies beyond, instead of over the whole
 /// grid. A model one effect larger moves such a minimum little; where it moved far, the walk
-/// follows it a grid step at a time. The search's best fit, not yet refined ([`refined`]).
+/// follows it a grid step at a time. The search's best fit, not yet refined nor, where it was
+/// located on a stand-in, polished ([`refined`]).
 pub fn search_from(
     prep: &Prepared,
     cur: &Stage,
@@ -315,6 +403,7 @@ pub fn search_from(
 ) -> Option<Candidate> {
     let mut trials = Trials::new(prep, cur, kind);
     trials.hint = hint.filter(|h| h.is_finite() && kind.one_minimum());
+    trials.defer_polish = true;
     let found = trials.best_theta()?;
     let stage = match found.prefit.or_else(|| trials.fit(found.theta)) {
         Some(stage) => stage,
@@ -323,7 +412,11 @@ pub fn search_from(
         // the QR accepts, so the candidate is still tested and reported.
         None => trials.best_grid_fit()?,
     };
-    Some(Candidate { kind, stage })
+    Some(Candidate {
+        kind,
+        stage,
+        unpolished: trials.deferred.get(),
+    })
 }
 
 /// [`refined`]: `stage`, the fit the search found with its effect (of `kind`) last after `base`,
@@ -367,6 +460,9 @@ struct Trials<'a> {
     proxy: Option<Vec<Effect>>,
     /// Where the previous round's search of the candidate ended ([`search_from`]).
     hint: Option<f64>,
+    /// Whether [`Trials::polish`] is left to [`refined`] (`deferred` then records its bracket).
+    defer_polish: bool,
+    deferred: std::cell::Cell<Option<Unpolished>>,
 }
 
 /// The current model's effects with its output lags inside the frames taken on instants, on
@@ -390,16 +486,25 @@ fn located_on(
     let moves_inputs = kind.filter_stage().is_none()
         && kind.transforms_inputs(trial)
         && !kind.uses_measured_pressure();
+    if !moves_inputs {
+        return None;
+    }
+    stand_in(prep, &cur.effects)
+}
+
+/// `effects` with every output lag inside the frames taken on instants ([`located_on`]); `None`
+/// where there is none (the stand-in would be the model itself).
+pub(crate) fn stand_in(prep: &Prepared, effects: &[Effect]) -> Option<Vec<Effect>> {
     let in_frames = |e: &Effect| {
         e.kind.filter_stage().is_some()
             && e.kind.lag_time_constants(e, prep).is_some()
             && !e.point_sampled
     };
-    if !moves_inputs || !cur.effects.iter().any(in_frames) {
+    if !effects.iter().any(in_frames) {
         return None;
     }
     Some(
-        cur.effects
+        effects
             .iter()
             .map(|e| Effect {
                 point_sampled: e.point_sampled || in_frames(e),
@@ -428,6 +533,8 @@ impl<'a> Trials<'a> {
             base: std::cell::OnceCell::new(),
             proxy: located_on(prep, cur, kind, &Effect::new(kind, 0.0)),
             hint: None,
+            defer_polish: false,
+            deferred: std::cell::Cell::new(None),
         }
     }
 
@@ -480,6 +587,10 @@ impl<'a> Trials<'a> {
     /// precision of the search, in a few trials. Elsewhere θ as it is.
     fn polish(&self, theta: f64, step: f64, lo: f64, hi: f64) -> f64 {
         if self.proxy.is_none() || !(theta.is_finite() && theta != 0.0) {
+            return theta;
+        }
+        if self.defer_polish {
+            self.deferred.set(Some(Unpolished { step, lo, hi }));
             return theta;
         }
         let sign = theta.signum();
@@ -787,6 +898,32 @@ pub fn retune_to_beat(prep: &Prepared, stage: &Stage, target: f64) -> Stage {
     retune_inner(prep, stage, Some(target))
 }
 
+/// Where [`descend_to_beat`] left a model's effects, and whether their training SSE came below
+/// the target there.
+pub(crate) struct Descended {
+    pub effects: Vec<Effect>,
+    pub beaten: bool,
+}
+
+/// [`retune_to_beat`]'s descent alone on `effects` (no forms chosen, no fit): its parameters
+/// moved until their training SSE first comes below `target`, or given up once it cannot.
+/// `None` where nothing is re-tunable.
+pub(crate) fn descend_to_beat(
+    prep: &Prepared,
+    mut effects: Vec<Effect>,
+    target: f64,
+) -> Option<Descended> {
+    if !effects.iter().any(|e| retune_bracket(prep, e).is_some()) {
+        return None;
+    }
+    let start = sse_of(prep, &effects);
+    let sse = descend(prep, &mut effects, start, Some(target));
+    Some(Descended {
+        effects,
+        beaten: sse < target,
+    })
+}
+
 /// [`retune`], given up above `target` and stopped below it where there is one.
 fn retune_inner(prep: &Prepared, stage: &Stage, target: Option<f64>) -> Stage {
     // When the only re-tunable parameter is the one just searched (the last effect's), descent
@@ -923,9 +1060,12 @@ fn out_of_reach(gain: f64, last_gain: f64, sse: f64, target: f64) -> bool {
 /// a full one gains less than [`RETUNE_TOL`] (settled: every parameter's derivative vanishes
 /// together, and [`descend`] ends there without sweeps; on a random rig of the loop benchmark, a
 /// leak, an air pocket and an offset drift, five sweeps of 0.4–0.8 s each after settled steps
-/// moved nothing), after [`GN_STEPS`] steps, below `target`, or, after full steps, once their
-/// gains show `target` out of reach (the sweeps' bound, [`out_of_reach`]). Returns the SSE and
-/// where the steps ended.
+/// moved nothing), where the step's own linear model predicts a gain below [`RETUNE_TOL`] (the
+/// same, seen before the step is tried: on that rig a re-tune resumed from where the last one
+/// settled, the air pocket's damping taken again, found no step that lowers the SSE and went on
+/// to a sweep of 20 rebuilds that gained less than [`RETUNE_TOL`]), after [`GN_STEPS`] steps,
+/// below `target`, or, after full steps, once their gains show `target` out of reach (the
+/// sweeps' bound, [`out_of_reach`]). Returns the SSE and where the steps ended.
 fn gauss_newton(
     prep: &Prepared,
     effects: &mut Vec<Effect>,
@@ -980,6 +1120,13 @@ fn gauss_newton(
             break;
         };
         drop(cols);
+        // The step's own model of the objective predicts what it can gain: next to nothing where
+        // the parameters sit at a joint minimum already (a re-tune resumed from where the last
+        // one settled), and then no trial of it is needed, nor the sweeps that a step that does
+        // not lower the SSE would hand over to.
+        if fit.sse - aug.sse < RETUNE_TOL * fit.sse {
+            return (sse, Steps::Settled);
+        }
         let step: Vec<f64> = aug.beta[nb..].to_vec();
         let mut taken = None;
         let mut scale = 1.0;

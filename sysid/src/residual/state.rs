@@ -91,6 +91,8 @@ pub(super) struct Findings {
     /// held-out gain), each as searched on the baseline: what the shape's re-selection tries with
     /// a simpler polynomial ([`super::reshape`]).
     pub(super) leads: Option<Vec<Effect>>,
+    /// The searches made in the kept effects' places ([`super::search::Searched`]).
+    pub(super) searched: super::search::Searched,
 }
 
 impl Findings {
@@ -109,6 +111,7 @@ impl Findings {
             pair_trials: Vec::new(),
             alternatives: Vec::new(),
             leads: None,
+            searched: Default::default(),
         }
     }
 }

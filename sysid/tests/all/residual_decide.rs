@@ -81,7 +81,7 @@ fn small_air_and_sensor_lag() -> PlantConfig {
     PlantConfig {
         drive: Drive::Ideal,
         effects: Effects {
-            air_pocket_mm3: [4.0; 3],
+            air_pocket_mm3: [2.0; 3],
             sensor_lag_s: 0.004,
             ..Effects::default()
         },
@@ -90,7 +90,7 @@ fn small_air_and_sensor_lag() -> PlantConfig {
     }
 }
 
-/// The acceptance case: an air pocket of 4 mm³ and a sensor lag of 4 ms, on a short log where
+/// The acceptance case: an air pocket of 2 mm³ and a sensor lag of 4 ms, on a short log where
 /// the loop keeps a delivery lag and cannot tell it from the pair (`residual_hostsim_shapes`).
 /// The experiment it proposes is expected to separate them far better than that log did; run on
 /// the same plant, its log supports the pair.

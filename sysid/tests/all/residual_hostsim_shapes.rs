@@ -280,16 +280,16 @@ fn lead_screw_ripple_on_irregular_strokes() {
     check(&o, &["pump_ripple"]);
 }
 
-/// Issue 34, "cannot tell apart": a small air pocket (4 mm³) and a short sensor lag (4 ms) on a
+/// Issue 34, "cannot tell apart": a small air pocket (2 mm³) and a short sensor lag (4 ms) on a
 /// short log (40 moves). A delivery lag (two lags in series) is kept; the pair of the air pocket
-/// and the sensor lag, fitted in its place with the re-tune, does no better on the held-out
-/// cycles and no worse within their noise (paired z 1.5 over the held-out units), so the report
+/// and the sensor lag, fitted in its place with the re-tune, does better on the held-out cycles
+/// but not by more than their noise (paired z below 2 over the held-out units), so the report
 /// lists it as an alternative the data cannot tell from the delivery lag: the truth is among the
-/// alternatives.
+/// alternatives. (With a 4 mm³ pocket the data tell the pair apart: the next test.)
 #[test]
 fn air_pocket_and_sensor_lag_cannot_be_told_from_a_delivery_lag_on_a_short_log() {
     let small = Effects {
-        air_pocket_mm3: [4.0; 3],
+        air_pocket_mm3: [2.0; 3],
         sensor_lag_s: 0.004,
         ..Effects::default()
     };
@@ -334,4 +334,45 @@ fn air_pocket_and_sensor_lag_cannot_be_told_from_a_delivery_lag_on_a_short_log()
             pair.params
         );
     }
+}
+
+/// The same log with an air pocket of 4 mm³: the pair of the air pocket and the sensor lag in the
+/// delivery lag's place, re-tuned, is told from it on the held-out units (paired z ≥ 2), so it
+/// replaces it and the plant's two effects are named. Before the pair's descent was located on a
+/// stand-in, it gave up before reaching the delivery lag's training error, and the delivery lag
+/// was kept with the pair as an alternative at z 1.4.
+#[test]
+fn a_pair_the_held_out_data_tell_apart_replaces_the_delivery_lag() {
+    let plant = PlantConfig {
+        drive: Drive::Ideal,
+        effects: Effects {
+            air_pocket_mm3: [4.0; 3],
+            sensor_lag_s: 0.004,
+            ..Effects::default()
+        },
+        sensor: gaussian(),
+        ..PlantConfig::default()
+    };
+    let sc = Scenario {
+        seed: 48,
+        ..Scenario::strokes(
+            "air + sensor lag, short",
+            plant,
+            &Strokes {
+                seed: 48,
+                moves: 40,
+                ..Strokes::default()
+            },
+        )
+    };
+    let o = run(&sc);
+    let mut named = names(&o.d);
+    named.sort_unstable();
+    assert_eq!(named, ["air_compliance", "sensor_lag"]);
+    let swap = o.d.swaps.first().expect("a swap");
+    assert_eq!(swap.replaced, "delivery_lag");
+    assert!(
+        swap.rmse_heldout_after < swap.rmse_heldout_before,
+        "{swap:?}"
+    );
 }

@@ -3,7 +3,7 @@
 //! report's own `scenario` lines and the plant, is simulated by `vfp simulate --scenario`; the
 //! decision on that log is for the plant's truth.
 //!
-//! Truth: host-sim's plant, an air pocket of 4 mm³ and a sensor lag of 4 ms, which a short log
+//! Truth: host-sim's plant, an air pocket of 2 mm³ and a sensor lag of 4 ms, which a short log
 //! of irregular strokes (40 moves) reports as a delivery lag with the pair as an alternative.
 
 use crate::common;
@@ -14,13 +14,13 @@ use host_sim::{simulate, Effects, PlantConfig, Scenario, SensorSpec, Strokes};
 use std::path::Path;
 
 /// The plant's `[plant]` table, as a scenario file writes it.
-const PLANT: &str = "[plant]\ndrive = \"ideal\"\n[plant.effects]\nair_pocket_mm3 = [4.0, 4.0, 4.0]\nsensor_lag_s = 0.004\n";
+const PLANT: &str = "[plant]\ndrive = \"ideal\"\n[plant.effects]\nair_pocket_mm3 = [2.0, 2.0, 2.0]\nsensor_lag_s = 0.004\n";
 
 fn first_log(path: &Path) {
     let plant = PlantConfig {
         drive: Drive::Ideal,
         effects: Effects {
-            air_pocket_mm3: [4.0; 3],
+            air_pocket_mm3: [2.0; 3],
             sensor_lag_s: 0.004,
             ..Effects::default()
         },
