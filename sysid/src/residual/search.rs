@@ -315,7 +315,7 @@ type Made = (Vec<Effect>, EffectKind, Option<Candidate>);
 
 impl Searched {
     /// [`search`] of `kind` on `cur`, or its result where it was made before on the same effects
-    /// ([`same_effects`]).
+    /// ([`same_model`]).
     pub(crate) fn search(
         &self,
         prep: &Prepared,
@@ -324,7 +324,7 @@ impl Searched {
     ) -> Option<Candidate> {
         let made = |list: &[Made]| {
             list.iter()
-                .find(|(e, k, _)| *k == kind && same_effects(e, &cur.effects))
+                .find(|(e, k, _)| *k == kind && same_model(e, &cur.effects))
                 .map(|(_, _, c)| c.clone())
         };
         if let Some(c) = self.0.lock().ok().and_then(|l| made(&l)) {
@@ -350,6 +350,21 @@ pub(crate) fn same_effect(a: &Effect, b: &Effect) -> bool {
 /// [`same_effect`] for each of two lists of effects, in order.
 pub(crate) fn same_effects(a: &[Effect], b: &[Effect]) -> bool {
     a.len() == b.len() && a.iter().zip(b).all(|(x, y)| same_effect(x, y))
+}
+
+/// [`same_effects`], and each effect's data taken from the model it was added to (an air
+/// pocket's damping) the very same: what a model searched on is made of, so that a search made
+/// on one is a search made on the other.
+fn same_model(a: &[Effect], b: &[Effect]) -> bool {
+    let same_data = |x: &Option<Arc<Vec<f64>>>, y: &Option<Arc<Vec<f64>>>| match (x, y) {
+        (None, None) => true,
+        (Some(x), Some(y)) => Arc::ptr_eq(x, y),
+        _ => false,
+    };
+    same_effects(a, b)
+        && a.iter().zip(b).all(|(x, y)| {
+            same_data(&x.damping, &y.damping) && same_data(&x.stiffness, &y.stiffness)
+        })
 }
 
 /// A searched candidate on `cur` after its effect's own refinement

@@ -288,29 +288,7 @@ fn lead_screw_ripple_on_irregular_strokes() {
 /// alternatives. (With a 4 mm³ pocket the data tell the pair apart: the next test.)
 #[test]
 fn air_pocket_and_sensor_lag_cannot_be_told_from_a_delivery_lag_on_a_short_log() {
-    let small = Effects {
-        air_pocket_mm3: [2.0; 3],
-        sensor_lag_s: 0.004,
-        ..Effects::default()
-    };
-    let plant = PlantConfig {
-        drive: Drive::Ideal,
-        effects: small,
-        sensor: gaussian(),
-        ..PlantConfig::default()
-    };
-    let sc = Scenario {
-        seed: 48,
-        ..Scenario::strokes(
-            "air + sensor lag, small, short",
-            plant,
-            &Strokes {
-                seed: 48,
-                moves: 40,
-                ..Strokes::default()
-            },
-        )
-    };
+    let sc = short_air_and_sensor_lag(2.0);
     let o = run(&sc);
     assert_eq!(names(&o.d), ["delivery_lag"]);
     let alts = &o.d.effects[0].alternatives;
@@ -343,28 +321,7 @@ fn air_pocket_and_sensor_lag_cannot_be_told_from_a_delivery_lag_on_a_short_log()
 /// was kept with the pair as an alternative at z 1.4.
 #[test]
 fn a_pair_the_held_out_data_tell_apart_replaces_the_delivery_lag() {
-    let plant = PlantConfig {
-        drive: Drive::Ideal,
-        effects: Effects {
-            air_pocket_mm3: [4.0; 3],
-            sensor_lag_s: 0.004,
-            ..Effects::default()
-        },
-        sensor: gaussian(),
-        ..PlantConfig::default()
-    };
-    let sc = Scenario {
-        seed: 48,
-        ..Scenario::strokes(
-            "air + sensor lag, short",
-            plant,
-            &Strokes {
-                seed: 48,
-                moves: 40,
-                ..Strokes::default()
-            },
-        )
-    };
+    let sc = short_air_and_sensor_lag(4.0);
     let o = run(&sc);
     let mut named = names(&o.d);
     named.sort_unstable();
@@ -375,4 +332,31 @@ fn a_pair_the_held_out_data_tell_apart_replaces_the_delivery_lag() {
         swap.rmse_heldout_after < swap.rmse_heldout_before,
         "{swap:?}"
     );
+}
+
+/// An air pocket of `air_mm3` and a sensor lag of 4 ms on a short log of irregular strokes (40
+/// moves, seed 48, the ideal drive).
+fn short_air_and_sensor_lag(air_mm3: f64) -> Scenario {
+    let plant = PlantConfig {
+        drive: Drive::Ideal,
+        effects: Effects {
+            air_pocket_mm3: [air_mm3; 3],
+            sensor_lag_s: 0.004,
+            ..Effects::default()
+        },
+        sensor: gaussian(),
+        ..PlantConfig::default()
+    };
+    Scenario {
+        seed: 48,
+        ..Scenario::strokes(
+            "air + sensor lag, short",
+            plant,
+            &Strokes {
+                seed: 48,
+                moves: 40,
+                ..Strokes::default()
+            },
+        )
+    }
 }
