@@ -99,7 +99,7 @@ pub(super) struct Replaced {
 }
 
 /// Squared errors per row.
-fn squares(resid: &[f64]) -> Vec<f64> {
+pub(super) fn squares(resid: &[f64]) -> Vec<f64> {
     resid.iter().map(|r| r * r).collect()
 }
 

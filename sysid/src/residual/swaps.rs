@@ -255,9 +255,8 @@ fn told_apart(prep: &Prepared, model: &Stage, stage: &Stage) -> bool {
     if blocks.len() < validate::CARRY_MIN_UNITS {
         return true;
     }
-    let squares = |r: &[f64]| r.iter().map(|x| x * x).collect::<Vec<f64>>();
-    validate::paired_z(&squares(&model.resid), &squares(&stage.resid), &blocks)
-        >= alternatives::ALT_Z
+    let sq = alternatives::squares;
+    validate::paired_z(&sq(&model.resid), &sq(&stage.resid), &blocks) >= alternatives::ALT_Z
 }
 
 /// Puts a swap's model in place: the look-alike where the replaced effect was, then any effect
