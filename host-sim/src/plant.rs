@@ -366,6 +366,22 @@ pub enum Drive {
     Lagged,
     /// An ideal servo following the firmware's commanded profile: no lag (module docs).
     Ideal,
+    /// The ideal servo's continuous motion through the delivery lag of [`Drive::Lagged`] (its
+    /// form, its τ_d): a lag without the step train. On the step train a τ_d far below the
+    /// steps' period is no lag at all but a train of flow pulses, which the chamber law's
+    /// C(v, v̇)·v̇ turns into pressure that frames sample as noise near their Nyquist frequency
+    /// (a random rig with τ_d = 0.86 ms: 38 times the noise), and the step count trails the
+    /// commanded motion by half a step (a lag of 0.02 mm³ over the flow, 2 ms at 10 mm³/s);
+    /// here a τ_d that small is a lag that small (the loop benchmark's planted delivery lag).
+    LaggedServo,
+}
+
+impl Drive {
+    /// Whether the motor follows the firmware's commanded profile continuously (the plant is
+    /// handed it, [`Plant::command_flow`]) rather than step by step.
+    pub fn follows_profile(self) -> bool {
+        self != Drive::Lagged
+    }
 }
 
 /// Everything physical about the rig.
@@ -959,33 +975,54 @@ impl Plant {
         }
     }
 
-    /// Move chamber `i`'s drive forward by `h` s to `t_us` (closed form, u constant).
+    /// Move chamber `i`'s drive forward by `h` s to `t_us` (closed form: u constant over the
+    /// interval on the step train, u the servo's motion taken linear over it on
+    /// [`Drive::LaggedServo`]).
     fn deliver(&mut self, i: usize, h: f64, t_us: u64) {
-        let u = self.syringe(i);
-        if self.cfg.drive == Drive::Ideal {
-            self.servo(i, h, t_us);
-            return;
+        match self.cfg.drive {
+            Drive::Ideal => self.servo(i, h, t_us),
+            Drive::Lagged => {
+                let u = self.syringe(i);
+                self.lag(i, h, u, 0.0);
+            }
+            Drive::LaggedServo => {
+                let (w, wdot, u0) = (self.ch[i].w, self.ch[i].wdot, self.syringe(i));
+                self.servo(i, h, t_us);
+                let u1 = self.syringe(i);
+                let c = &mut self.ch[i];
+                (c.w, c.wdot) = (w, wdot);
+                let slope = if h > 0.0 { (u1 - u0) / h } else { 0.0 };
+                self.lag(i, h, u0, slope);
+            }
         }
+    }
+
+    /// The delivery lag of chamber `i` over `h` s with its input `u(t) = u0 + slope·t`, in closed
+    /// form: the lag's steady response to the ramp, `w_p = u − d·slope` (`d` the lag's delay,
+    /// 2τ critically damped, τ₁ + τ₂ overdamped), plus the homogeneous solution of `e = w − w_p`.
+    fn lag(&mut self, i: usize, h: f64, u0: f64, slope: f64) {
         let tau = self.cfg.delivery_time_constant_s;
         let overdamped = self.cfg.effects.forms.delivery_overdamped;
         let c = &mut self.ch[i];
         if overdamped {
             // τ₁τ₂·ë + (τ₁ + τ₂)·ė + e = 0: e(t) = a·e^(−t/τ₁) + b·e^(−t/τ₂).
             let (t1, t2) = (1.6 * tau, 0.4 * tau);
-            let (e0, d0) = (c.w - u, c.wdot);
+            let p0 = u0 - (t1 + t2) * slope;
+            let (e0, d0) = (c.w - p0, c.wdot - slope);
             let a = (d0 + e0 / t2) / (1.0 / t2 - 1.0 / t1);
             let b = e0 - a;
             let (d1, d2) = (libm::exp(-h / t1), libm::exp(-h / t2));
-            c.w = u + a * d1 + b * d2;
-            c.wdot = -a / t1 * d1 - b / t2 * d2;
+            c.w = p0 + slope * h + a * d1 + b * d2;
+            c.wdot = slope - a / t1 * d1 - b / t2 * d2;
             return;
         }
-        // e = w − u obeys τ²ë + 2τė + e = 0: e(t) = (e₀ + (ė₀ + e₀/τ)t)·e^(−t/τ).
-        let (e0, d0) = (c.w - u, c.wdot);
+        // e = w − w_p obeys τ²ë + 2τė + e = 0: e(t) = (e₀ + (ė₀ + e₀/τ)t)·e^(−t/τ).
+        let p0 = u0 - 2.0 * tau * slope;
+        let (e0, d0) = (c.w - p0, c.wdot - slope);
         let b = d0 + e0 / tau;
         let decay = libm::exp(-h / tau);
-        c.w = u + (e0 + b * h) * decay;
-        c.wdot = (d0 - b * h / tau) * decay;
+        c.w = p0 + slope * h + (e0 + b * h) * decay;
+        c.wdot = slope + (d0 - b * h / tau) * decay;
     }
 
     /// Commanded flow at `t_us` from the current quantum's segment (linear; held outside it).
@@ -1027,9 +1064,10 @@ impl Plant {
 
     /// Ideal drive: the firmware's commanded flow of chamber `i` at `t0_us` and `t1_us` (the
     /// simulator's next quantum; mm³/s, positive inflates). At rest over the whole quantum the
-    /// continuous motor volume is set to the step count (module docs). No effect on a lagged drive.
+    /// continuous motor volume is set to the step count (module docs). No effect on the step
+    /// train's drive ([`Drive::follows_profile`]).
     pub fn command_flow(&mut self, i: usize, t0_us: u64, t1_us: u64, f0: f64, f1: f64) {
-        if self.cfg.drive != Drive::Ideal {
+        if !self.cfg.drive.follows_profile() {
             return;
         }
         // Integrate up to the quantum's start on the previous segment first.

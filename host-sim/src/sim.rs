@@ -34,7 +34,7 @@ use futures::task::ArcWake;
 use crate::board::{
     FrameTruth, ReadTruth, Rig, Rx, SimAdc, SimSerial, SimSteppers, SimTelemetry, SimWatchdog,
 };
-use crate::plant::{Drive, Plant, CHAMBERS};
+use crate::plant::{Plant, CHAMBERS};
 use crate::scenario::Scenario;
 use crate::scenario::SerialFaultKind;
 use crate::SimError;
@@ -250,7 +250,7 @@ pub fn simulate_with(scenario: &Scenario, fw: Config) -> Result<SimRun, SimError
         if now >= end_us || stop_at.is_some_and(|s| now >= s) {
             break;
         }
-        if scenario.plant.drive == Drive::Ideal {
+        if scenario.plant.drive.follows_profile() {
             // The ideal drive follows the commanded profile: hand it the next quantum's flow.
             let q = scenario.quantum_us;
             let flows: [(f32, f32); CHAMBERS] = shared.with_control(|c| {

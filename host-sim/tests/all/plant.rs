@@ -4,7 +4,7 @@
 use super::ramp;
 use host_sim::law::Design;
 use host_sim::plant::{
-    ForcePush, Hysteresis, Plant, PlantConfig, Ripple, ATMOSPHERE_KPA, CHAMBERS,
+    Drive, ForcePush, Hysteresis, Plant, PlantConfig, Ripple, ATMOSPHERE_KPA, CHAMBERS,
 };
 
 fn quiet() -> PlantConfig {
@@ -342,5 +342,61 @@ fn bad_parameters_are_refused_with_their_name() {
     assert_eq!(
         Plant::new(&cfg, &[], 1).unwrap_err().name,
         "sensor.noise_kpa"
+    );
+}
+
+/// The lagged servo ([`Drive::LaggedServo`]) against the closed form of a critically damped
+/// lag: a ramp at rate q is trailed by 2·τ_d·q once the start has died out, and the delivered
+/// flow is the rate itself, with none of the step train's pulses (which the same τ_d on the
+/// stepped drive leaves as pulses of flow).
+#[test]
+fn the_lagged_servo_trails_a_ramp_by_two_time_constants_without_pulses() {
+    // 500 steps/s at this rate, 2 ms between steps. Overdamped (poles 1.6τ_d and 0.4τ_d) the
+    // trail is (1.6 + 0.4)·τ_d·q as well.
+    let rate = 20.0;
+    for (tau, overdamped) in [(0.0005, false), (0.003, false), (0.003, true)] {
+        let mut cfg = quiet();
+        cfg.drive = Drive::LaggedServo;
+        cfg.delivery_time_constant_s = tau;
+        cfg.effects.forms.delivery_overdamped = overdamped;
+        let mut p = Plant::new(&cfg, &[], 1).unwrap();
+        let q_us = 1_000;
+        let mut flows = Vec::new();
+        for k in 0..1_000u64 {
+            let t0 = k * q_us;
+            p.command_flow(0, t0, t0 + q_us, rate, rate);
+            // Four looks inside each quantum.
+            for j in 1..=4 {
+                p.advance_to(t0 + j * q_us / 4);
+                if k >= 100 {
+                    flows.push(p.truth(0).flow_mm3_s);
+                }
+            }
+        }
+        let tr = p.truth(0);
+        let commanded = rate * 1.0; // 1 s at the rate
+        assert!(
+            (commanded - tr.delivered_mm3 - 2.0 * tau * rate).abs() < 1e-6,
+            "τ {tau}: trails by {}",
+            commanded - tr.delivered_mm3
+        );
+        let worst = flows.iter().map(|f| (f - rate).abs()).fold(0.0, f64::max);
+        assert!(worst < 1e-6 * rate, "τ {tau}: flow off the rate by {worst}");
+    }
+    // The same τ_d of 0.5 ms on the step train: each step a pulse of flow.
+    let mut cfg = quiet();
+    cfg.delivery_time_constant_s = 0.0005;
+    let mut p = Plant::new(&cfg, &[], 1).unwrap();
+    let t = ramp(&mut p, 0, 500, rate, true);
+    // Between the last step and the next one 2 ms later.
+    let (mut lo, mut hi) = (f64::INFINITY, 0.0_f64);
+    for j in 1..40 {
+        p.advance_to(t + j * 50);
+        let f = p.truth(0).flow_mm3_s;
+        (lo, hi) = (lo.min(f), hi.max(f));
+    }
+    assert!(
+        hi > 1.5 * rate && lo < 0.5 * rate,
+        "step-train flow between {lo} and {hi}"
     );
 }

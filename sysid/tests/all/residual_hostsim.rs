@@ -352,7 +352,8 @@ fn default_drive_lag_is_named_and_nothing_unphysical() {
 /// damped lag) at τ_d = 1.47 ms, below the delivery lag's search bracket (2 ms): the frames see
 /// the mean delay, and the loop names a lag that holds it within 15 % (a sensor lag's τ, a
 /// delivery lag's 2τ or a transport delay; issue 34: in frames they differ only at order
-/// (τ/frame)²). What it leaves, 5 σ, is the motor's step train (module docs of `delivery_lag`).
+/// (τ/frame)²). With the lag on the step train the rig drew before 2026-11-28, 5 σ was left,
+/// the motor's step train (module docs of `delivery_lag`); on the servo's motion, 1.03 σ.
 #[test]
 fn a_fast_overdamped_drive_lag_is_found_by_its_mean_delay() {
     use host_sim::rigs::{draw, FormChoice, PlantedKind, RigOptions};

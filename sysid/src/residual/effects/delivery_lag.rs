@@ -32,7 +32,9 @@
 //! conversions per frame alias (benchmark rigs 37 and 84 of seed 1, τ_d = 0.38 and 0.59 ms: 9 and
 //! 14 σ left, a spectral peak holding half the residual, while no lag of any time constant gains
 //! 1 % of held-out RMSE). The logged motion, smooth between frames, cannot show where the steps
-//! fall; this effect does not claim it.
+//! fall; this effect does not claim it. (The loop benchmark now plants its delivery lags on the
+//! servo's continuous motion, `host_sim::plant::Drive::LaggedServo`, so that a planted lag is a
+//! lag; host-sim's default rig keeps the step train.)
 
 use super::{
     param, DeviceSupport, Effect, EffectModel, Fitted, Inputs, Param, Prepared, Scales, Search,
