@@ -674,6 +674,23 @@ struct Solved {
     hyst: f64,
 }
 
+/// One step of length `h` of the first-order lag `τ ẏ + y = x`, exact for an input `x` linear over
+/// the step from `x0` to `x1` (the pressure between the integrator's sub-step ends, as the
+/// transport delay's history interpolates it), from `y0`:
+///
+/// ```text
+/// y1 = x1 + (y0 − x0)·e − (x1 − x0)·(τ/h)·(1 − e),   e = e^(−h/τ)
+/// ```
+///
+/// A ramp is then followed exactly τ late, as the lag's definition says. Holding the input at
+/// its end value `x1` over the step instead (`y1 = x1 + (y0 − x1)·e`) leads the ramp by `h/2`
+/// to first order (a lag of `h/(e^(h/τ) − 1)` ≈ τ − h/2): with sub-steps of up to 1 ms, 0.2–0.5
+/// ms short, which the benchmark's sensor-lag estimates showed (issue 34).
+fn lag_step(y0: f64, x0: f64, x1: f64, h: f64, tau: f64) -> f64 {
+    let e = libm::exp(-h / tau);
+    x1 + (y0 - x0) * e - (x1 - x0) * (tau / h) * (1.0 - e)
+}
+
 impl Plant {
     /// A plant at rest (all syringes withdrawn, P = 0) at t = 0. Each chamber's noise stream is
     /// seeded from `seed` and its index, so runs are reproducible.
@@ -1114,18 +1131,19 @@ impl Plant {
                 self.explicit(i, dp_force, t_s)
             };
             let c = &mut self.ch[i];
+            let p_before = c.p;
             c.p = s.p;
             c.vdot = s.q;
             c.v = s.v;
             c.leak = s.leak;
             c.hyst = s.hyst;
             c.sensed = if lag > 0.0 && second_order {
-                // Two stages of τ_s/2, each exact for its input held over the step.
-                let decay = libm::exp(-2.0 * h / lag);
-                c.sensed_mid = s.p + (c.sensed_mid - s.p) * decay;
-                c.sensed_mid + (c.sensed - c.sensed_mid) * decay
+                // Two stages of τ_s/2, each exact for its input linear over the step.
+                let mid_before = c.sensed_mid;
+                c.sensed_mid = lag_step(c.sensed_mid, p_before, s.p, h, 0.5 * lag);
+                lag_step(c.sensed, mid_before, c.sensed_mid, h, 0.5 * lag)
             } else if lag > 0.0 {
-                s.p + (c.sensed - s.p) * libm::exp(-h / lag)
+                lag_step(c.sensed, p_before, s.p, h, lag)
             } else {
                 s.p
             };
@@ -1280,5 +1298,57 @@ impl Plant {
     /// Time chamber `i` has been integrated to, µs.
     pub fn time_us(&self, i: usize) -> u64 {
         self.ch[i].t_us
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::lag_step;
+
+    /// A ramp `x = a·t` through the lag, stepped with sub-steps of uneven length (0.1–1 ms, as
+    /// the integrator's are cut by motor steps and conversions): once the start has died out
+    /// the output is the ramp exactly τ late, `a·(t − τ)`, whatever the sub-steps. Holding the
+    /// input at each step's end value instead trails by `h/(e^(h/τ) − 1)` (hand-computed: 2.528 ms
+    /// for τ = 3 ms and h = 1 ms, half a sub-step short).
+    #[test]
+    fn a_ramp_through_the_lag_trails_by_exactly_tau() {
+        let (a, tau) = (40.0, 0.003);
+        let (mut t, mut y, mut k) = (0.0f64, 0.0f64, 0u32);
+        while t < 0.2 {
+            // 0.1, 0.4, 0.7, 1.0 ms in turn.
+            let h = 1e-4 * (1 + 3 * (k % 4)) as f64;
+            y = lag_step(y, a * t, a * (t + h), h, tau);
+            t += h;
+            k += 1;
+        }
+        assert!(
+            (y - a * (t - tau)).abs() < 1e-9 * a,
+            "{y} vs {}",
+            a * (t - tau)
+        );
+
+        // The end-held input, 1 ms sub-steps: a trail of h/(e^(h/τ) − 1).
+        let (h, mut y, mut t) = (1e-3, 0.0f64, 0.0f64);
+        while t < 0.2 {
+            t += h;
+            y = a * t + (y - a * t) * (-h / tau).exp();
+        }
+        let trail = (a * t - y) / a;
+        assert!((trail - 0.002_527_7).abs() < 1e-7, "{trail}");
+    }
+
+    /// The step response: an input jumping from 0 to 1 over one short step and then held is
+    /// `1 − e^(−t/τ)` after it, to the step's length (a linear ramp over it, not a jump).
+    #[test]
+    fn a_held_input_decays_as_the_exponential() {
+        let tau = 0.02;
+        let mut y = lag_step(0.0, 0.0, 1.0, 1e-6, tau);
+        let mut t = 0.0;
+        for _ in 0..50 {
+            y = lag_step(y, 1.0, 1.0, 1e-3, tau);
+            t += 1e-3;
+        }
+        let expect = 1.0 - (-t / tau).exp();
+        assert!((y - expect).abs() < 1e-4, "{y} vs {expect}");
     }
 }

@@ -177,6 +177,10 @@ pub struct Dataset {
     /// Rows left out because the firmware's `flags` column marks their pressure as not yet
     /// zeroed (`NOT_ZEROED`: the boot frames that take the sensor's zero read the raw offset).
     pub not_zeroed: usize,
+    /// Whether the rows carry the firmware's `flags` column: each is one of its frames, the mean
+    /// of its conversions of the pressure, the step count and the commanded flow over the frame
+    /// (not an instant's sample).
+    pub firmware_frames: bool,
 }
 
 /// Owned columns of a subset of a dataset (training or held-out), in time order.
@@ -265,6 +269,7 @@ impl Dataset {
             n_cycles,
             deadband,
             not_zeroed: 0,
+            firmware_frames: false,
         }
     }
 
@@ -341,6 +346,8 @@ struct ChamberRows {
     /// Reference force, `None` once a row lacks it.
     force: Option<Vec<f64>>,
     not_zeroed: usize,
+    /// Whether a row had a `flags` cell (the firmware's frames).
+    flagged: bool,
     /// The first bad `flags` cell, reported when the dataset is built (after the whole log has
     /// been read, so a malformed row anywhere is reported first, as for a log read whole).
     bad: Option<DataError>,
@@ -356,6 +363,7 @@ impl ChamberRows {
             flow: Some(Vec::new()),
             force: Some(Vec::new()),
             not_zeroed: 0,
+            flagged: false,
             bad: None,
         }
     }
@@ -366,6 +374,7 @@ impl ChamberRows {
             return;
         }
         if let Some(cell) = flags.map(str::trim).filter(|c| !c.is_empty()) {
+            self.flagged = true;
             let Ok(bits) = cell.parse::<u32>() else {
                 self.bad = Some(DataError::BadFlags {
                     chamber: self.chamber,
@@ -445,6 +454,7 @@ impl ChamberRows {
             n_cycles,
             deadband,
             not_zeroed: self.not_zeroed,
+            firmware_frames: self.flagged,
         })
     }
 }

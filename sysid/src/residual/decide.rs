@@ -252,6 +252,8 @@ impl Run {
         let n = tt.len();
         let series = Series {
             vddot: signal::acceleration_hermite(&tt, &v, &q),
+            // The firmware's frames of its commanded flow, as a log of the loop reads them.
+            flow_in_frames: true,
             t: tt,
             v,
             vdot: q,

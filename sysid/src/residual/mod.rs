@@ -175,6 +175,14 @@ pub struct Series {
     pub vdot: Vec<f64>,
     /// Volumetric acceleration (mm³/s²), the three-point derivative of flow.
     pub vddot: Vec<f64>,
+    /// Whether the rows are the firmware's frames with its logged flow: means of the pressure,
+    /// step count and commanded flow over the instants each frame averages
+    /// ([`series_from_dataset`] of a log with the firmware's `flags` column and a flow column,
+    /// `Dataset::firmware_frames`). The inertance's acceleration is then each frame's mean of it
+    /// over the motion rebuilt inside the frames (`inframe::SubMotion::frame_mean_accelerations`),
+    /// as the averaging sensor reports `L·v̈`; otherwise (samples at instants, another rig's log,
+    /// [`Series::new`], a derived flow) it is `vddot`.
+    pub flow_in_frames: bool,
     /// Measured pressure (kPa).
     pub p: Vec<f64>,
     /// True on training samples, false on held-out samples.
@@ -240,6 +248,7 @@ impl Series {
             v,
             vdot,
             vddot,
+            flow_in_frames: false,
             p,
             train,
             cycle_s: None,
@@ -721,6 +730,8 @@ pub fn series_from_dataset(ds: &Dataset) -> Result<Series, DiagnoseError> {
         crate::dataset::FlowSource::Logged => signal::acceleration_hermite(&ds.t, &ds.v, &ds.vdot),
         crate::dataset::FlowSource::Derived { .. } => ds.vddot.clone(),
     };
+    s.flow_in_frames =
+        ds.firmware_frames && matches!(ds.flow_source, crate::dataset::FlowSource::Logged);
     s.cycle_s = cycle_period(&ds.t, &ds.cycle).or_else(|| motion_period(&ds.t, &ds.vdot));
     Ok(s)
 }

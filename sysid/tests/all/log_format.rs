@@ -274,6 +274,15 @@ fn frames_flagged_not_zeroed_are_left_out_and_bad_flags_are_named() {
     assert!(ds
         .split_description()
         .contains("5 frames before the pressure zero"));
+    // A log with the `flags` column is the firmware's frames (means over each frame); one
+    // without it is not said to be.
+    assert!(ds.firmware_frames);
+    let plain = text
+        .replace(",flags\n", "\n")
+        .replace(",65536\n", "\n")
+        .replace(",0\n", "\n");
+    let ds = Dataset::from_log(&parse(&plain).unwrap(), 0, &DatasetConfig::default()).unwrap();
+    assert!(!ds.firmware_frames && ds.not_zeroed == 0 && ds.len() == 30);
     // Other bits (a warning such as MODEL_RANGE) keep the row.
     let kept = parse(&text.replace(",65536\n", &format!(",{}\n", 1 << 17))).unwrap();
     let ds = Dataset::from_log(&kept, 0, &DatasetConfig::default()).unwrap();

@@ -1,5 +1,5 @@
-//! Inertance: the water column's mass, one added column `L·v̈` (v̈ the volumetric acceleration),
-//! no searched parameter; admissible only with `L ≥ 0`.
+//! Inertance: the water column's mass, one added column `L·v̈` (v̈ the volumetric acceleration,
+//! on frame means its mean over each frame), no searched parameter; admissible only with `L ≥ 0`.
 
 use super::{param, Column, DeviceSupport, Effect, EffectModel, Fitted, Param, Prepared, Scales};
 
@@ -15,13 +15,22 @@ impl EffectModel for Inertance {
         "The water column in the tube has mass, so accelerating the flow takes a pressure proportional to the volumetric acceleration."
     }
 
-    /// The loop's v̈ looks a sample ahead (`Series::vddot`); the board's form
-    /// ([`Effect::board_form`]) has only the past: the end slope of the volume's cubic over the
-    /// last frame (`signal::acceleration_causal`, as `model_core::chain` computes it).
+    /// On the firmware's frames with its logged flow (`Series::flow_in_frames`: a log with its
+    /// `flags` column) the averaging sensor reports each frame's mean of `L·v̈` over the
+    /// instants it averages: the column is that mean over the motion rebuilt inside the frames
+    /// (`inframe::SubMotion::frame_mean_accelerations`). The Hermite acceleration at the frame,
+    /// used before, spread a short ramp's acceleration over the neighbouring frames, and the
+    /// inertance fitted on it was 5–20 % short on the loop benchmark (issue 34). Otherwise
+    /// (samples at instants, another rig's log, `Series::new`, a derived flow) `Series::vddot`,
+    /// which looks a sample ahead. The board's
+    /// form ([`Effect::board_form`]) has only the past: the end slope of the volume's cubic over
+    /// the last frame (`signal::acceleration_causal`, as `model_core::chain` computes it).
     fn columns(&self, e: &Effect, prep: &Prepared, _v: &[f64]) -> Vec<Column> {
         let se = &prep.series;
         let acc = if e.board_form {
             crate::residual::signal::acceleration_causal(&se.t, &se.v, &se.vdot)
+        } else if se.flow_in_frames {
+            prep.sub_motion().frame_mean_accelerations(&se.t)
         } else {
             se.vddot.clone()
         };
