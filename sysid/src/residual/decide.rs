@@ -261,6 +261,7 @@ impl Run {
             train: vec![true; n],
             cycle_s: None,
             rig,
+            volume_step: None,
         };
         (series, sub)
     }

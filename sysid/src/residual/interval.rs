@@ -62,6 +62,10 @@ pub struct JointCov {
     /// One Gauss–Newton step over `[β…, u…]` from the model as fitted toward the least-squares
     /// minimum of the training SSE: zero in β (fitted exactly), in u the search's own error.
     step: Vec<f64>,
+    /// Where the volume is a count of motor steps (`Series::volume_step`): each effect's
+    /// parameters ([`super::effects::EffectModel::params`], in order) refitted on the volume
+    /// shifted by half a step in the direction of motion ([`resolution`]).
+    resolution: Option<Vec<Vec<f64>>>,
 }
 
 /// Blocks of consecutive training rows: runs of `rows` without a gap, cut into pieces of
@@ -252,12 +256,86 @@ pub fn joint_cov(prep: &Prepared, stage: &Stage) -> Option<JointCov> {
         }
     };
     let (cov, step) = sandwich_of(p + theta_cols.len(), col, &e, &bl)?;
+    drop(design);
     Some(JointCov {
         cov,
         step,
+        resolution: resolution(prep, stage),
         theta,
         t975: t975(bl.len() as f64 - 1.0),
     })
+}
+
+/// The volume's resolution, where it is a count of motor steps (`Series::volume_step`, q): the
+/// count trails the motion it counts by up to a step while moving (on a rig whose plunger follows
+/// the motor's commanded profile, by half a step on average; on one whose plunger sits where the
+/// count says, by none), which no model of the log can tell apart. The final model is fitted
+/// again on the volume shifted by `q/2` in the direction of the logged flow: each effect's θ in
+/// turn moved to the vertex of a parabola through the SSE at its value and a step either side
+/// (the others at theirs), then the coefficients refitted with every θ so moved. Returns each
+/// effect's parameters there (`None` without a quantum or where a fit fails). [`attach`] takes
+/// the difference from the reported value as the half-width of a uniform error (variance a
+/// third of its square) and adds it to the noise's.
+///
+/// On a shift of a half step, a backlash's play moves by a few hundredths of a mm³ (a third to
+/// a half of q), where its interval from the noise alone is a few thousandths; a lag, an air
+/// pocket or a drift barely moves.
+fn resolution(prep: &Prepared, stage: &Stage) -> Option<Vec<Vec<f64>>> {
+    let q = prep.series.volume_step.filter(|&q| q > 0.0)?;
+    let mut se = prep.series.clone();
+    for (v, f) in se.v.iter_mut().zip(&se.vdot) {
+        if *f != 0.0 {
+            *v += 0.5 * q * f.signum();
+        }
+    }
+    let moved = Prepared::new(se, prep.basis.clone());
+    let sse = |effects: &[super::effects::Effect]| {
+        super::search::fit_stage(&moved, effects).map(|s| s.fit.sse)
+    };
+    let here = sse(&stage.effects)?;
+    let mut effects = stage.effects.clone();
+    for (i, e) in stage.effects.iter().enumerate() {
+        let Some(log) = coordinate(e.kind.search(&prep.scales)) else {
+            continue;
+        };
+        if !e.theta.is_finite() || (log && e.theta <= 0.0) || e.theta == 0.0 {
+            continue;
+        }
+        let h = 0.1;
+        let at = |d: f64| {
+            let mut trial = stage.effects.clone();
+            trial[i].theta = if log {
+                e.theta * d.exp()
+            } else {
+                e.theta * (1.0 + d)
+            };
+            sse(&trial)
+        };
+        let (Some(up), Some(dn)) = (at(h), at(-h)) else {
+            continue;
+        };
+        let curv = up - 2.0 * here + dn;
+        if curv.is_nan() || curv <= 0.0 {
+            continue;
+        }
+        let d = (-0.5 * h * (up - dn) / curv).clamp(-2.0 * h, 2.0 * h);
+        effects[i].theta = if log {
+            e.theta * d.exp()
+        } else {
+            e.theta * (1.0 + d)
+        };
+    }
+    let refit = super::search::fit_stage(&moved, &effects)?;
+    Some(
+        (0..effects.len())
+            .map(|i| {
+                super::search::effect_params(&moved, &refit, i)
+                    .iter()
+                    .map(|p| p.value)
+                    .collect()
+            })
+            .collect(),
+    )
 }
 
 /// Rows per block: at least [`BLOCK_S`] seconds, and about [`BLOCKS`] blocks over the training
@@ -352,6 +430,13 @@ pub fn attach(
         }
         if !(var.is_finite() && var >= 0.0) {
             continue;
+        }
+        // The volume's resolution ([`resolution`]): a uniform error up to the shift's effect.
+        if let Some(moved) = jc.resolution.as_ref().and_then(|r| r.get(i)?.get(k)) {
+            let r = moved - p.value;
+            if r.is_finite() {
+                var += r * r / 3.0;
+            }
         }
         let half = jc.t975 * var.sqrt();
         // Where the least-squares minimum lies from the value the search stopped at (one
@@ -593,5 +678,48 @@ mod calibration {
         let sd = (values.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (m - 1.0)).sqrt();
         let half = halves.iter().sum::<f64>() / m;
         assert!(half < 1.5 * 1.96 * sd, "half-width {half} against sd {sd}");
+    }
+
+    /// A play of 0.3 mm³ planted on the motion itself, the log's volume a count of 0.04 mm³
+    /// steps trailing that motion by half a step while it moves (as the firmware's count trails a
+    /// plunger that follows its commanded profile). From the count the play comes out off by a
+    /// share of a step, many times its interval from the noise alone; with the volume's
+    /// resolution the interval holds the planted play, and is no wider than about a step.
+    #[test]
+    fn the_volume_step_widens_the_interval_to_hold_a_play_the_count_shifts() {
+        use crate::residual::effects::Backlash;
+        let (n, play, q) = (3000, 0.3, 0.04);
+        let kind = EffectKind(&Backlash);
+        let truth = plant(n, &[Effect::new(kind, play)], |_| 0.0, 0.002);
+        let se = &truth.series;
+        let count: Vec<f64> =
+            se.v.iter()
+                .zip(&se.vdot)
+                .map(|(v, f)| v - 0.5 * q * f.signum())
+                .collect();
+        let interval = |step: Option<f64>| {
+            let mut series = Series::new(
+                se.t.clone(),
+                count.clone(),
+                se.vdot.clone(),
+                se.p.clone(),
+                se.train.clone(),
+            )
+            .unwrap();
+            series.volume_step = step;
+            let basis = PolyBasis::for_data(&series.v, &series.vdot, 3, 2).unwrap();
+            let prep = Prepared::new(series, basis);
+            let base = search::fit_stage(&prep, &[]).unwrap();
+            let stage = search::search(&prep, &base, kind).unwrap().stage;
+            let jc = joint_cov(&prep, &stage).unwrap();
+            let b = &effect_params_ci(&prep, &stage, 0, Some(&jc))[0];
+            assert_eq!(b.name, "play");
+            (b.value, b.ci95.unwrap())
+        };
+        let (_, [lo, hi]) = interval(None);
+        let (_, [lo2, hi2]) = interval(Some(q));
+        assert!(!(lo <= play && play <= hi));
+        assert!(lo2 <= play && play <= hi2);
+        assert!(hi2 - lo2 < 2.0 * q);
     }
 }

@@ -194,6 +194,11 @@ pub struct Series {
     /// The rig the data come from, for the effects' names ([`Rig`]; [`Series::new`]: this
     /// project's syringe rig; [`diagnose_log`] reads it from the log's header).
     pub rig: Rig,
+    /// The volume's resolution (mm³) where it is a count of motor steps: on the firmware's frames
+    /// ([`series_from_dataset`]) its step, [`crate::synth::STEP_MM3`]. The count trails the
+    /// motion it counts by up to a step, so no parameter is known better than a shift of half a
+    /// step would move it ([`super::residual::interval`]). `None`: no known quantum.
+    pub volume_step: Option<f64>,
 }
 
 impl Series {
@@ -253,6 +258,7 @@ impl Series {
             train,
             cycle_s: None,
             rig: Rig::Syringe,
+            volume_step: None,
         })
     }
 
@@ -733,6 +739,7 @@ pub fn series_from_dataset(ds: &Dataset) -> Result<Series, DiagnoseError> {
     s.flow_in_frames =
         ds.firmware_frames && matches!(ds.flow_source, crate::dataset::FlowSource::Logged);
     s.cycle_s = cycle_period(&ds.t, &ds.cycle).or_else(|| motion_period(&ds.t, &ds.vdot));
+    s.volume_step = ds.firmware_frames.then_some(crate::synth::STEP_MM3);
     Ok(s)
 }
 
