@@ -24,6 +24,10 @@ impl EffectModel for TransportDelay {
         true
     }
 
+    /// From a quarter of a frame. Searched from a twentieth (as the sensor lag), the loop
+    /// benchmark named more delays of 2–9 ms and listed them beside the lags, but on host-sim's
+    /// step-train drive a planted delivery lag was then decided a delay (the user guide's
+    /// benchmarks, "The delays' floors, tried and left out").
     fn search(&self, sc: &Scales) -> Search {
         Search::Log(0.25 * sc.dt, (1.5f64).min(sc.duration / 20.0).max(sc.dt))
     }
