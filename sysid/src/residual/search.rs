@@ -634,7 +634,7 @@ impl<'a> Trials<'a> {
                 0.0
             }
             Search::Degree(max) => self.best_degree(max),
-            Search::Log(lo, hi) if self.kind.tries_point_sampled() => {
+            Search::Log(lo, hi) if fits_both_forms(self.kind, self.prep) => {
                 return Some(self.both_forms(lo, hi))
             }
             Search::Log(lo, hi) => {
@@ -988,6 +988,13 @@ fn retune_inner(prep: &Prepared, stage: &Stage, target: Option<f64>) -> Stage {
     tuned
 }
 
+/// Whether `kind` is fitted both ways on these data
+/// ([`super::effects::EffectModel::tries_point_sampled`], and on the firmware's frames
+/// [`super::effects::EffectModel::point_sampled_on_frames`]).
+fn fits_both_forms(kind: EffectKind, prep: &Prepared) -> bool {
+    kind.tries_point_sampled() && (kind.point_sampled_on_frames() || !prep.series.flow_in_frames)
+}
+
 /// The effects with every one that is fitted both ways ([`Effect::point_sampled`]) in one form,
 /// the one with the lower training SSE, where that is below `sse` (the SSE of `effects` as they
 /// are); else `effects` as they are. Whether the log's samples are instants or frame means is a
@@ -998,7 +1005,7 @@ fn retune_inner(prep: &Prepared, stage: &Stage, target: Option<f64>) -> Stage {
 /// 1.14 σ, against 1.02 σ in one form.
 fn one_form(prep: &Prepared, effects: Vec<Effect>, sse: f64) -> (Vec<Effect>, f64) {
     let both: Vec<usize> = (0..effects.len())
-        .filter(|&i| effects[i].kind.tries_point_sampled())
+        .filter(|&i| fits_both_forms(effects[i].kind, prep))
         .collect();
     let mut best = (effects, sse);
     if both.len() < 2 {
@@ -1531,7 +1538,9 @@ mod tests {
         assert!(located_on(&prep, &cur, delay, &Effect::new(delay, 0.1)).is_some());
         let found = search(&prep, &cur, delay).unwrap().stage;
         let theta = found.effects[1].theta;
-        assert!((theta / 0.1 - 1.0).abs() < 2e-3, "delay {theta}");
+        // Within the search's precision (the polish's bracket over an 8-point grid from a
+        // twentieth of a frame: 0.24 % here, 0.1 % when the range began at a quarter of one).
+        assert!((theta / 0.1 - 1.0).abs() < 3e-3, "delay {theta}");
         assert!(
             found.fit.sse < 1e-5 * cur.fit.sse,
             "SSE {} -> {}",

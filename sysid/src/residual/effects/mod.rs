@@ -351,6 +351,14 @@ pub trait EffectModel: Send + Sync {
         false
     }
 
+    /// Whether that second form is tried on the firmware's frames too (`Series::flow_in_frames`:
+    /// each sample a mean over its frame, which the log says); default yes. An effect whose
+    /// form between instants is another sensor's, not a stand-in for its form inside the
+    /// frames, says no.
+    fn point_sampled_on_frames(&self) -> bool {
+        true
+    }
+
     /// Whether a round's search of θ may start where the previous round's ended
     /// (`search::search_from`) instead of over the whole grid: true where the training SSE has
     /// one minimum in θ over the search range (one time constant, delay or rate), which one more
