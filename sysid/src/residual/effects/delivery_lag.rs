@@ -28,7 +28,10 @@
 //! of 2 ms) once the benchmark planted its lags on the servo's motion (300 rigs of seed 1): 22
 //! delivery lags named rightly where 16 were, but three sensor lags and five transport delays
 //! named delivery lags, precision 0.768 → 0.776 and recall at oracle gain ≥ 5 % 0.778 → 0.788,
-//! within their errors, and one rig's diagnosis 5.7 → 9.5 s: left out.
+//! within their errors, and one rig's diagnosis 5.7 → 9.5 s: left out. Tried a third time once
+//! the transport delay was searched from 5 % too (2026-11-28): precision counting alternatives
+//! 0.872 → 0.897, recall at oracle gain ≥ 5 % 0.782 → 0.789, but the same rig 8.2 → 10.1 s, over
+//! the loop's 10 s budget: left out.
 //!
 //! What a fast drive leaves unexplained is not a lag's shape but the motor's **step train**: with
 //! τ well below the step interval (0.4–2 ms at the strokes' flows), each 0.04 mm³ step arrives as
