@@ -235,13 +235,14 @@ fn lag_weights(dt: f64, tau: f64) -> [f64; 5] {
 pub const PLAY_SUBSAMPLES: usize = 8;
 
 /// What the play operator made of one frame.
-struct PlayFrame {
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PlayFrame {
     /// The plunger at the frame's last sub-sample (the state).
-    z: f32,
+    pub z: f32,
     /// The plunger's mean over the frame.
-    v: f32,
+    pub v: f32,
     /// Fraction of the sub-samples at which the nut bears on the plunger.
-    engaged: f32,
+    pub engaged: f32,
 }
 
 /// Backlash on one frame: the nut's motion inside the frame is rebuilt from the frame's own
@@ -250,7 +251,11 @@ struct PlayFrame {
 /// `z ← clamp(z, x_j − h, x_j + h)` runs over them from the last frame's `z` (from `x₀` on the
 /// first frame), and the plunger's mean and the engaged fraction (the sub-samples at which the
 /// clamp moves z along the flow's direction: the nut pushes the plunger) come out. `h = 0` is no play (the frame passes unchanged).
-fn play_frame(z: f32, primed: bool, v: f32, f: f32, dt: f32, h: f32) -> PlayFrame {
+/// The host's form of the board's backlash (`sysid`'s `play_frame_linear`) calls this same
+/// function, so that the two decide each sub-sample's engagement alike: in f64 a nut that
+/// reaches the band's edge within f32's resolution of a sub-sample would engage there, and
+/// the board's would not.
+pub fn play_frame(z: f32, primed: bool, v: f32, f: f32, dt: f32, h: f32) -> PlayFrame {
     if h == 0.0 {
         return PlayFrame {
             z: v,

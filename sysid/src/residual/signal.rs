@@ -568,8 +568,10 @@ pub fn play_frame_linear(t: &[f64], v: &[f64], f: &[f64], w: f64) -> (Vec<f64>, 
     if h == 0.0 || n == 0 {
         return (v.to_vec(), f.to_vec());
     }
-    let s = SUB_SAMPLES as f64;
-    let mut z = f64::NAN;
+    // The board's own operator, in its f32: a nut reaching the band's edge within f32's
+    // resolution of a sub-sample engages there in f64 and not on the board (a property test
+    // found one: `chain_agrees`, backlash).
+    let (mut z, mut primed) = (0.0f32, false);
     let (mut vo, mut fo) = (Vec::with_capacity(n), Vec::with_capacity(n));
     for k in 0..n {
         let dt = match k {
@@ -577,22 +579,11 @@ pub fn play_frame_linear(t: &[f64], v: &[f64], f: &[f64], w: f64) -> (Vec<f64>, 
             0 => 0.0,
             _ => t[k] - t[k - 1],
         };
-        let (mut sum, mut engaged) = (0.0, 0.0);
-        for j in 0..SUB_SAMPLES {
-            let x = v[k] + f[k] * dt * ((j as f64 + 0.5) / s - 0.5);
-            if z.is_nan() {
-                z = x;
-            }
-            let before = z;
-            z = z.clamp(x - h, x + h);
-            // The nut pushes the plunger along its own motion (exact, as on the board).
-            if (z - before) * f[k] > 0.0 {
-                engaged += 1.0;
-            }
-            sum += z;
-        }
-        vo.push(sum / s);
-        fo.push(f[k] * engaged / s);
+        let out =
+            model_core::chain::play_frame(z, primed, v[k] as f32, f[k] as f32, dt as f32, h as f32);
+        (z, primed) = (out.z, true);
+        vo.push(f64::from(out.v));
+        fo.push(f[k] * f64::from(out.engaged));
     }
     (vo, fo)
 }
