@@ -96,6 +96,14 @@ pub fn blocks(rows: &[usize], len: usize) -> Vec<std::ops::Range<usize>> {
     out
 }
 
+/// The coordinate of effect `e`'s θ where it has one to differentiate in: `Some(true)` for
+/// `ln θ`, `Some(false)` for θ; `None` without a continuous θ, or one not finite (not positive,
+/// for `ln θ`).
+fn theta_coordinate(e: &super::effects::Effect, prep: &Prepared) -> Option<bool> {
+    let log = coordinate(e.kind.search(&prep.scales))?;
+    (e.theta.is_finite() && !(log && e.theta <= 0.0)).then_some(log)
+}
+
 /// The search coordinate of an effect's θ: `Some(true)` for `ln θ`, `Some(false)` for θ, `None`
 /// without a continuous θ.
 fn coordinate(search: Search) -> Option<bool> {
@@ -207,12 +215,9 @@ pub fn joint_cov(prep: &Prepared, stage: &Stage) -> Option<JointCov> {
     let mut theta = vec![None; stage.effects.len()];
     let mut theta_cols: Vec<Vec<f64>> = Vec::new();
     for (i, e) in stage.effects.iter().enumerate() {
-        let Some(log) = coordinate(e.kind.search(&prep.scales)) else {
+        let Some(log) = theta_coordinate(e, prep) else {
             continue;
         };
-        if !e.theta.is_finite() || (log && e.theta <= 0.0) {
-            continue;
-        }
         let h = if log {
             0.02
         } else {
@@ -295,20 +300,21 @@ fn resolution(prep: &Prepared, stage: &Stage) -> Option<Vec<Vec<f64>>> {
     let here = sse(&stage.effects)?;
     let mut effects = stage.effects.clone();
     for (i, e) in stage.effects.iter().enumerate() {
-        let Some(log) = coordinate(e.kind.search(&prep.scales)) else {
+        let Some(log) = theta_coordinate(e, prep).filter(|_| e.theta != 0.0) else {
             continue;
         };
-        if !e.theta.is_finite() || (log && e.theta <= 0.0) || e.theta == 0.0 {
-            continue;
-        }
-        let h = 0.1;
-        let at = |d: f64| {
-            let mut trial = stage.effects.clone();
-            trial[i].theta = if log {
+        // θ moved by a relative step d (in ln θ, or as a fraction of θ).
+        let moved_by = |d: f64| {
+            if log {
                 e.theta * d.exp()
             } else {
                 e.theta * (1.0 + d)
-            };
+            }
+        };
+        let h = 0.1;
+        let at = |d: f64| {
+            let mut trial = stage.effects.clone();
+            trial[i].theta = moved_by(d);
             sse(&trial)
         };
         let (Some(up), Some(dn)) = (at(h), at(-h)) else {
@@ -318,12 +324,7 @@ fn resolution(prep: &Prepared, stage: &Stage) -> Option<Vec<Vec<f64>>> {
         if curv.is_nan() || curv <= 0.0 {
             continue;
         }
-        let d = (-0.5 * h * (up - dn) / curv).clamp(-2.0 * h, 2.0 * h);
-        effects[i].theta = if log {
-            e.theta * d.exp()
-        } else {
-            e.theta * (1.0 + d)
-        };
+        effects[i].theta = moved_by((-0.5 * h * (up - dn) / curv).clamp(-2.0 * h, 2.0 * h));
     }
     let refit = super::search::fit_stage(&moved, &effects)?;
     Some(
