@@ -538,7 +538,8 @@ pub struct Diagnosis {
     #[serde(skip)]
     pub leads: Vec<effects::Effect>,
     /// The baseline's shape chosen again with the effects ([`reshape`]): the shape selected at
-    /// the start, the one the final model uses and why; absent when the shape was given.
+    /// the start, the one the final model uses and why; absent when the shape was given, and
+    /// when no richer shape was tried again and `Config::reshape` is off.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub reshape: Option<ReshapeReport>,
     /// The log's volume range, fastest flow and noise (what an experiment may ask of the rig,
@@ -854,10 +855,12 @@ pub fn diagnose_log(
 
 /// The loop on a data set ([`series_from_dataset`]; the rig `cfg.rig`, else this project's
 /// syringe rig). The baseline shape is `cfg.n`, `cfg.m` when `shape_given`; else the
-/// selection's ([`select_shape`], (3, 2) when the sweep fits nothing), and then, with
-/// `cfg.reshape`, chosen again with the effects ([`reshape`]): where a simpler shape with an
-/// effect is the cross-validated choice, the loop runs again from it, and the two outcomes are
-/// compared by the same rule ([`Diagnosis::reshape`] says which was kept and why).
+/// selection's ([`select_shape`], (3, 2) when the sweep fits nothing), and then chosen again
+/// with the effects ([`reshape`]): where a richer shape with the loop's effects is the
+/// cross-validated choice (always tried), or with `cfg.reshape` a simpler shape with an effect,
+/// the loop runs again from it, and the two outcomes are compared by the same rule
+/// ([`Diagnosis::reshape`] says which was kept and why; absent where the richer probe kept the
+/// selected shape and `cfg.reshape` is off).
 pub fn diagnose_dataset(
     ds: &Dataset,
     cfg: &Config,
@@ -876,14 +879,53 @@ pub fn diagnose_dataset(
         (cfg.n, cfg.m) = selection.as_ref().map_or((3, 2), |s| s.0);
     }
     let shape_s = secs(t);
-    let keep_series = (cfg.reshape && selection.is_some()).then(|| series.clone());
+    let keep_series = selection
+        .as_ref()
+        .filter(|_| series.len() <= reshape::MAX_SAMPLES)
+        .map(|_| series.clone());
     let mut d = diagnose(series, &cfg)?;
     d.timing.shape_selection = shape_s;
     d.timing.total += shape_s;
     if let (Some(series), Some((shape, blocks, scores))) = (keep_series, selection) {
-        d = reshape_step(d, &series, &cfg, shape, blocks, &scores)?;
+        let Some(setup) = reshape::CvSetup::new(blocks, &series) else {
+            return Ok(d);
+        };
+        d = richer_step(d, &series, &cfg, shape, &setup, &scores)?;
+        if cfg.reshape && d.reshape.is_none() {
+            d = reshape_step(d, &series, &cfg, shape, &setup, &scores)?;
+        }
     }
     Ok(d)
+}
+
+/// The shape chosen again with the loop's effects among richer shapes ([`reshape`], "Richer
+/// shapes") after the loop `d` from `shape`: where the rule prefers a richer shape with them, the
+/// loop runs again from it. `d` unchanged (no report) where the rule keeps `shape`.
+fn richer_step(
+    d: Diagnosis,
+    series: &Series,
+    cfg: &Config,
+    shape: (usize, usize),
+    setup: &reshape::CvSetup,
+    scores: &[crate::select::CvScore],
+) -> Result<Diagnosis, DiagnoseError> {
+    let t = std::time::Instant::now();
+    let probe = reshape::probe_richer(series, setup, shape, scores, &d.final_effects);
+    let probe_s = secs(t);
+    let Some((second, numbers)) = probe else {
+        let mut d = d;
+        d.timing.reshape += probe_s;
+        d.timing.total += probe_s;
+        return Ok(d);
+    };
+    tell(
+        cfg.progress,
+        Progress::Stage {
+            what: "the loop again from a richer shape",
+            total: 0,
+        },
+    );
+    second_loop(d, series, cfg, setup, shape, second, numbers, probe_s)
 }
 
 /// The shape chosen again with the effects ([`reshape`]) after the loop `d` from `shape`.
@@ -892,22 +934,19 @@ fn reshape_step(
     series: &Series,
     cfg: &Config,
     shape: (usize, usize),
-    blocks: crate::select::Blocks,
+    setup: &reshape::CvSetup,
     scores: &[crate::select::CvScore],
 ) -> Result<Diagnosis, DiagnoseError> {
     let t = std::time::Instant::now();
-    let Some(setup) = reshape::CvSetup::new(blocks, series) else {
-        return Ok(d);
-    };
     let say = |what: &str| tell(cfg.progress, Progress::Stage { what, total: 0 });
     say("the baseline's shape with the effects");
-    let probe = reshape::probe(series, &setup, shape, scores, &d.final_effects, &d.leads);
+    let probe = reshape::probe(series, setup, shape, scores, &d.final_effects, &d.leads);
     let (second, numbers) = match probe {
         reshape::Probe::Stay(report) => {
             let mut d = d;
             d.reshape = Some(report);
             let s = secs(t);
-            d.timing.reshape = s;
+            d.timing.reshape += s;
             d.timing.total += s;
             return Ok(d);
         }
@@ -935,7 +974,7 @@ fn reshape_step(
                     outcomes: Vec::new(),
                 });
                 let s = secs(t);
-                d.timing.reshape = s;
+                d.timing.reshape += s;
                 d.timing.total += s;
                 return Ok(d);
             }
@@ -943,13 +982,30 @@ fn reshape_step(
         }
     };
     let probe_s = secs(t);
+    second_loop(d, series, cfg, setup, shape, second, numbers, probe_s)
+}
+
+/// The loop run again from `second` after the loop `d` from `shape`, and the two final models
+/// compared by the selection's rule ([`reshape::compare`]): the one it chooses is returned, with
+/// the report (`numbers` the probe's models; `probe_s` the probe's time).
+#[allow(clippy::too_many_arguments)]
+fn second_loop(
+    d: Diagnosis,
+    series: &Series,
+    cfg: &Config,
+    setup: &reshape::CvSetup,
+    shape: (usize, usize),
+    second: (usize, usize),
+    numbers: Vec<ModelCv>,
+    probe_s: f64,
+) -> Result<Diagnosis, DiagnoseError> {
     let mut cfg2 = cfg.clone();
     (cfg2.n, cfg2.m) = second;
     let d2 = diagnose(series.clone(), &cfg2)?;
     let t = std::time::Instant::now();
     let compared = reshape::compare(
         series,
-        &setup,
+        setup,
         shape,
         &d.final_effects,
         second,
@@ -968,6 +1024,11 @@ fn reshape_step(
             second.0, second.1
         )
     };
+    // Time the step spent before (the richer probe): counted once, in the step's time.
+    let mut d = d;
+    let earlier = d.timing.reshape;
+    d.timing.reshape = 0.0;
+    d.timing.total -= earlier;
     let (mut kept, other) = if take { (d2, d) } else { (d, d2) };
     let used = (kept.baseline.n, kept.baseline.m);
     kept.reshape = Some(ReshapeReport {
@@ -980,7 +1041,7 @@ fn reshape_step(
     });
     // The loop whose model was not kept is part of the step's time; the first loop's shape
     // selection stays where it was.
-    let extra = probe_s + compare_s + other.timing.total - other.timing.shape_selection;
+    let extra = earlier + probe_s + compare_s + other.timing.total - other.timing.shape_selection;
     if take {
         kept.timing.shape_selection = other.timing.shape_selection;
         kept.timing.total += other.timing.shape_selection;
