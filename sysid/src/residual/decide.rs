@@ -343,6 +343,11 @@ fn with_pressure(prep: &Prepared, p: Vec<f64>) -> Prepared {
     let mut q = prep.clone();
     q.p_int = signal::cumulative_integral(&q.series.t, &p);
     q.scales.p_integral = q.p_int.last().copied().unwrap_or(0.0);
+    let pos: Vec<f64> = p.iter().map(|&x| x.max(0.0)).collect();
+    q.scales.p_pos_integral = signal::cumulative_integral(&q.series.t, &pos)
+        .last()
+        .copied()
+        .unwrap_or(0.0);
     let (lo, hi) = p
         .iter()
         .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &x| {

@@ -339,12 +339,13 @@ impl Searched {
 }
 
 /// Whether two effects are the same at the same parameters (kind, parameter to the bit, sampling
-/// form and ripple offset).
+/// form, ripple offset and the leak's form).
 pub(crate) fn same_effect(a: &Effect, b: &Effect) -> bool {
     a.kind == b.kind
         && a.theta.to_bits() == b.theta.to_bits()
         && a.point_sampled == b.point_sampled
         && a.ripple_offset == b.ripple_offset
+        && a.one_way == b.one_way
 }
 
 /// [`same_effect`] for each of two lists of effects, in order.

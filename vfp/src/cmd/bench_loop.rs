@@ -120,9 +120,10 @@ pub fn expected_name(kind: PlantedKind) -> &'static str {
 /// The leak is compared on the water it lost over the log (`leaked_mm3`: the plant's leaked
 /// volume between the log's first and last frames; the loop's `volume_lost_over_log`, λ·∫P dt),
 /// not on its conductance: the plant's G acts on the positive pressure only (`G·max(P, 0)`, no
-/// water drawn back in under suction), the loop's λ on the signed measured pressure, and the
-/// benchmark's logs reach −15 kPa in fast deflations, so the λ that fits is about
-/// G·∫max(P, 0) dt / ∫P dt (1.13–1.15 on rigs 24, 44 and 52 of seed 1, where λ/G was 1.08–1.17):
+/// water drawn back in under suction), the loop's λ on the signed measured pressure in its open
+/// form and on the positive one in its one-way form (`Effect::one_way`), the form the loop
+/// chooses by its fit; the benchmark's logs reach −15 kPa in fast deflations, so an open path's
+/// λ that fits is about G·∫max(P, 0) dt / ∫P dt (1.13–1.15 on rigs 24, 44 and 52 of seed 1):
 /// two conductances of different forms, one volume.
 pub fn truth_params(p: &Planted, span_s: (f64, f64), leaked_mm3: f64) -> Vec<(&'static str, f64)> {
     match p.kind {

@@ -1119,7 +1119,7 @@ fn md_glossary(s: &mut String, r: &DemoReport) {
         ("p", "the probability of an improvement this large by chance, from the loop's F-test with the sample size corrected for residual autocorrelation; `0.0e0` is below what a double can hold"),
         ("shape", "(n, m): the highest powers of v and v̇ in the polynomial; (p, n, m) with p autoregressive input terms"),
     ];
-    const PARAMS: [(&str, &str); 14] = [
+    const PARAMS: [(&str, &str); 15] = [
         ("width", "hysteresis: the volume over which 63 % of the switch happens after a reversal"),
         ("gap_at_mid_volume", "hysteresis: pressure on inflation minus on deflation, at mid volume"),
         ("gap_change_to_range_ends", "hysteresis: how much that gap changes from mid volume to either end of the volume range"),
@@ -1130,6 +1130,7 @@ fn md_glossary(s: &mut String, r: &DemoReport) {
         ("inertance", "the pressure per unit volume acceleration, P = L·v̈"),
         ("conductance", "leak: flow out per kPa"),
         ("volume_lost_over_log", "leak: the volume lost over the whole log"),
+        ("one_way", "leak: 1 where water leaks out only above the atmosphere's pressure (a seal that closes under suction), 0 where it comes back in below it too"),
         ("frequency", "a ripple's frequency"),
         ("amplitude", "a ripple's amplitude"),
         ("rate", "a drift's rate"),

@@ -21,6 +21,8 @@ pub struct Scales {
     pub duration: f64,
     /// `∫ P dt` over the log (kPa·s).
     pub p_integral: f64,
+    /// `∫ max(P, 0) dt` over the log (kPa·s): what a one-way leak loses water with.
+    pub p_pos_integral: f64,
     /// Range of the measured pressure over the log, max − min (kPa).
     pub p_range: f64,
     /// The period of the log's cycles when they repeat regularly (s; `Series::cycle_s`).
@@ -59,6 +61,11 @@ pub struct Effect {
     /// Pump ripple: how far the logged volume trails the plunger while it moves, by speed
     /// ([`CountLag`]).
     pub count_lag: CountLag,
+    /// Leak: water lost only while the chamber's pressure is above the atmosphere's,
+    /// `q = λ max(P, 0)` (a seal that closes under suction), where `false` is a leak at either
+    /// sign, `q = λ P` (an open path). The leak's refinement fits both and keeps the better
+    /// (`effects::leak`); the board runs the open path ([`Effect::board_form`]).
+    pub one_way: bool,
     /// Leak and air compliance: the chamber's pressure they are scheduled on, where the model
     /// reads it through a sensor lag (set by [`build`] from the model's own lags,
     /// [`pressure_schedule`]); `None`: the measured pressure ([`Prepared::p_sched`]).
@@ -77,6 +84,7 @@ impl Effect {
             board_form: false,
             ripple_offset: (0.0, 0.0),
             count_lag: CountLag::default(),
+            one_way: false,
             pressure: None,
         }
     }
@@ -357,6 +365,11 @@ impl Prepared {
         let dt = dts[dts.len() / 2];
         let v_range = 2.0 * basis.scaling.v_scale;
         let p_integral = *p_int.last().unwrap_or(&0.0);
+        let p_pos: Vec<f64> = p_sched.iter().map(|&p| p.max(0.0)).collect();
+        let p_pos_integral = signal::cumulative_integral(&series.t, &p_pos)
+            .last()
+            .copied()
+            .unwrap_or(0.0);
         let (p_lo, p_hi) = series
             .p
             .iter()
@@ -381,6 +394,7 @@ impl Prepared {
                 dt,
                 duration,
                 p_integral,
+                p_pos_integral,
                 p_range: p_hi - p_lo,
                 cycle_s: series.cycle_s,
                 rig: series.rig,

@@ -666,7 +666,10 @@ mod tests {
             .filter(|k| k.device_retune())
             .map(|k| k.name())
             .collect();
-        assert_eq!(retuned, ["air_compliance", "sensor_lag", "delivery_lag"]);
+        assert_eq!(
+            retuned,
+            ["air_compliance", "sensor_lag", "delivery_lag", "leak"]
+        );
         let folded: Vec<&str> = REGISTRY
             .iter()
             .filter(|k| k.folds_into_polynomial())

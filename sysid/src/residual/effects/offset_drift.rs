@@ -123,6 +123,7 @@ mod tests {
             dt: 0.01,
             duration: 200.0,
             p_integral: 1000.0,
+            p_pos_integral: 1000.0,
             p_range: 2.0,
             cycle_s: None,
             rig: crate::residual::Rig::Syringe,

@@ -97,6 +97,7 @@ mod tests {
             dt: 0.01,
             duration: 200.0,
             p_integral: 1000.0,
+            p_pos_integral: 1000.0,
             p_range: 2.0,
             cycle_s: Some(5.0),
             rig: crate::residual::Rig::Generic,
