@@ -174,7 +174,7 @@ impl EffectModel for Leak {
 
     fn device_support(&self) -> DeviceSupport {
         DeviceSupport::on_device(
-            "the board's chain integrates the measured pressure (`model <ch> effect leak <lambda>`)",
+            "the board's chain integrates the measured pressure at either sign (`model <ch> effect leak <lambda>`); a one-way leak is exported in that form, its λ refitted there",
         )
     }
 }
