@@ -131,6 +131,32 @@ fn leak_is_named() {
     check_single(Inject::Leak { lambda: 0.004 }, "leak", 11);
 }
 
+/// The generator's leak is an open path (`λ P` at either sign) and the protocol's deflations go
+/// below the atmosphere: the leak is named in that form (`one_way` 0), not as a seal that
+/// closes under suction (host-sim's form, `residual_hostsim::a_leak_that_closes_under_suction`),
+/// and its λ within 5 % of the planted one.
+#[test]
+fn an_open_leak_is_named_in_its_form() {
+    let leak = [Inject::Leak { lambda: 0.004 }];
+    // The premise: the log goes well below the atmosphere, where the two forms differ.
+    let g = generate(&leak, &RATES, 2, SIGMA, 11);
+    let lowest = g.p.iter().copied().fold(f64::INFINITY, f64::min);
+    assert!(lowest < -2.0, "lowest pressure {lowest} kPa");
+    let d = run(&leak, 11);
+    let leak = d.effects.first().expect("an effect is named");
+    assert_eq!(leak.name, "leak");
+    let param = |name: &str| {
+        leak.params
+            .iter()
+            .find(|p| p.name == name)
+            .unwrap_or_else(|| panic!("no {name}"))
+            .value
+    };
+    assert_eq!(param("one_way"), 0.0);
+    let lambda = param("conductance");
+    assert!((lambda - 0.004).abs() <= 0.05 * 0.004, "λ {lambda}");
+}
+
 #[test]
 fn two_effects_are_both_named() {
     let d = run(
