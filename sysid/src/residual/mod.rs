@@ -879,9 +879,11 @@ pub fn diagnose_dataset(
         (cfg.n, cfg.m) = selection.as_ref().map_or((3, 2), |s| s.0);
     }
     let shape_s = secs(t);
+    // The richer probe does not look at logs over `reshape::MAX_SAMPLES`; `--reshape` reports
+    // that it did not.
     let keep_series = selection
         .as_ref()
-        .filter(|_| series.len() <= reshape::MAX_SAMPLES)
+        .filter(|_| cfg.reshape || series.len() <= reshape::MAX_SAMPLES)
         .map(|_| series.clone());
     let mut d = diagnose(series, &cfg)?;
     d.timing.shape_selection = shape_s;
@@ -890,79 +892,88 @@ pub fn diagnose_dataset(
         let Some(setup) = reshape::CvSetup::new(blocks, &series) else {
             return Ok(d);
         };
-        d = richer_step(d, &series, &cfg, shape, &setup, &scores)?;
+        let again = ShapeAgain {
+            series: &series,
+            cfg: &cfg,
+            shape,
+            setup: &setup,
+            scores: &scores,
+        };
+        d = again.richer(d)?;
         if cfg.reshape && d.reshape.is_none() {
-            d = reshape_step(d, &series, &cfg, shape, &setup, &scores)?;
+            d = again.simpler(d)?;
         }
     }
     Ok(d)
 }
 
-/// The shape chosen again with the loop's effects among richer shapes ([`reshape`], "Richer
-/// shapes") after the loop `d` from `shape`: where the rule prefers a richer shape with them, the
-/// loop runs again from it. `d` unchanged (no report) where the rule keeps `shape`.
-fn richer_step(
-    d: Diagnosis,
-    series: &Series,
-    cfg: &Config,
+/// What choosing the baseline's shape again with the effects ([`reshape`]) works from: the
+/// series, the configuration, the selected shape, the selection's blocks and its sweep's scores.
+struct ShapeAgain<'a> {
+    series: &'a Series,
+    cfg: &'a Config,
     shape: (usize, usize),
-    setup: &reshape::CvSetup,
-    scores: &[crate::select::CvScore],
-) -> Result<Diagnosis, DiagnoseError> {
-    let t = std::time::Instant::now();
-    let probe = reshape::probe_richer(series, setup, shape, scores, &d.final_effects);
-    let probe_s = secs(t);
-    let Some((second, numbers)) = probe else {
-        let mut d = d;
-        d.timing.reshape += probe_s;
-        d.timing.total += probe_s;
-        return Ok(d);
-    };
-    tell(
-        cfg.progress,
-        Progress::Stage {
-            what: "the loop again from a richer shape",
-            total: 0,
-        },
-    );
-    second_loop(d, series, cfg, setup, shape, second, numbers, probe_s)
+    setup: &'a reshape::CvSetup,
+    scores: &'a [crate::select::CvScore],
 }
 
-/// The shape chosen again with the effects ([`reshape`]) after the loop `d` from `shape`.
-fn reshape_step(
-    d: Diagnosis,
-    series: &Series,
-    cfg: &Config,
-    shape: (usize, usize),
-    setup: &reshape::CvSetup,
-    scores: &[crate::select::CvScore],
-) -> Result<Diagnosis, DiagnoseError> {
-    let t = std::time::Instant::now();
-    let say = |what: &str| tell(cfg.progress, Progress::Stage { what, total: 0 });
-    say("the baseline's shape with the effects");
-    let probe = reshape::probe(series, setup, shape, scores, &d.final_effects, &d.leads);
-    let (second, numbers) = match probe {
-        reshape::Probe::Stay(report) => {
+impl ShapeAgain<'_> {
+    /// The shape chosen again with the loop's effects among richer shapes ([`reshape`], "Richer
+    /// shapes") after the loop `d` from `shape`: where the rule prefers a richer shape with them, the
+    /// loop runs again from it. `d` unchanged (no report) where the rule keeps `shape`.
+    fn richer(&self, d: Diagnosis) -> Result<Diagnosis, DiagnoseError> {
+        let (series, cfg, shape, setup, scores) =
+            (self.series, self.cfg, self.shape, self.setup, self.scores);
+        let t = std::time::Instant::now();
+        let probe = reshape::probe_richer(series, setup, shape, scores, &d.final_effects);
+        let probe_s = secs(t);
+        let Some((second, numbers)) = probe else {
             let mut d = d;
-            d.reshape = Some(report);
-            let s = secs(t);
-            d.timing.reshape += s;
-            d.timing.total += s;
+            d.timing.reshape += probe_s;
+            d.timing.total += probe_s;
             return Ok(d);
-        }
-        reshape::Probe::Retry {
-            shape: second,
-            probe,
-            effects,
-            kept,
-        } => {
-            if !kept
-                && !effects
-                    .iter()
-                    .all(|e| reshape::lead_passes(series, cfg, second, e))
-            {
+        };
+        tell(
+            cfg.progress,
+            Progress::Stage {
+                what: "the loop again from a richer shape",
+                total: 0,
+            },
+        );
+        self.second_loop(d, second, numbers, probe_s)
+    }
+
+    /// The shape chosen again with the effects among simpler shapes ([`reshape`], `Config::reshape`)
+    /// after the loop `d` from `shape`.
+    fn simpler(&self, d: Diagnosis) -> Result<Diagnosis, DiagnoseError> {
+        let (series, cfg, shape, setup, scores) =
+            (self.series, self.cfg, self.shape, self.setup, self.scores);
+        let t = std::time::Instant::now();
+        let say = |what: &str| tell(cfg.progress, Progress::Stage { what, total: 0 });
+        say("the baseline's shape with the effects");
+        let probe = reshape::probe(series, setup, shape, scores, &d.final_effects, &d.leads);
+        let (second, numbers) = match probe {
+            reshape::Probe::Stay(report) => {
                 let mut d = d;
-                d.reshape = Some(ReshapeReport {
+                d.reshape = Some(report);
+                let s = secs(t);
+                d.timing.reshape += s;
+                d.timing.total += s;
+                return Ok(d);
+            }
+            reshape::Probe::Retry {
+                shape: second,
+                probe,
+                effects,
+                kept,
+            } => {
+                if !kept
+                    && !effects
+                        .iter()
+                        .all(|e| reshape::lead_passes(series, cfg, second, e))
+                {
+                    let mut d = d;
+                    d.reshape = Some(ReshapeReport {
                     selected: shape,
                     used: shape,
                     verdict: format!(
@@ -973,82 +984,81 @@ fn reshape_step(
                     probe,
                     outcomes: Vec::new(),
                 });
-                let s = secs(t);
-                d.timing.reshape += s;
-                d.timing.total += s;
-                return Ok(d);
+                    let s = secs(t);
+                    d.timing.reshape += s;
+                    d.timing.total += s;
+                    return Ok(d);
+                }
+                (second, probe)
             }
-            (second, probe)
-        }
-    };
-    let probe_s = secs(t);
-    second_loop(d, series, cfg, setup, shape, second, numbers, probe_s)
-}
+        };
+        let probe_s = secs(t);
+        self.second_loop(d, second, numbers, probe_s)
+    }
 
-/// The loop run again from `second` after the loop `d` from `shape`, and the two final models
-/// compared by the selection's rule ([`reshape::compare`]): the one it chooses is returned, with
-/// the report (`numbers` the probe's models; `probe_s` the probe's time).
-#[allow(clippy::too_many_arguments)]
-fn second_loop(
-    d: Diagnosis,
-    series: &Series,
-    cfg: &Config,
-    setup: &reshape::CvSetup,
-    shape: (usize, usize),
-    second: (usize, usize),
-    numbers: Vec<ModelCv>,
-    probe_s: f64,
-) -> Result<Diagnosis, DiagnoseError> {
-    let mut cfg2 = cfg.clone();
-    (cfg2.n, cfg2.m) = second;
-    let d2 = diagnose(series.clone(), &cfg2)?;
-    let t = std::time::Instant::now();
-    let compared = reshape::compare(
-        series,
-        setup,
-        shape,
-        &d.final_effects,
-        second,
-        &d2.final_effects,
-    );
-    let (take, outcomes) = compared.unwrap_or((false, Vec::new()));
-    let compare_s = secs(t);
-    let verdict = if take {
-        format!(
+    /// The loop run again from `second` after the loop `d` from `shape`, and the two final models
+    /// compared by the selection's rule ([`reshape::compare`]): the one it chooses is returned, with
+    /// the report (`numbers` the probe's models; `probe_s` the probe's time).
+    fn second_loop(
+        &self,
+        d: Diagnosis,
+        second: (usize, usize),
+        numbers: Vec<ModelCv>,
+        probe_s: f64,
+    ) -> Result<Diagnosis, DiagnoseError> {
+        let (series, cfg, shape, setup) = (self.series, self.cfg, self.shape, self.setup);
+        let mut cfg2 = cfg.clone();
+        (cfg2.n, cfg2.m) = second;
+        let d2 = diagnose(series.clone(), &cfg2)?;
+        let t = std::time::Instant::now();
+        let compared = reshape::compare(
+            series,
+            setup,
+            shape,
+            &d.final_effects,
+            second,
+            &d2.final_effects,
+        );
+        let (take, outcomes) = compared.unwrap_or((false, Vec::new()));
+        let compare_s = secs(t);
+        let verdict = if take {
+            format!(
             "changed: from ({}, {}) the loop ended on a model the cross-validated rule prefers to the one from ({}, {})",
             second.0, second.1, shape.0, shape.1
         )
-    } else {
-        format!(
+        } else {
+            format!(
             "kept: the loop from ({}, {}) did not end on a model the cross-validated rule prefers",
             second.0, second.1
         )
-    };
-    // Time the step spent before (the richer probe): counted once, in the step's time.
-    let mut d = d;
-    let earlier = d.timing.reshape;
-    d.timing.reshape = 0.0;
-    d.timing.total -= earlier;
-    let (mut kept, other) = if take { (d2, d) } else { (d, d2) };
-    let used = (kept.baseline.n, kept.baseline.m);
-    kept.reshape = Some(ReshapeReport {
-        selected: shape,
-        used,
-        verdict,
-        second_start: Some(second),
-        probe: numbers,
-        outcomes,
-    });
-    // The loop whose model was not kept is part of the step's time; the first loop's shape
-    // selection stays where it was.
-    let extra = earlier + probe_s + compare_s + other.timing.total - other.timing.shape_selection;
-    if take {
-        kept.timing.shape_selection = other.timing.shape_selection;
-        kept.timing.total += other.timing.shape_selection;
+        };
+        // Time the step spent before (the richer probe): counted once, in the step's time.
+        let mut d = d;
+        let earlier = d.timing.reshape;
+        d.timing.reshape = 0.0;
+        d.timing.total -= earlier;
+        let (mut kept, other) = if take { (d2, d) } else { (d, d2) };
+        let used = (kept.baseline.n, kept.baseline.m);
+        kept.reshape = Some(ReshapeReport {
+            selected: shape,
+            used,
+            verdict,
+            second_start: Some(second),
+            probe: numbers,
+            outcomes,
+        });
+        // The loop whose model was not kept is part of the step's time; the first loop's shape
+        // selection stays where it was.
+        let extra =
+            earlier + probe_s + compare_s + other.timing.total - other.timing.shape_selection;
+        if take {
+            kept.timing.shape_selection = other.timing.shape_selection;
+            kept.timing.total += other.timing.shape_selection;
+        }
+        kept.timing.reshape = extra;
+        kept.timing.total += extra;
+        Ok(kept)
     }
-    kept.timing.reshape = extra;
-    kept.timing.total += extra;
-    Ok(kept)
 }
 
 /// The `vfp diagnose --json` document (also the Python package's `diagnose`): the diagnosis at
