@@ -25,7 +25,13 @@
 //!   took a delivery lag's place);
 //! - the pair of look-alikes the swap trials fitted in a kept effect's place and did not take
 //!   (the air pocket and sensor lag for a delivery lag kept), where the rest of the model is
-//!   still the one they were fitted with.
+//!   still the one they were fitted with;
+//! - for a kept lag or delay, each other lag or delay at the same mean delay
+//!   ([`super::effects::EffectModel::mean_delay`]) where that is below its search's floor (its
+//!   search could not go there; one fit each): lags of one mean delay differ in the frames only
+//!   at order (τ/frame)², and on the loop benchmark (seed 1) drive lags of 1.0–1.5 ms (mean
+//!   delays 2–3 ms, under the delivery lag's 2 ms floor) were named sensor lags of 2–3 ms with
+//!   no delivery lag among their alternatives.
 //!
 //! An alternative must be an explanation: in the kept effect's place it must win back at least
 //! [`super::LOOK_ALIKE_GAIN`] (half) of the kept effect's held-out gain over the model without
@@ -38,7 +44,7 @@ use std::cell::RefCell;
 
 use serde::Serialize;
 
-use super::effects::{Effect, EffectKind, Prepared};
+use super::effects::{Effect, EffectKind, Prepared, Search, REGISTRY};
 use super::search::{self, Param, Stage};
 use super::validate;
 
@@ -274,6 +280,36 @@ pub(super) fn alternatives(prep: &Prepared, inp: &Inputs) -> Vec<Vec<Alternative
         };
         if let Some(a) = judge(&stage, 2, &[i]) {
             found.push((vec![i], a));
+        }
+    }
+    // A lag or delay whose search could not reach the kept one's mean delay (below its floor):
+    // fitted there, in the kept one's place, and judged as the rest.
+    for (i, e) in model.effects.iter().enumerate() {
+        let Some(d) = e.kind.mean_delay(e) else {
+            continue;
+        };
+        for &k in REGISTRY {
+            if in_model(k)
+                || found
+                    .iter()
+                    .any(|(at, a)| at == &[i] && a.effect == k.name())
+            {
+                continue;
+            }
+            let (Some(theta), Search::Log(floor, _)) =
+                (k.theta_at_mean_delay(d), k.search(&prep.scales))
+            else {
+                continue;
+            };
+            if !(theta > 0.0 && theta < floor) {
+                continue;
+            }
+            let mut effects = without(&[i]);
+            effects.push(Effect::new(k, theta));
+            if let Some(a) = search::fit_stage(prep, &effects).and_then(|alt| judge(&alt, 1, &[i]))
+            {
+                found.push((vec![i], a));
+            }
         }
     }
     for (at, a) in found {

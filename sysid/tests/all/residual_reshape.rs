@@ -147,20 +147,15 @@ fn nothing_changes_where_the_selected_shape_is_the_laws() {
 /// and (3, 3) the loop ends there too).
 #[test]
 fn a_shape_without_the_laws_flow_degree_is_enriched_with_the_effects() {
-    use host_sim::rigs::{draw, PlantedKind, RigOptions};
+    use host_sim::rigs::PlantedKind;
     for (index, kind, name) in [
         (174, PlantedKind::Air, "air_compliance"),
         (253, PlantedKind::SensorLag, "sensor_lag"),
     ] {
-        let spec = draw(1, index, &RigOptions::default()).expect("the rig draws");
-        let [planted] = &spec.planted[..] else {
-            panic!("rig {index} plants one effect: {}", spec.label());
-        };
-        assert_eq!(planted.kind, kind, "{}", spec.label());
-        let (sim, ds) = crate::hostsim_common::simulated(&spec.scenario());
+        let (_, sim, ds) = crate::hostsim_common::one_effect_rig(1, index, kind);
         let sigma = crate::hostsim_common::sigma_from_truth(&sim, &ds);
         let d = diagnose_dataset(&ds, &Config::default(), false).expect("diagnosis runs");
-        show(&spec.label(), &d);
+        show(&format!("rig {index}"), &d);
         let r = d.reshape.as_ref().expect("the richer shape is reported");
         // The premise: the selection's shape lacks the law's flow degree, and the loop from it
         // ends well above the noise.

@@ -86,3 +86,20 @@ pub fn run(sc: &Scenario) -> Outcome {
 pub fn names(d: &Diagnosis) -> Vec<&'static str> {
     d.effects.iter().map(|e| e.name).collect()
 }
+
+/// Rig `index` of the loop benchmark's `seed` (the usual forms), which plants one effect of
+/// `kind` alone: the rig, its planted effect, the simulator's run and chamber 0's data set.
+pub fn one_effect_rig(
+    seed: u64,
+    index: usize,
+    kind: host_sim::rigs::PlantedKind,
+) -> (host_sim::rigs::Planted, SimRun, Dataset) {
+    use host_sim::rigs::{draw, RigOptions};
+    let spec = draw(seed, index, &RigOptions::default()).expect("the rig draws");
+    let [planted] = &spec.planted[..] else {
+        panic!("rig {index} plants one effect: {}", spec.label());
+    };
+    assert_eq!(planted.kind, kind, "{}", spec.label());
+    let (sim, ds) = simulated(&spec.scenario());
+    (*planted, sim, ds)
+}

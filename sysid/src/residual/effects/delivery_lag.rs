@@ -77,6 +77,15 @@ impl EffectModel for DeliveryLag {
         Search::Log(0.05 * sc.dt, (0.75f64).min(sc.duration / 40.0).max(sc.dt))
     }
 
+    /// Two stages of τ: a mean delay of 2τ.
+    fn mean_delay(&self, e: &Effect) -> Option<f64> {
+        Some(2.0 * e.theta)
+    }
+
+    fn theta_at_mean_delay(&self, d: f64) -> Option<f64> {
+        Some(0.5 * d)
+    }
+
     fn has_nonlinear(&self) -> bool {
         true
     }

@@ -472,6 +472,20 @@ pub trait EffectModel: Send + Sync {
         None
     }
 
+    /// For a lag or delay of the motion or the reading: the mean delay it amounts to (s), the
+    /// first moment of its impulse response (a first-order lag's τ, a two-stage lag's 2τ, a
+    /// delay's d); `None` (default) for any other effect. Lags of the same mean delay differ in
+    /// the frames only at order (τ/frame)² ([`super::alternatives`] fits each at the others').
+    fn mean_delay(&self, _e: &Effect) -> Option<f64> {
+        None
+    }
+
+    /// The inverse of [`Self::mean_delay`]: the parameter θ at which the effect amounts to a
+    /// mean delay of `d` s; `None` (default) where it has none.
+    fn theta_at_mean_delay(&self, _d: f64) -> Option<f64> {
+        None
+    }
+
     /// Why the fitted effect is physically impossible or implausible on this log, from θ, its
     /// columns' coefficients and the log's own scales (its cycle period, duration, volume range),
     /// or `None` when it is admissible (default: θ, when searched, must be finite; the search keeps

@@ -52,6 +52,15 @@ impl EffectModel for SensorLag {
         Search::Log(0.05 * sc.dt, (3.0f64).min(sc.duration / 20.0).max(sc.dt))
     }
 
+    /// A first-order lag's mean delay is its τ.
+    fn mean_delay(&self, e: &Effect) -> Option<f64> {
+        Some(e.theta)
+    }
+
+    fn theta_at_mean_delay(&self, d: f64) -> Option<f64> {
+        Some(d)
+    }
+
     fn has_nonlinear(&self) -> bool {
         true
     }

@@ -33,6 +33,15 @@ impl EffectModel for TransportDelay {
         Search::Log(0.05 * sc.dt, (1.5f64).min(sc.duration / 20.0).max(sc.dt))
     }
 
+    /// A delay's mean delay is the delay.
+    fn mean_delay(&self, e: &Effect) -> Option<f64> {
+        Some(e.theta)
+    }
+
+    fn theta_at_mean_delay(&self, d: f64) -> Option<f64> {
+        Some(d)
+    }
+
     fn has_nonlinear(&self) -> bool {
         true
     }
