@@ -391,7 +391,7 @@ pub fn report(path: &Path, chamber: u8, split: &str, d: &Diagnosis, u: &DisplayU
     let _ = writeln!(s, "significance: {}", d.significance);
     let _ = writeln!(
         s,
-        "intervals: 95 % from the data's scatter over cycle blocks, and on a motor step count the volume's resolution; they leave out the error of an effect's form, so on the loop benchmark they held the planted value for about seven named parameters in ten (the user guide: intervals on the parameters)"
+        "intervals: 95 % from the data's scatter over cycle blocks, and on a motor step count the volume's resolution; they leave out the error of an effect's form, so on the loop benchmark they held the planted value for about three named parameters in four (the user guide: intervals on the parameters)"
     );
     let _ = writeln!(
         s,

@@ -65,7 +65,7 @@ impl EffectModel for Leak {
         if !e.theta.is_finite() {
             return Some("leak conductance is not finite".into());
         }
-        let lost = e.theta * pressure_integral(e.one_way, sc);
+        let lost = e.theta * pressure_integral(e.one_way && !e.board_form, sc);
         (lost > 0.25 * sc.v_range).then(|| {
             format!(
                 "the leak would lose {lost:.4e} mm³ over the log, {:.0} % of the stroke ({:.4e} mm³)",
@@ -108,10 +108,10 @@ impl EffectModel for Leak {
     }
 
     /// The one-way form ([`Effect::one_way`], module docs), its λ by Brent's method on `ln λ`
-    /// within a factor e of the open path's either side (the one-way leak loses the water of the
-    /// positive pressure only, so its λ is at least the open path's where the chamber spends
-    /// time below the atmosphere); `None` where the chamber never goes below it (the two forms
-    /// are one) or the one-way form fits worse.
+    /// from a factor e^½ below the open path's to a factor e above it (the one-way leak loses
+    /// the water of the positive pressure only, so its λ is at least the open path's where the
+    /// chamber spends time below the atmosphere); `None` where the chamber never goes below it
+    /// (the two forms are one) or the one-way form fits worse.
     fn refine(
         &self,
         prep: &Prepared,
