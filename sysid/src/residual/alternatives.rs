@@ -285,7 +285,7 @@ pub(super) fn alternatives(prep: &Prepared, inp: &Inputs) -> Vec<Vec<Alternative
     // A lag or delay whose search could not reach the kept one's mean delay (below its floor):
     // fitted there, in the kept one's place, and judged as the rest.
     for (i, e) in model.effects.iter().enumerate() {
-        let Some(d) = e.kind.mean_delay(e) else {
+        let Some(d) = e.kind.mean_delay(e, prep) else {
             continue;
         };
         for &k in REGISTRY {

@@ -78,7 +78,7 @@ impl EffectModel for DeliveryLag {
     }
 
     /// Two stages of τ: a mean delay of 2τ.
-    fn mean_delay(&self, e: &Effect) -> Option<f64> {
+    fn mean_delay(&self, e: &Effect, _prep: &Prepared) -> Option<f64> {
         Some(2.0 * e.theta)
     }
 

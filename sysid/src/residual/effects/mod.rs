@@ -476,7 +476,9 @@ pub trait EffectModel: Send + Sync {
     /// first moment of its impulse response (a first-order lag's τ, a two-stage lag's 2τ, a
     /// delay's d); `None` (default) for any other effect. Lags of the same mean delay differ in
     /// the frames only at order (τ/frame)² ([`super::alternatives`] fits each at the others').
-    fn mean_delay(&self, _e: &Effect) -> Option<f64> {
+    /// A lag whose time constant changes over the log (the air pocket's) gives the constant one
+    /// a least-squares fit would put in its place on `prep`'s log.
+    fn mean_delay(&self, _e: &Effect, _prep: &Prepared) -> Option<f64> {
         None
     }
 

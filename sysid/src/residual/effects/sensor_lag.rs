@@ -53,7 +53,7 @@ impl EffectModel for SensorLag {
     }
 
     /// A first-order lag's mean delay is its τ.
-    fn mean_delay(&self, e: &Effect) -> Option<f64> {
+    fn mean_delay(&self, e: &Effect, _prep: &Prepared) -> Option<f64> {
         Some(e.theta)
     }
 

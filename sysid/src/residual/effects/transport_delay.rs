@@ -34,7 +34,7 @@ impl EffectModel for TransportDelay {
     }
 
     /// A delay's mean delay is the delay.
-    fn mean_delay(&self, e: &Effect) -> Option<f64> {
+    fn mean_delay(&self, e: &Effect, _prep: &Prepared) -> Option<f64> {
         Some(e.theta)
     }
 
