@@ -274,15 +274,28 @@ fn effect_params(effects: &[Effect], columns: usize) -> usize {
 /// Models of one effect set over shapes: the design built once with the largest shape, each
 /// shape its columns.
 struct SetScorer<'a> {
-    prep: &'a Prepared,
+    prep: Prepared,
     setup: &'a CvSetup,
 }
 
-impl SetScorer<'_> {
+impl<'a> SetScorer<'a> {
+    /// The scorer for the shapes `shapes` of `series`: one basis of the largest degrees among
+    /// them (each shape's columns a subset of its), the series prepared on it. `None` without
+    /// a shape or a basis.
+    fn new(series: &Series, setup: &'a CvSetup, shapes: &[(usize, usize)]) -> Option<Self> {
+        let nmax = shapes.iter().map(|s| s.0).max()?;
+        let mmax = shapes.iter().map(|s| s.1).max()?;
+        let basis = PolyBasis::for_data(&series.v, &series.vdot, nmax, mmax).ok()?;
+        Some(Self {
+            prep: Prepared::new(series.clone(), basis),
+            setup,
+        })
+    }
+
     /// The scores of `effects` with each shape of `shapes` (a shape some fold cannot fit is left
     /// out).
     fn scores(&self, effects: &[Effect], shapes: &[(usize, usize)]) -> Vec<(CvScore, Vec<Effect>)> {
-        let design = build(self.prep, effects);
+        let design = build(&self.prep, effects);
         let big = &self.prep.basis;
         let added: Vec<usize> = (big.len()..design.cols.len()).collect();
         let gram = BlockGram::new(
@@ -403,13 +416,9 @@ pub(super) fn probe(
         );
     }
     shapes.push(selected);
-    let nmax = shapes.iter().map(|s| s.0).max().unwrap_or(selected.0);
-    let mmax = shapes.iter().map(|s| s.1).max().unwrap_or(selected.1);
-    let Ok(basis) = PolyBasis::for_data(&series.v, &series.vdot, nmax, mmax) else {
+    let Some(scorer) = SetScorer::new(series, setup, &shapes) else {
         return stay("not tried: no basis".into(), Vec::new());
     };
-    let prep = Prepared::new(series.clone(), basis);
-    let scorer = SetScorer { prep: &prep, setup };
     let mut sets: Vec<Vec<Effect>> = vec![Vec::new()];
     if !kept.is_empty() {
         sets.push(kept.to_vec());
@@ -491,11 +500,7 @@ pub(super) fn probe_richer(
         return None;
     }
     shapes.push(selected);
-    let nmax = shapes.iter().map(|s| s.0).max()?;
-    let mmax = shapes.iter().map(|s| s.1).max()?;
-    let basis = PolyBasis::for_data(&series.v, &series.vdot, nmax, mmax).ok()?;
-    let prep = Prepared::new(series.clone(), basis);
-    let scorer = SetScorer { prep: &prep, setup };
+    let scorer = SetScorer::new(series, setup, &shapes)?;
     let pool = scorer.scores(kept, &shapes);
     let (ci, bi) = choose(&pool)?;
     let c = &pool[ci].0;
@@ -544,11 +549,7 @@ pub(super) fn compare(
     second: (usize, usize),
     then: &[Effect],
 ) -> Option<(bool, Vec<ModelCv>)> {
-    let nmax = selected.0.max(second.0);
-    let mmax = selected.1.max(second.1);
-    let basis = PolyBasis::for_data(&series.v, &series.vdot, nmax, mmax).ok()?;
-    let prep = Prepared::new(series.clone(), basis);
-    let scorer = SetScorer { prep: &prep, setup };
+    let scorer = SetScorer::new(series, setup, &[selected, second])?;
     let a = scorer.scores(first, &[selected]).pop()?;
     let b = scorer.scores(then, &[second]).pop()?;
     let pool = [a, b];
