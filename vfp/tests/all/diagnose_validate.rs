@@ -177,3 +177,31 @@ fn a_bad_other_log_is_a_clear_error() {
     assert!(e.contains("one.csv") && e.contains("chamber"), "{e}");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// One rig at two operating points (issue 35): host-sim's wall-hysteresis preset run at 20 and
+/// 40 mm³/s (A) and at 70 and 100 mm³/s (B), whose pressures and flows A never reaches. The
+/// planted hysteresis carries both ways, as does the rig's own delivery lag: B's own polynomial,
+/// refitted with and without it at A's parameters, gains from it on B's held-out cycles.
+#[test]
+fn a_planted_effect_carries_between_two_operating_points_of_one_rig() {
+    let dir = scratch("validate", "operating-points");
+    let run = |name: &str, flows: &str, seed: u64| {
+        let out = dir.join(name);
+        ok(vfp()
+            .args(["simulate", "--preset", "effect:hysteresis", "--cycles", "3"])
+            .args(["--flows", flows, "--seed"])
+            .arg(seed.to_string())
+            .arg("-o")
+            .arg(&out));
+        out
+    };
+    let lo = run("lo.csv", "20,40", 1);
+    let hi = run("hi.csv", "70,100", 2);
+    for (a, b) in [(&lo, &hi), (&hi, &lo)] {
+        let d = diagnose(a, b, &[]);
+        let names = effect_names(&d);
+        assert!(names.contains(&"hysteresis"), "{names:?}");
+        assert_eq!(carries(&d["validation"], "hysteresis"), Some(true), "{d}");
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
