@@ -52,6 +52,20 @@ fn first_param(d: &Diagnosis, param: &str) -> f64 {
         .value
 }
 
+/// Parameter `param` of the alternative `effect` listed under the first kept effect of `d`.
+fn first_alternative_param(d: &Diagnosis, effect: &str, param: &str) -> f64 {
+    let e = &d.effects[0];
+    e.alternatives
+        .iter()
+        .find(|a| a.effect == effect)
+        .unwrap_or_else(|| panic!("{effect} is not among {}'s alternatives", e.name))
+        .params
+        .iter()
+        .find(|p| p.name == param)
+        .unwrap_or_else(|| panic!("{effect} has no {param}"))
+        .value
+}
+
 /// The injected effect is the first one named, and its parameter is within `rel` of the truth.
 fn assert_named(o: &Outcome, expect: &str, param: &str, truth: f64, rel: f64) {
     let found = names(&o.d);
@@ -432,17 +446,7 @@ fn a_drive_lag_below_its_floor_is_an_alternative_at_the_same_mean_delay() {
         .expect("diagnosis");
     assert_eq!(names(&d), ["sensor_lag"]);
     let tau_s = first_param(&d, "time_constant");
-    let alt = d.effects[0]
-        .alternatives
-        .iter()
-        .find(|a| a.effect == "delivery_lag")
-        .expect("the delivery lag among the sensor lag's alternatives");
-    let tau_d = alt
-        .params
-        .iter()
-        .find(|p| p.name == "time_constant")
-        .expect("its time constant")
-        .value;
+    let tau_d = first_alternative_param(&d, "delivery_lag", "time_constant");
     assert!(
         (tau_d - 0.5 * tau_s).abs() < 1e-12,
         "{tau_d} against {tau_s}"
@@ -469,17 +473,7 @@ fn a_drive_lag_named_a_small_air_pocket_is_among_its_alternatives() {
     let d = sysid::residual::diagnose_dataset(&ds, &sysid::residual::Config::default(), false)
         .expect("diagnosis");
     assert_eq!(names(&d), ["air_compliance"]);
-    let alt = d.effects[0]
-        .alternatives
-        .iter()
-        .find(|a| a.effect == "delivery_lag")
-        .expect("the delivery lag among the air pocket's alternatives");
-    let tau_d = alt
-        .params
-        .iter()
-        .find(|p| p.name == "time_constant")
-        .expect("its time constant")
-        .value;
+    let tau_d = first_alternative_param(&d, "delivery_lag", "time_constant");
     assert!(
         (tau_d - planted.size).abs() <= 0.15 * planted.size,
         "τ_d {tau_d} s against the planted {} s",
