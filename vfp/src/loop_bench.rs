@@ -161,7 +161,6 @@ impl RigResult {
         self.final_rmse_kpa / self.sigma_kpa
     }
 
-    /// Named effects that match nothing planted.
     /// Whether planted effect `p` was found counting alternatives: found, or a named effect that
     /// is not planted lists an alternative holding `p` whose effects are all planted ("cannot
     /// tell apart, the truth among the alternatives", as [`NamedResult::right_with_alternatives`]
@@ -178,6 +177,7 @@ impl RigResult {
             })
     }
 
+    /// Named effects that match nothing planted.
     fn unmatched_named(&self) -> Vec<&str> {
         self.named
             .iter()

@@ -133,7 +133,7 @@ impl EffectModel for AirCompliance {
     /// the pressure and the damping: the constant lag a least-squares fit would put in its place
     /// is `τ_k` weighted by the squared rate of the pressure it lags, `Σ τ_k Ṗ_k² / Σ Ṗ_k²` (to
     /// first order the lag moves each frame by `τ_k Ṗ_k`). On the loop benchmark (seed 1) drive
-    /// lags of 0.5–0.9 ms were named pockets of 0.2–0.9 mm³ with no lag among their
+    /// lags of 0.4–1.2 ms were named pockets of 0.2–0.9 mm³ with no lag among their
     /// alternatives.
     fn mean_delay(&self, e: &Effect, prep: &Prepared) -> Option<f64> {
         let tau = time_constants(e, prep);
