@@ -917,6 +917,17 @@ struct ShapeAgain<'a> {
     scores: &'a [crate::select::CvScore],
 }
 
+/// The loop `d` kept as it is after a probe of `s` seconds that chose no other shape, with the
+/// probe's report where it makes one (the richer probe makes none).
+fn stayed(mut d: Diagnosis, report: Option<ReshapeReport>, s: f64) -> Diagnosis {
+    if report.is_some() {
+        d.reshape = report;
+    }
+    d.timing.reshape += s;
+    d.timing.total += s;
+    d
+}
+
 impl ShapeAgain<'_> {
     /// The shape chosen again with the loop's effects among richer shapes ([`reshape`], "Richer
     /// shapes") after the loop `d` from `shape`: where the rule prefers a richer shape with them, the
@@ -928,10 +939,7 @@ impl ShapeAgain<'_> {
         let probe = reshape::probe_richer(series, setup, shape, scores, &d.final_effects);
         let probe_s = secs(t);
         let Some((second, numbers)) = probe else {
-            let mut d = d;
-            d.timing.reshape += probe_s;
-            d.timing.total += probe_s;
-            return Ok(d);
+            return Ok(stayed(d, None, probe_s));
         };
         tell(
             cfg.progress,
@@ -953,14 +961,7 @@ impl ShapeAgain<'_> {
         say("the baseline's shape with the effects");
         let probe = reshape::probe(series, setup, shape, scores, &d.final_effects, &d.leads);
         let (second, numbers) = match probe {
-            reshape::Probe::Stay(report) => {
-                let mut d = d;
-                d.reshape = Some(report);
-                let s = secs(t);
-                d.timing.reshape += s;
-                d.timing.total += s;
-                return Ok(d);
-            }
+            reshape::Probe::Stay(report) => return Ok(stayed(d, Some(report), secs(t))),
             reshape::Probe::Retry {
                 shape: second,
                 probe,
@@ -972,22 +973,19 @@ impl ShapeAgain<'_> {
                         .iter()
                         .all(|e| reshape::lead_passes(series, cfg, second, e))
                 {
-                    let mut d = d;
-                    d.reshape = Some(ReshapeReport {
-                    selected: shape,
-                    used: shape,
-                    verdict: format!(
+                    let verdict = format!(
                         "kept: the first round's lead the probe chose with ({}, {}) does not pass the loop's test there",
                         second.0, second.1
-                    ),
-                    second_start: None,
-                    probe,
-                    outcomes: Vec::new(),
-                });
-                    let s = secs(t);
-                    d.timing.reshape += s;
-                    d.timing.total += s;
-                    return Ok(d);
+                    );
+                    let report = ReshapeReport {
+                        selected: shape,
+                        used: shape,
+                        verdict,
+                        second_start: None,
+                        probe,
+                        outcomes: Vec::new(),
+                    };
+                    return Ok(stayed(d, Some(report), secs(t)));
                 }
                 (second, probe)
             }
